@@ -1,0 +1,5 @@
+"""``python -m spotnav``."""
+
+from spotnav.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,92 @@
+"""Pinhole camera: projection of eye-frame points and back-projection of pixels.
+
+The camera sits at ``(0, 0, distance_mm)`` looking down ``-z``; its frame is
+``x_cam = x``, ``y_cam = -y``, ``z_cam = distance_mm - z`` (contract). Pixels are
+``(u, v)`` = (column, row) with centres at integer coordinates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spotnav.config import Camera
+from spotnav.geometry import intersect_rays_sphere
+
+__all__ = ["pixel_rays", "project_points", "unproject_pixels_to_sphere"]
+
+
+def _check_last_axis(name: str, array: np.ndarray, size: int) -> np.ndarray:
+    array = np.asarray(array, dtype=float)
+    if array.ndim == 0 or array.shape[-1] != size:
+        raise ValueError(f"{name} must have shape (..., {size}), got {array.shape}")
+    return array
+
+
+def project_points(camera: Camera, points_in_eye: np.ndarray) -> np.ndarray:
+    """Project eye-frame points to pixel coordinates.
+
+    Parameters
+    ----------
+    camera : Camera
+    points_in_eye : ndarray, shape (..., 3)
+        Points in mm, below the camera.
+
+    Returns
+    -------
+    ndarray, shape (..., 2)
+        ``(u, v)`` in pixels.
+    """
+    points_in_eye = _check_last_axis("points_in_eye", points_in_eye, 3)
+    cx, cy = camera.principal_point_px
+    depth = camera.distance_mm - points_in_eye[..., 2]
+    u = cx + camera.focal_px * points_in_eye[..., 0] / depth
+    v = cy - camera.focal_px * points_in_eye[..., 1] / depth
+    return np.stack([u, v], axis=-1)
+
+
+def pixel_rays(camera: Camera, pixels: np.ndarray) -> np.ndarray:
+    """Unit directions, in the eye frame, of the rays through pixels.
+
+    Parameters
+    ----------
+    camera : Camera
+    pixels : ndarray, shape (..., 2)
+        ``(u, v)`` in pixels.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Unit vectors from the pinhole :attr:`Camera.center_in_eye`.
+    """
+    pixels = _check_last_axis("pixels", pixels, 2)
+    cx, cy = camera.principal_point_px
+    x = (pixels[..., 0] - cx) / camera.focal_px
+    y = -(pixels[..., 1] - cy) / camera.focal_px
+    scale = 1.0 / np.sqrt(x * x + y * y + 1.0)
+    return np.stack([x * scale, y * scale, -scale], axis=-1)
+
+
+def unproject_pixels_to_sphere(camera: Camera, pixels: np.ndarray, radius_mm: float) -> np.ndarray:
+    """Back-project pixels onto the retina sphere (exact Eq. 4.1-4.5).
+
+    Each pixel's ray meets the bowl at the far intersection with the sphere of
+    radius ``radius_mm`` centred at ``(0, 0, radius_mm)``.
+
+    Parameters
+    ----------
+    camera : Camera
+    pixels : ndarray, shape (..., 2)
+    radius_mm : float
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Points on the retina in the eye frame, NaN where the ray misses the bowl.
+    """
+    rays = pixel_rays(camera, pixels)
+    origin = camera.center_in_eye
+    center = np.array([0.0, 0.0, radius_mm])
+    t = intersect_rays_sphere(origin, rays, center, radius_mm, far=True)
+    points = origin + t[..., None] * rays
+    points[points[..., 2] > radius_mm] = np.nan  # only the bowl exists
+    return points

@@ -1,0 +1,196 @@
+"""Command line: ``spotnav scene|render|localize|analyze|reproduce``.
+
+``main(argv)`` returns the exit code, so tests call it in-process. Unusable
+arguments or setups end with one line ``spotnav: error: ...`` and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from spotnav import __version__
+from spotnav.config import EXAMPLE_SETUP
+from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
+from spotnav.files import (
+    ImageReadError,
+    pose_row,
+    read_image,
+    read_setup,
+    write_image,
+    write_poses_csv,
+    write_truth_json,
+)
+from spotnav.geometry import InstrumentPose, beam_axes
+from spotnav.localize import DEFAULT_METHOD, METHODS, PoseEstimate, localize
+from spotnav.render import Renderer
+
+__all__ = ["main"]
+
+
+class UsageError(ValueError):
+    """Arguments that cannot be used."""
+
+
+def _cmd_scene(args: argparse.Namespace) -> int:
+    if not args.example:
+        raise UsageError("scene needs --example (print the thesis's setup)")
+    sys.stdout.write(EXAMPLE_SETUP)
+    return 0
+
+
+def _finite_vector(name: str, values: Sequence[float]) -> np.ndarray:
+    vector = np.asarray(values, dtype=float)
+    if not np.all(np.isfinite(vector)):
+        raise UsageError(f"{name} must be finite numbers, got {' '.join(map(str, values))}")
+    return vector
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    setup = read_setup(args.scene)
+    if args.power is not None:
+        if not np.isfinite(args.power) or args.power < 0:
+            raise UsageError(f"--power must be a finite number >= 0, got {args.power}")
+        setup = replace(setup, light=replace(setup.light, power_w=args.power))
+    tip = _finite_vector("--tip", args.tip)
+    if not setup.contains_point(tip):
+        raise UsageError(
+            f"--tip {' '.join(f'{v:g}' for v in tip)} lies outside the eye "
+            f"(sphere of radius {setup.eye.radius_mm:g} mm centred at (0, 0, {setup.eye.radius_mm:g}))"
+        )
+    if args.axis is None:
+        pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
+    else:
+        axis = _finite_vector("--axis", args.axis)
+        if not np.any(axis):
+            raise UsageError("--axis must not be the zero vector")
+        pose = InstrumentPose(tip, axis)
+    image = Renderer(setup).render(pose, seed=args.seed)
+    out = Path(args.out)
+    write_image(out, image)
+    axes = beam_axes(pose.axis, setup.instrument.beam_count, setup.instrument.beam_tilt)
+    write_truth_json(out.with_suffix(".json"), pose, axes, setup, seed=args.seed, image=out.name)
+    print(f"wrote {out} and {out.with_suffix('.json')}", file=sys.stderr)
+    return 0
+
+
+def _cmd_localize(args: argparse.Namespace) -> int:
+    setup = read_setup(args.scene)
+    if setup.instrument.beam_count != 1:
+        raise UsageError(f"method {args.method!r} handles instrument.beam_count = 1 only (three beams come later)")
+    rows = []
+    statuses: Counter[str] = Counter()
+    for name in tqdm(args.images, desc="localize", unit="image", disable=None):
+        start = time.perf_counter()
+        try:
+            image = read_image(name)
+        except ImageReadError as error:
+            estimate = PoseEstimate("unreadable", detail=str(error))
+        else:
+            estimate = localize(image, setup, args.method)
+        if estimate.status in ("unreadable", "wrong_size"):
+            print(f"spotnav: warning: {name}: {estimate.detail}", file=sys.stderr)
+        rows.append(pose_row(name, estimate, 1000 * (time.perf_counter() - start)))
+        statuses[estimate.status] += 1
+    write_poses_csv(args.out, rows)
+    counts = ", ".join(f"{n} {s}" for s, n in statuses.most_common())
+    print(f"wrote {args.out}: {len(rows)} images, {counts}", file=sys.stderr)
+    return 0
+
+
+def _cmd_analyze(args: argparse.Namespace) -> int:
+    print("Table 4.1: largest deviation of the cone-plane ellipse from the cone-sphere curve")
+    print("sphere centre (3.7, 0, -6.35) mm in the cone frame, r = 12.5 mm (thesis Table 4.2)")
+    print(f"{'beta [deg]':>10} {'thesis [um]':>12} {'y gap [um]':>11} {'to plane [um]':>14} {'along ray [um]':>15}")
+    for beta, thesis, gap, to_plane, along in approximation_rows():
+        print(f"{beta:>10} {thesis:>12.2f} {gap:>11.3f} {to_plane:>14.3f} {along:>15.3f}")
+    print("y gap: the thesis's measure (Eq. 4.10 vs 4.19 at equal x); the others are full 3D distances.")
+    return 0
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    if args.workers < 1:
+        raise UsageError(f"--workers must be at least 1, got {args.workers}")
+    out = Path(args.out or ("results/quick" if args.quick else "results/full"))
+    start = time.perf_counter()
+    for name in ("size", "poses"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise UsageError(f"--{name} must be at least 1, got {value}")
+    reproduce(out, quick=args.quick, only=args.only or (), workers=args.workers, size_px=args.size, poses=args.poses)
+    print(f"wrote {out / 'report.md'} in {time.perf_counter() - start:.0f} s")
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="spotnav", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"spotnav {__version__}")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    scene = commands.add_parser("scene", help="print a setup file")
+    scene.add_argument("--example", action="store_true", help="the thesis's setup, commented")
+    scene.set_defaults(run=_cmd_scene)
+
+    render = commands.add_parser("render", help="render one camera frame and its truth")
+    render.add_argument("--scene", required=True, help="setup TOML")
+    render.add_argument(
+        "--tip", required=True, nargs=3, type=float, metavar=("X", "Y", "Z"), help="tip in mm, eye frame"
+    )
+    render.add_argument(
+        "--axis",
+        nargs=3,
+        type=float,
+        metavar=("DX", "DY", "DZ"),
+        help="instrument axis (default: from the insertion point)",
+    )
+    render.add_argument("--power", type=float, help="override light.power_w")
+    render.add_argument("--seed", type=int, default=0, help="sensor noise seed (default 0)")
+    render.add_argument("--out", required=True, help="PNG path; the truth goes to the same name with .json")
+    render.set_defaults(run=_cmd_render)
+
+    loc = commands.add_parser("localize", help="localize the tip in images, write poses.csv")
+    loc.add_argument("--scene", required=True, help="setup TOML")
+    loc.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS), help=f"default {DEFAULT_METHOD}")
+    loc.add_argument("--out", required=True, help="poses.csv path")
+    loc.add_argument("images", nargs="+", metavar="IMAGE")
+    loc.set_defaults(run=_cmd_localize)
+
+    analyze = commands.add_parser("analyze", help="analyses of the method's geometry")
+    analyze.add_argument("topic", choices=["approximation"], help="approximation: Table 4.1")
+    analyze.set_defaults(run=_cmd_analyze)
+
+    rep = commands.add_parser("reproduce", help="regenerate the thesis's tables from simulation")
+    rep.add_argument("--quick", action="store_true", help="1024 px and 25 poses (minutes)")
+    rep.add_argument(
+        "--only", action="append", choices=sorted(EXPERIMENTS), help="run only this experiment (repeatable)"
+    )
+    rep.add_argument("--out", help="output folder (default results/quick or results/full)")
+    rep.add_argument("--size", type=int, help="image size in px (default 1024 quick, 5000 full)")
+    rep.add_argument("--poses", type=int, help="poses per path (default 25 quick, 100 full)")
+    rep.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: all cores)")
+    rep.set_defaults(run=_cmd_reproduce)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code."""
+    args = _parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except (ValueError, OSError) as error:
+        message = str(error).splitlines()[0] if str(error) else type(error).__name__
+        print(f"spotnav: error: {message}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,306 @@
+"""Geometry of light cones, the retina sphere and the instrument (thesis 4.1-4.2).
+
+All lengths are in mm and all angles in radians. Points and directions are NumPy
+arrays whose last axis has length 3; unless a name says otherwise they are in
+the eye frame (see ``docs/conventions.md``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "ApproximationDeviation",
+    "InstrumentPose",
+    "approximation_deviation",
+    "beam_axes",
+    "cone_generators",
+    "cone_sphere_curve",
+    "intersect_rays_sphere",
+    "normalize",
+    "orthonormal_basis",
+    "rotation_about_y",
+    "rotation_about_z",
+]
+
+
+def normalize(vectors: np.ndarray) -> np.ndarray:
+    """Unit vectors along ``vectors``, shape (..., 3).
+
+    Raises
+    ------
+    ValueError
+        If any vector has zero or non-finite length.
+    """
+    vectors = np.asarray(vectors, dtype=float)
+    norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    if not np.all(np.isfinite(norms)) or np.any(norms == 0.0):
+        raise ValueError("cannot normalize a zero or non-finite vector")
+    return vectors / norms
+
+
+def rotation_about_z(angle: float) -> np.ndarray:
+    """Right-handed rotation matrix about +z by ``angle`` radians, shape (3, 3)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotation_about_y(angle: float) -> np.ndarray:
+    """Right-handed rotation matrix about +y by ``angle`` radians, shape (3, 3)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``(e1, e2)`` completing ``axis`` to a right-handed frame.
+
+    ``e1`` is the projection of eye ``+x`` on the plane normal to ``axis`` (eye
+    ``+y`` when that projection vanishes), the contract's zero roll, and
+    ``e2 = axis x e1``.
+
+    Parameters
+    ----------
+    axis : ndarray, shape (3,)
+        Unit vector.
+    """
+    axis = normalize(axis)
+    e1 = np.array([1.0, 0.0, 0.0]) - axis[0] * axis
+    if np.linalg.norm(e1) < 1e-9:
+        e1 = np.array([0.0, 1.0, 0.0]) - axis[1] * axis
+    e1 = normalize(e1)
+    return e1, np.cross(axis, e1)
+
+
+def cone_generators(axis: np.ndarray, half_angle: float, azimuths: np.ndarray) -> np.ndarray:
+    """Unit directions of a cone's surface lines.
+
+    Parameters
+    ----------
+    axis : ndarray, shape (3,)
+        Cone axis (unit vector).
+    half_angle : float
+        Angle between the axis and each surface line, radians.
+    azimuths : ndarray, shape (N,)
+        Angles around the axis, from ``e1`` of :func:`orthonormal_basis` toward ``e2``.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+    """
+    axis = normalize(axis)
+    e1, e2 = orthonormal_basis(axis)
+    azimuths = np.asarray(azimuths, dtype=float)[:, None]
+    radial = np.cos(azimuths) * e1 + np.sin(azimuths) * e2
+    return np.cos(half_angle) * axis + np.sin(half_angle) * radial
+
+
+def intersect_rays_sphere(
+    origins: np.ndarray,
+    directions: np.ndarray,
+    center: np.ndarray,
+    radius: float,
+    *,
+    far: bool = True,
+) -> np.ndarray:
+    """Ray parameter of the ray-sphere intersection (the general form of Eq. 4.1).
+
+    Solves ``|o + t d - c| = r`` for ``t``.
+
+    Parameters
+    ----------
+    origins : ndarray, shape (..., 3)
+    directions : ndarray, shape (..., 3)
+        Unit ray directions.
+    center : ndarray, shape (3,)
+    radius : float
+    far : bool
+        Take the larger root (a camera outside the sphere sees the bowl from
+        inside through its far wall; a source inside the sphere has one
+        positive root, the larger).
+
+    Returns
+    -------
+    ndarray, shape (...)
+        ``t``, NaN where the ray misses the sphere.
+    """
+    oc = np.asarray(origins, dtype=float) - np.asarray(center, dtype=float)
+    directions = np.asarray(directions, dtype=float)
+    half_b = np.sum(oc * directions, axis=-1)
+    c = np.sum(oc * oc, axis=-1) - radius * radius
+    disc = half_b * half_b - c
+    root = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
+    return -half_b + root if far else -half_b - root
+
+
+def cone_sphere_curve(
+    apex: np.ndarray,
+    axis: np.ndarray,
+    half_angle: float,
+    center: np.ndarray,
+    radius: float,
+    count: int = 360,
+) -> np.ndarray:
+    """Exact intersection curve of a cone (apex inside the sphere) with the sphere.
+
+    Parameters
+    ----------
+    apex, axis : ndarray, shape (3,)
+        Cone apex and unit axis.
+    half_angle : float
+        Cone half-angle, radians.
+    center : ndarray, shape (3,)
+    radius : float
+    count : int
+        Number of points, evenly spaced in azimuth.
+
+    Returns
+    -------
+    ndarray, shape (count, 3)
+
+    Raises
+    ------
+    ValueError
+        If the apex is not strictly inside the sphere.
+    """
+    apex = np.asarray(apex, float)
+    if np.linalg.norm(apex - np.asarray(center, float)) >= radius:
+        raise ValueError("apex must lie strictly inside the sphere")
+    azimuths = np.linspace(0.0, 2.0 * np.pi, count, endpoint=False)
+    rays = cone_generators(axis, half_angle, azimuths)
+    t = intersect_rays_sphere(apex, rays, center, radius, far=True)
+    return apex + t[:, None] * rays
+
+
+def beam_axes(axis: np.ndarray, beam_count: int, tilt: float) -> np.ndarray:
+    """Beam axes of the instrument, contract's roll convention.
+
+    One beam shares the instrument axis. Three beams tilt by ``tilt`` from it,
+    beam 0 toward ``e1`` of :func:`orthonormal_basis`, beams 1 and 2 at +120 and
+    +240 degrees counter-clockwise seen from the tip looking along the axis.
+
+    Returns
+    -------
+    ndarray, shape (beam_count, 3)
+    """
+    axis = normalize(axis)
+    if beam_count == 1:
+        return axis[None, :]
+    # Counter-clockwise seen looking along the axis is a positive turn about -axis.
+    azimuths = -2.0 * np.pi * np.arange(beam_count) / beam_count
+    return cone_generators(axis, tilt, azimuths)
+
+
+@dataclass(frozen=True)
+class InstrumentPose:
+    """Tip position and instrument axis in the eye frame.
+
+    Attributes
+    ----------
+    tip_in_eye : ndarray, shape (3,)
+        Tip (apex of every cone), mm.
+    axis : ndarray, shape (3,)
+        Unit vector from the insertion point toward the tip.
+    """
+
+    tip_in_eye: np.ndarray
+    axis: np.ndarray
+
+    def __post_init__(self) -> None:
+        tip = np.asarray(self.tip_in_eye, dtype=float).reshape(-1)
+        if tip.shape != (3,) or not np.all(np.isfinite(tip)):
+            raise ValueError(f"tip must be 3 finite numbers, got {self.tip_in_eye!r}")
+        axis = np.asarray(self.axis, dtype=float).reshape(-1)
+        if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) == 0:
+            raise ValueError(f"axis must be 3 finite numbers, not all zero, got {self.axis!r}")
+        object.__setattr__(self, "tip_in_eye", tip)
+        object.__setattr__(self, "axis", normalize(axis))
+
+    @classmethod
+    def through_insertion(cls, tip_in_eye: np.ndarray, insertion_in_eye: np.ndarray) -> InstrumentPose:
+        """Pose whose axis runs from the insertion point to the tip."""
+        tip = np.asarray(tip_in_eye, dtype=float)
+        return cls(tip, tip - np.asarray(insertion_in_eye, dtype=float))
+
+
+@dataclass(frozen=True)
+class ApproximationDeviation:
+    """How far the planar ellipse of thesis 4.2 is from the true cone-sphere curve.
+
+    All in micrometres.
+
+    Attributes
+    ----------
+    gap_y_um : float
+        Largest gap in ``y`` between the curves at equal ``x`` (Eq. 4.10 vs
+        Eq. 4.19): Table 4.1's "difference".
+    to_plane_um : float
+        Largest distance from the true curve to the plane through A and B.
+    along_ray_um : float
+        Largest distance between the curves along the same cone line.
+    """
+
+    gap_y_um: float
+    to_plane_um: float
+    along_ray_um: float
+
+
+def approximation_deviation(
+    half_angle: float,
+    sphere_center_in_cone: tuple[float, float] = (3.7, -6.35),
+    radius: float = 12.5,
+    samples: int = 200001,
+) -> ApproximationDeviation:
+    """Deviation of the cone-plane ellipse from the cone-sphere curve (Table 4.1).
+
+    Cone frame: apex at the origin, axis ``+z``; the sphere's centre is
+    ``(x0, 0, z0)`` (Table 4.2, whose "y_0" is ``z0``; thesis-notes 4).
+
+    Parameters
+    ----------
+    half_angle : float
+        Cone half-angle beta, radians.
+    sphere_center_in_cone : (x0, z0)
+    radius : float
+    samples : int
+        Samples of ``x`` over ``[x2, x1]`` and of the azimuth.
+    """
+    x0, z0 = sphere_center_in_cone
+    c = np.tan(half_angle)
+    k = 1.0 + 1.0 / c**2
+    const = x0**2 + z0**2 - radius**2
+    # Eq. 4.12 and 4.13 (the printed discriminants are garbled; these are exact).
+    x1 = (2 * (x0 + z0 / c) + np.sqrt((2 * x0 + 2 * z0 / c) ** 2 - 4 * k * const)) / (2 * k)
+    x2 = (2 * (x0 - z0 / c) - np.sqrt((2 * x0 - 2 * z0 / c) ** 2 - 4 * k * const)) / (2 * k)
+    z1, z2 = x1 / c, -x2 / c  # Eq. 4.14, 4.15
+    slope = (z1 - z2) / (c * (z1 + z2))  # Eq. 4.18
+    offset = z1 - x1 * slope
+
+    x = np.linspace(x2, x1, samples)
+    # Eq. 4.9 and 4.10: the cone-sphere curve.
+    disc = 4 * z0**2 - 4 * (1 + c**2) * (const - 2 * x0 * x)
+    z_sphere = (2 * z0 + np.sqrt(np.maximum(disc, 0.0))) / (2 * (1 + c**2))
+    y_sphere = np.sqrt(np.maximum(z_sphere**2 * c**2 - x**2, 0.0))
+    # Eq. 4.19: the cone-plane ellipse.
+    y_plane = np.sqrt(np.maximum((slope * x + offset) ** 2 * c**2 - x**2, 0.0))
+    gap_y = np.max(np.abs(y_sphere - y_plane))
+    to_plane = np.max(np.abs(z_sphere - (slope * x + offset))) / np.hypot(1.0, slope)
+
+    azimuth = np.linspace(0.0, 2.0 * np.pi, samples)
+    rays = np.stack(
+        [
+            np.sin(half_angle) * np.cos(azimuth),
+            np.sin(half_angle) * np.sin(azimuth),
+            np.full_like(azimuth, np.cos(half_angle)),
+        ],
+        axis=-1,
+    )
+    t_sphere = intersect_rays_sphere(np.zeros(3), rays, np.array([x0, 0.0, z0]), radius)
+    t_plane = offset / (rays[:, 2] - slope * rays[:, 0])
+    along_ray = np.max(np.abs(t_sphere - t_plane))
+    return ApproximationDeviation(
+        gap_y_um=1000.0 * float(gap_y),
+        to_plane_um=1000.0 * float(to_plane),
+        along_ray_um=1000.0 * float(along_ray),
+    )

@@ -1,0 +1,180 @@
+"""From a spot's contour to the cone's apex: the thesis's ellipse method (4.4, Algorithm 1).
+
+The contour is back-projected onto the retina sphere, moved to the origin,
+rotated about ``z`` then ``y`` so that the sphere's tangent plane at its centre
+becomes the ``xy`` plane, and fitted with an ellipse. The ellipse's axes give
+the cone's tilt ``alpha`` and the apex's offsets ``s1`` (along the major axis)
+and ``s2`` (the height above the plane); the two mirror-image apexes are
+rotated and moved back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from spotnav.geometry import normalize, rotation_about_y, rotation_about_z
+
+__all__ = [
+    "ConeCandidates",
+    "Ellipse",
+    "apex_candidates",
+    "choose_by_insertion",
+    "fit_ellipse",
+    "triangle_from_ellipse",
+]
+
+_FIT_SCALE = 1000.0  # fitEllipse works in float32: fit in micrometres
+
+
+@dataclass(frozen=True)
+class Ellipse:
+    """An ellipse in a plane.
+
+    Attributes
+    ----------
+    center : ndarray, shape (2,)
+    semi_major, semi_minor : float
+        Semi-axes, ``semi_major >= semi_minor`` (thesis-notes 2).
+    major_direction : ndarray, shape (2,)
+        Unit vector along the major axis.
+    """
+
+    center: np.ndarray
+    semi_major: float
+    semi_minor: float
+    major_direction: np.ndarray
+
+
+def fit_ellipse(points: np.ndarray) -> Ellipse:
+    """Least-squares ellipse through 2D points with OpenCV's ``fitEllipse``.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2), N >= 5
+        In any unit; the result is in the same unit.
+    """
+    points = np.asarray(points, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 2 or len(points) < 5:
+        raise ValueError(f"need at least 5 points of shape (N, 2), got {points.shape}")
+    (cx, cy), (width, height), angle_deg = cv2.fitEllipse(points.astype(np.float32))
+    angle = np.radians(angle_deg)
+    width_direction = np.array([np.cos(angle), np.sin(angle)])
+    height_direction = np.array([-np.sin(angle), np.cos(angle)])
+    if width >= height:
+        major, minor, direction = width, height, width_direction
+    else:
+        major, minor, direction = height, width, height_direction
+    return Ellipse(np.array([cx, cy]), major / 2.0, minor / 2.0, direction)
+
+
+def triangle_from_ellipse(semi_major: float, semi_minor: float, half_angle: float) -> tuple[float, float, float]:
+    """The thesis's triangle: cone tilt and apex offsets from an ellipse.
+
+    Parameters
+    ----------
+    semi_major, semi_minor : float
+        The ellipse's semi-axes ``a >= b``.
+    half_angle : float
+        Cone half-angle beta, radians.
+
+    Returns
+    -------
+    alpha : float
+        Angle between the cone's axis and the plane's normal, radians.
+    s1 : float
+        Offset of the apex's foot from the ellipse's centre along the major axis.
+    s2 : float
+        Height of the apex above the plane (same unit as the axes).
+    """
+    eccentricity = np.sqrt(max(0.0, 1.0 - (semi_minor / semi_major) ** 2))
+    alpha = float(np.arcsin(min(1.0, eccentricity * np.cos(half_angle))))  # Eq. 4.29 (thesis-notes 1)
+    s1 = semi_major * np.sin(2 * alpha) / np.sin(2 * half_angle)  # Eq. 4.30
+    s2 = semi_major * (np.cos(2 * alpha) / np.sin(2 * half_angle) + 1.0 / np.tan(2 * half_angle))  # Eq. 4.31
+    return alpha, float(s1), float(s2)
+
+
+@dataclass(frozen=True)
+class ConeCandidates:
+    """The two mirror-image cones that fit one contour.
+
+    Attributes
+    ----------
+    apexes : ndarray, shape (2, 3)
+        Candidate apexes in the eye frame, mm.
+    cone_axes : ndarray, shape (2, 3)
+        Each candidate's beam axis, unit vectors pointing away from the apex.
+    ellipse : Ellipse
+        The fit in the contour's tangent plane, mm.
+    alpha, s1, s2 : float
+        The triangle of :func:`triangle_from_ellipse` (radians, mm, mm).
+    """
+
+    apexes: np.ndarray
+    cone_axes: np.ndarray
+    ellipse: Ellipse
+    alpha: float
+    s1: float
+    s2: float
+
+
+def apex_candidates(points_in_eye: np.ndarray, sphere_center: np.ndarray, half_angle: float) -> ConeCandidates:
+    """Both apex candidates of a contour on the retina (Algorithm 1).
+
+    Parameters
+    ----------
+    points_in_eye : ndarray, shape (N, 3)
+        The contour back-projected onto the retina, mm.
+    sphere_center : ndarray, shape (3,)
+        Centre of the retina sphere, mm.
+    half_angle : float
+        Cone half-angle beta, radians.
+    """
+    points_in_eye = np.asarray(points_in_eye, dtype=float)
+    centroid = points_in_eye.mean(axis=0)
+    inward = np.asarray(sphere_center, dtype=float) - centroid
+    azimuth = np.arctan2(centroid[1], centroid[0])
+    slope = np.arctan2(np.hypot(inward[0], inward[1]), inward[2])
+    # Rotate about z so the centre lies on +x, then about y so the inward normal is +z.
+    to_plane = rotation_about_y(slope) @ rotation_about_z(-azimuth)
+    in_plane = (points_in_eye - centroid) @ to_plane.T
+    fit = fit_ellipse(in_plane[:, :2] * _FIT_SCALE)
+    ellipse = Ellipse(
+        fit.center / _FIT_SCALE, fit.semi_major / _FIT_SCALE, fit.semi_minor / _FIT_SCALE, fit.major_direction
+    )
+    alpha, s1, s2 = triangle_from_ellipse(ellipse.semi_major, ellipse.semi_minor, half_angle)
+    major = np.array([*ellipse.major_direction, 0.0])
+    up = np.array([0.0, 0.0, 1.0])
+    signs = np.array([1.0, -1.0])[:, None]
+    apexes_in_plane = np.array([*ellipse.center, 0.0]) + signs * s1 * major + s2 * up
+    # The axis leans from the apex's foot toward the ellipse's centre.
+    axes_in_plane = -signs * np.sin(alpha) * major - np.cos(alpha) * up
+    return ConeCandidates(
+        apexes=apexes_in_plane @ to_plane + centroid,
+        cone_axes=normalize(axes_in_plane @ to_plane),
+        ellipse=ellipse,
+        alpha=alpha,
+        s1=s1,
+        s2=s2,
+    )
+
+
+def choose_by_insertion(candidates: ConeCandidates, insertion_in_eye: np.ndarray) -> tuple[int, float]:
+    """Pick the candidate whose cone axis runs along the line from the insertion point.
+
+    For one beam the beam axis is the instrument axis, so the true apex ``V``
+    has its cone axis along ``V - insertion`` (thesis-notes 6).
+
+    Returns
+    -------
+    index : int
+        0 or 1.
+    misalignment : float
+        Angle between that candidate's cone axis and its insertion line, radians.
+    """
+    lines = normalize(candidates.apexes - np.asarray(insertion_in_eye, dtype=float))
+    cosines = np.clip(np.sum(lines * candidates.cone_axes, axis=1), -1.0, 1.0)
+    index = int(np.argmax(cosines))
+    return index, float(np.arccos(cosines[index]))

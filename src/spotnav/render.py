@@ -1,0 +1,282 @@
+"""Built-in physically based renderer: the stand-in for the thesis's Blender scene.
+
+Light model (Blender's conventions): each beam is a spot light emitting like a
+point light of power ``P`` (radiant intensity ``P / 4 pi`` W/sr), cut to its cone
+with Cycles' soft edge, a smoothstep in cosine space over the outer ``blend``
+fraction of the cone. Irradiance falls with the inverse square of distance and
+the cosine of incidence on a Lambertian retina with a procedural albedo, plus a
+dim ambient term. The camera integrates radiance with an exposure, adds
+Poisson-Gaussian sensor noise, applies the sRGB curve with clipping and
+quantizes to 8 bits.
+
+The eye and the camera are static: the renderer caches the albedo seen by every
+pixel once, and each frame computes light only inside the spots' bounding box,
+supersampling the pixels that the cone's edge crosses.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spotnav.camera import pixel_rays, project_points, unproject_pixels_to_sphere
+from spotnav.config import Bump, Setup
+from spotnav.geometry import InstrumentPose, beam_axes, cone_sphere_curve, intersect_rays_sphere
+from spotnav.texture import make_texture, sample_albedo
+
+__all__ = ["Renderer", "bump_height", "exposure_gain", "spot_mask"]
+
+_ROW_CHUNK = 256
+_NEWTON_STEPS = 8
+
+
+def exposure_gain(exposure_stops: float) -> float:
+    """Linear pixel value per W/mm^2 of irradiance on a white Lambertian surface.
+
+    At 0 stops, a white surface 5 mm below a 1 W source, facing it, is exactly
+    full scale (1.0): irradiance ``1 / (4 pi 25)`` W/mm^2, radiance that over pi.
+    """
+    return 100.0 * np.pi * 2.0**exposure_stops
+
+
+def spot_mask(cos_angle: np.ndarray, half_angle: float, blend: float) -> np.ndarray:
+    """Cycles' spot attenuation: 0 outside the cone, smoothstep over the blend.
+
+    Parameters
+    ----------
+    cos_angle : ndarray
+        Cosine of the angle between the beam axis and the direction to the point.
+    half_angle : float
+        Cone half-angle, radians.
+    blend : float
+        Blender's ``spot_blend`` in [0, 1].
+    """
+    cos_edge = np.cos(half_angle)
+    if blend == 0.0:
+        return (cos_angle > cos_edge).astype(float)
+    t = np.clip((cos_angle - cos_edge) / ((1.0 - cos_edge) * blend), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _srgb_lut() -> np.ndarray:
+    linear = np.linspace(0.0, 1.0, 65536)
+    srgb = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+    return np.round(255.0 * srgb).astype(np.uint8)
+
+
+_SRGB_LUT = _srgb_lut()
+
+
+def bump_height(bumps: tuple[Bump, ...], x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Height of the bumps toward the eye's centre and its gradient at ``(x, y)``.
+
+    Returns
+    -------
+    height, d_height_dx, d_height_dy : ndarray, shape of ``x``
+        mm, and mm per mm.
+    """
+    height = np.zeros_like(x)
+    grad_x = np.zeros_like(x)
+    grad_y = np.zeros_like(x)
+    for bump in bumps:
+        sigma2 = (bump.radius_mm / 2.0) ** 2
+        dx, dy = x - bump.x_mm, y - bump.y_mm
+        h = bump.height_mm * np.exp(-(dx * dx + dy * dy) / (2.0 * sigma2))
+        height += h
+        grad_x -= h * dx / sigma2
+        grad_y -= h * dy / sigma2
+    return height, grad_x, grad_y
+
+
+class Renderer:
+    """Render camera frames of the setup's world.
+
+    Parameters
+    ----------
+    setup : Setup
+        Uses ``camera``, ``instrument``, ``light``, ``world`` (true radius and
+        bumps) and ``render``; ``eye.radius_mm`` only when ``world`` has no radius.
+    """
+
+    def __init__(self, setup: Setup) -> None:
+        self.setup = setup
+        self._albedo: np.ndarray | None = None
+
+    @property
+    def albedo(self) -> np.ndarray:
+        """Albedo seen by each pixel, shape (H, W, 3), float32 (cached).
+
+        Texture lookups use the sphere: a bump shifts its texture by at most its
+        height times the ray's slope (under 0.01 mm here), which is ignored.
+        """
+        if self._albedo is None:
+            camera = self.setup.camera
+            texture = make_texture(self.setup.render.texture, self.setup.render.texture_seed)
+            albedo = np.empty((camera.height_px, camera.width_px, 3), dtype=np.float32)
+            u = np.arange(camera.width_px, dtype=float)
+            for r0 in range(0, camera.height_px, _ROW_CHUNK):
+                rows = np.arange(r0, min(r0 + _ROW_CHUNK, camera.height_px), dtype=float)
+                pixels = np.stack(np.meshgrid(u, rows), axis=-1)
+                points = unproject_pixels_to_sphere(camera, pixels, self.setup.true_radius_mm)
+                albedo[r0 : r0 + len(rows)] = sample_albedo(texture, points[..., 0], points[..., 1])
+            self._albedo = albedo
+        return self._albedo
+
+    def surface_points(self, u: np.ndarray, v: np.ndarray, bumps: tuple[Bump, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Retina points and inward unit normals seen by pixels.
+
+        Parameters
+        ----------
+        u, v : ndarray, shape (...)
+            Pixel coordinates.
+        bumps : tuple of Bump
+            Deformations to include (the world's, or none).
+
+        Returns
+        -------
+        points, normals : ndarray, shape (..., 3)
+            Eye frame, mm; NaN where the ray misses the bowl.
+        """
+        camera = self.setup.camera
+        radius = self.setup.true_radius_mm
+        center = np.array([0.0, 0.0, radius])
+        origin = camera.center_in_eye
+        rays = pixel_rays(camera, np.stack([u, v], axis=-1))
+        t = intersect_rays_sphere(origin, rays, center, radius, far=True)
+        grad_x = grad_y = np.zeros_like(t)
+        if bumps:
+            for _ in range(_NEWTON_STEPS):  # |P - c| + h(x, y) - R = 0 along the ray
+                points = origin + t[..., None] * rays
+                radial = points - center
+                dist = np.linalg.norm(radial, axis=-1)
+                height, grad_x, grad_y = bump_height(bumps, points[..., 0], points[..., 1])
+                slope = np.sum(rays * radial, axis=-1) / dist + grad_x * rays[..., 0] + grad_y * rays[..., 1]
+                t = t - (dist + height - radius) / slope
+        points = origin + t[..., None] * rays
+        radial = (points - center) / radius
+        if bumps:
+            _, grad_x, grad_y = bump_height(bumps, points[..., 0], points[..., 1])
+            radial = radial / np.linalg.norm(radial, axis=-1, keepdims=True)
+        outward = radial + np.stack([grad_x, grad_y, np.zeros_like(grad_x)], axis=-1)
+        normals = -outward / np.linalg.norm(outward, axis=-1, keepdims=True)
+        missed = ~(points[..., 2] <= radius + 1e-9)
+        points[missed] = np.nan
+        return points, normals
+
+    def _spot_box(self, tip: np.ndarray, axes: np.ndarray) -> tuple[int, int, int, int] | None:
+        """Pixel box ``(u0, v0, u1, v1)`` (exclusive ends) holding every lit pixel."""
+        setup = self.setup
+        radius = setup.true_radius_mm
+        center = np.array([0.0, 0.0, radius])
+        curves = [
+            cone_sphere_curve(tip, axis, setup.instrument.beam_half_angle, center, radius, count=720) for axis in axes
+        ]
+        points = np.concatenate(curves)
+        points = points[np.isfinite(points[:, 2]) & (points[:, 2] <= radius)]
+        if len(points) == 0:
+            return None
+        pixels = project_points(setup.camera, points)
+        px_per_mm = setup.camera.focal_px / setup.camera.distance_mm
+        pad = 4 + px_per_mm * max((abs(b.height_mm) for b in setup.world.bumps), default=0.0)
+        u0 = max(int(np.floor(pixels[:, 0].min() - pad)), 0)
+        v0 = max(int(np.floor(pixels[:, 1].min() - pad)), 0)
+        u1 = min(int(np.ceil(pixels[:, 0].max() + pad)) + 1, setup.camera.width_px)
+        v1 = min(int(np.ceil(pixels[:, 1].max() + pad)) + 1, setup.camera.height_px)
+        if u0 >= u1 or v0 >= v1:
+            return None
+        return u0, v0, u1, v1
+
+    def _irradiance(
+        self, u: np.ndarray, v: np.ndarray, tip: np.ndarray, axes: np.ndarray, power_w: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Irradiance (W/mm^2) at the retina seen by pixels, and each beam's cos(angle).
+
+        Returns arrays of shape ``u.shape`` and ``(beams,) + u.shape``.
+        """
+        instrument, light = self.setup.instrument, self.setup.light
+        points, normals = self.surface_points(u, v, self.setup.world.bumps)
+        to_point = points - tip
+        dist2 = np.sum(to_point * to_point, axis=-1)
+        direction = to_point / np.sqrt(dist2)[..., None]
+        incidence = np.clip(-np.sum(direction * normals, axis=-1), 0.0, None)
+        cosines = np.einsum("...k,bk->b...", direction, axes)
+        mask = spot_mask(cosines, instrument.beam_half_angle, light.blend).sum(axis=0)
+        irradiance = np.nan_to_num(power_w / (4.0 * np.pi) * mask * incidence / dist2)
+        return irradiance, cosines
+
+    def irradiance_image(
+        self, pose: InstrumentPose, power_w: float | None = None
+    ) -> tuple[np.ndarray, tuple[int, int, int, int]] | None:
+        """Pixel-averaged irradiance inside the spots' box.
+
+        Returns
+        -------
+        irradiance : ndarray, shape (v1 - v0, u1 - u0)
+            W/mm^2, averaged over each pixel's footprint where the edge crosses it.
+        box : tuple of int
+            ``(u0, v0, u1, v1)``, exclusive ends.
+
+        ``None`` when no light reaches the visible retina.
+        """
+        power = self.setup.light.power_w if power_w is None else power_w
+        axes = beam_axes(pose.axis, self.setup.instrument.beam_count, self.setup.instrument.beam_tilt)
+        box = self._spot_box(pose.tip_in_eye, axes)
+        if box is None or power == 0.0:
+            return None
+        u0, v0, u1, v1 = box
+        u, v = np.meshgrid(np.arange(u0, u1, dtype=float), np.arange(v0, v1, dtype=float))
+        irradiance, cosines = self._irradiance(u, v, pose.tip_in_eye, axes, power)
+        # Supersample the pixels that a cone's edge crosses.
+        cos_edge = np.cos(self.setup.instrument.beam_half_angle)
+        edge = np.zeros(u.shape, dtype=bool)
+        for cosine in np.nan_to_num(cosines):
+            gv, gu = np.gradient(cosine)
+            edge |= np.abs(cosine - cos_edge) < 1.5 * (np.abs(gu) + np.abs(gv)) + 1e-12
+        n = self.setup.render.supersampling
+        if n > 1 and edge.any():
+            offsets = (np.arange(n) + 0.5) / n - 0.5
+            du, dv = (o.ravel() for o in np.meshgrid(offsets, offsets))
+            su = u[edge][:, None] + du[None, :]
+            sv = v[edge][:, None] + dv[None, :]
+            sub, _ = self._irradiance(su, sv, pose.tip_in_eye, axes, power)
+            irradiance[edge] = sub.mean(axis=1)
+        return irradiance, box
+
+    def render(self, pose: InstrumentPose, *, seed: int = 0, power_w: float | None = None) -> np.ndarray:
+        """Render one 8-bit RGB frame.
+
+        Parameters
+        ----------
+        pose : InstrumentPose
+            True tip and instrument axis in the eye frame.
+        seed : int
+            Seed of the sensor noise (frames are reproducible).
+        power_w : float, optional
+            Overrides ``light.power_w``.
+
+        Returns
+        -------
+        ndarray, shape (height_px, width_px, 3), uint8
+            RGB.
+        """
+        cfg = self.setup.render
+        camera = self.setup.camera
+        rng = np.random.default_rng(seed)
+        lit = self.irradiance_image(pose, power_w)
+        gain = exposure_gain(cfg.exposure_stops)
+        out = np.empty((camera.height_px, camera.width_px, 3), dtype=np.uint8)
+        albedo = self.albedo
+        for r0 in range(0, camera.height_px, _ROW_CHUNK):
+            r1 = min(r0 + _ROW_CHUNK, camera.height_px)
+            linear = albedo[r0:r1] * np.float32(cfg.ambient)
+            if lit is not None and lit[1][1] < r1 and lit[1][3] > r0:
+                irradiance, (u0, v0, u1, v1) = lit
+                a, b = max(r0, v0), min(r1, v1)
+                light = (gain * irradiance[a - v0 : b - v0, :, None]).astype(np.float32)
+                linear[a - r0 : b - r0, u0:u1] += albedo[a:b, u0:u1] * light
+            if cfg.full_well_e > 0:
+                variance = np.maximum(linear, 0.0) / np.float32(cfg.full_well_e)
+                variance += np.float32((cfg.read_noise_e / cfg.full_well_e) ** 2)
+                linear += np.sqrt(variance) * rng.standard_normal(linear.shape, dtype=np.float32)
+            codes = (np.clip(linear, 0.0, 1.0) * 65535.0 + 0.5).astype(np.uint16)
+            out[r0:r1] = _SRGB_LUT[codes]
+        return out

@@ -1,0 +1,63 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from spotnav.camera import pixel_rays, project_points, unproject_pixels_to_sphere
+from spotnav.config import Camera
+
+CAMERA = Camera()  # the thesis's: 5000 px, 36 mm sensor, 300 mm lens, 110 mm
+
+
+def test_contract_example_pixel() -> None:
+    # The spot of a beam at (3, 3, 5) straight down on the plane z = 0 (thesis Table 6.1).
+    u, v = project_points(CAMERA, np.array([3.0, 3.0, 0.0]))
+    assert u == pytest.approx(3636.8, abs=1.0)
+    assert v == pytest.approx(1363.2, abs=0.1)
+
+
+def test_pixel_scale_of_thesis_setup() -> None:
+    # thesis-notes 3: 378.8 px per mm at the pole.
+    u0, _ = project_points(CAMERA, np.array([0.0, 0.0, 0.0]))
+    u1, _ = project_points(CAMERA, np.array([1.0, 0.0, 0.0]))
+    assert u1 - u0 == pytest.approx(378.79, abs=0.01)
+    assert u0 == pytest.approx(2499.5)
+
+
+def test_image_axes_follow_the_contract() -> None:
+    (u, v) = project_points(CAMERA, np.array([1.0, 1.0, 0.0]))
+    assert u > 2499.5  # u grows with +x
+    assert v < 2499.5  # v grows with -y
+
+
+def test_principal_ray_hits_the_pole() -> None:
+    center = np.array(CAMERA.principal_point_px)
+    point = unproject_pixels_to_sphere(CAMERA, center, 12.5)
+    np.testing.assert_allclose(point, [0.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(pixel_rays(CAMERA, center), [0.0, 0.0, -1.0])
+
+
+@given(x=st.floats(-6.0, 6.0), y=st.floats(-6.0, 6.0), radius=st.floats(10.0, 15.0))
+def test_unproject_inverts_project_on_the_bowl(x: float, y: float, radius: float) -> None:
+    point = np.array([x, y, radius - np.sqrt(radius**2 - x**2 - y**2)])
+    pixel = project_points(CAMERA, point)
+    back = unproject_pixels_to_sphere(CAMERA, pixel, radius)
+    np.testing.assert_allclose(back, point, atol=1e-9)
+
+
+def test_vectorised_shapes() -> None:
+    pixels = np.zeros((4, 5, 2)) + 2000.0
+    assert pixel_rays(CAMERA, pixels).shape == (4, 5, 3)
+    assert unproject_pixels_to_sphere(CAMERA, pixels, 12.5).shape == (4, 5, 3)
+    with pytest.raises(ValueError, match=r"\(\.\.\., 2\)"):
+        pixel_rays(CAMERA, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+        project_points(CAMERA, np.zeros(2))
+
+
+def test_rays_off_the_bowl_are_nan() -> None:
+    wide = Camera(width_px=100, height_px=100, sensor_width_mm=36.0, focal_length_mm=10.0, distance_mm=30.0)
+    corner = unproject_pixels_to_sphere(wide, np.array([0.0, 0.0]), 12.5)
+    assert np.all(np.isnan(corner))

@@ -1,0 +1,121 @@
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spotnav.cli import main
+from spotnav.config import EXAMPLE_SETUP, Setup, setup_from_toml
+
+
+def write_scene(path: Path, size_px: int = 5000, blend: float = 0.0) -> Path:
+    text = EXAMPLE_SETUP.replace("width_px = 5000", f"width_px = {size_px}").replace(
+        "height_px = 5000", f"height_px = {size_px}"
+    )
+    text = text.replace("blend = 0.15 ", f"blend = {blend} ")
+    path.write_text(text)
+    return path
+
+
+def read_poses(path: Path) -> list[dict[str, str]]:
+    with path.open() as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_scene_example_prints_the_thesis_setup(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["scene", "--example"]) == 0
+    assert setup_from_toml(capsys.readouterr().out) == Setup()
+
+
+def test_round_trip_at_5000_px(tmp_path: Path) -> None:
+    # Issue: render --tip 3 3 5 straight down, sharp edge, then localize --method thesis: within 0.02 mm.
+    scene = write_scene(tmp_path / "setup.toml")
+    frame = tmp_path / "frame.png"
+    assert (
+        main(["render", "--scene", str(scene), "--tip", "3", "3", "5", "--axis", "0", "0", "-1", "--out", str(frame)])
+        == 0
+    )
+    truth = json.loads(frame.with_suffix(".json").read_text())
+    assert truth["tip_mm"] == [3.0, 3.0, 5.0] and truth["axis"] == [0.0, 0.0, -1.0]
+    assert truth["setup"]["light"]["blend"] == 0.0
+    poses = tmp_path / "poses.csv"
+    assert main(["localize", "--scene", str(scene), "--method", "thesis", str(frame), "--out", str(poses)]) == 0
+    (row,) = read_poses(poses)
+    assert row["status"] == "ok"
+    tip = np.array([float(row[k]) for k in ("x_mm", "y_mm", "z_mm")])
+    assert np.linalg.norm(tip - [3.0, 3.0, 5.0]) < 0.02
+
+
+def test_localize_keeps_going_past_bad_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=256)
+    good = tmp_path / "good.png"
+    assert main(["render", "--scene", str(scene), "--tip", "0", "0", "4", "--out", str(good)]) == 0
+    dark = tmp_path / "dark.png"
+    assert main(["render", "--scene", str(scene), "--tip", "0", "0", "4", "--power", "0", "--out", str(dark)]) == 0
+    (tmp_path / "empty.png").write_bytes(b"")
+    images = [str(good), str(tmp_path / "missing.png"), str(tmp_path / "empty.png"), str(dark)]
+    assert main(["localize", "--scene", str(scene), *images, "--out", str(tmp_path / "poses.csv")]) == 0
+    rows = read_poses(tmp_path / "poses.csv")
+    assert [r["image"] for r in rows] == images
+    assert [r["status"] for r in rows] == ["ok", "unreadable", "unreadable", "no_spot"]
+    assert all(r["x_mm"] == "" for r in rows[1:])
+    err = capsys.readouterr().err
+    assert "missing.png: no such file" in err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["render", "--scene", "{missing}", "--tip", "0", "0", "4", "--out", "x.png"], "cannot read the setup"),
+        (["render", "--scene", "{bad}", "--tip", "0", "0", "4", "--out", "x.png"], "eye.radius_mm"),
+        (
+            ["render", "--scene", "{scene}", "--tip", "0", "0", "40", "--out", "x.png"],
+            "--tip 0 0 40 lies outside the eye",
+        ),
+        (["render", "--scene", "{scene}", "--tip", "0", "nan", "4", "--out", "x.png"], "--tip must be finite"),
+        (
+            ["render", "--scene", "{scene}", "--tip", "0", "0", "4", "--axis", "0", "0", "0", "--out", "x.png"],
+            "zero vector",
+        ),
+        (["render", "--scene", "{scene}", "--tip", "0", "0", "4", "--power", "-1", "--out", "x.png"], "--power"),
+        (["localize", "--scene", "{bad}", "a.png", "--out", "p.csv"], "eye.radius_mm"),
+        (["reproduce", "--workers", "0"], "--workers"),
+        (["scene"], "--example"),
+    ],
+)
+def test_unusable_arguments_exit_2_with_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=64)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[eye]\nradius_mm = -1\n")
+    paths = {"scene": scene, "bad": bad, "missing": tmp_path / "nope.toml"}
+    args = [a.format(**paths) for a in args]
+    args = [str(tmp_path / a) if a.endswith((".png", ".csv")) else a for a in args]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("spotnav: error:") and message in err
+    assert len(err.splitlines()) == 1
+
+
+def test_analyze_approximation_prints_table_4_1(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["analyze", "approximation"]) == 0
+    out = capsys.readouterr().out
+    for value in ("0.084", "0.231", "0.494", "0.907", "1.510", "2.340"):
+        assert value in out
+
+
+def test_reproduce_quick_smoke(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["reproduce", "--quick", "--only", "approximation", "--out", str(tmp_path), "--workers", "1"]) == 0
+    assert (tmp_path / "report.md").exists()
+    assert "report.md" in capsys.readouterr().out
+
+
+def test_python_dash_m() -> None:
+    result = subprocess.run([sys.executable, "-m", "spotnav", "--version"], capture_output=True, text=True, check=True)
+    assert result.stdout.startswith("spotnav ")

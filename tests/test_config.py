@@ -1,0 +1,131 @@
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from spotnav.config import EXAMPLE_SETUP, Bump, Setup, SetupError, setup_from_dict, setup_from_toml
+
+
+def test_example_is_the_thesis_setup() -> None:
+    setup = setup_from_toml(EXAMPLE_SETUP)
+    assert setup == Setup()
+    assert setup.camera.focal_px == pytest.approx(300 * 5000 / 36)
+    assert setup.camera.principal_point_px == (2499.5, 2499.5)
+    assert setup.instrument.insertion_point_mm == (0.0, 6.0, 20.0)
+    assert math.degrees(setup.instrument.beam_half_angle) == pytest.approx(9.0)
+
+
+def test_empty_file_takes_the_thesis_defaults() -> None:
+    assert setup_from_toml("") == Setup()
+
+
+def test_bumps_are_parsed() -> None:
+    setup = setup_from_toml("[world]\neye_radius_mm = 13.5\nbumps = [{x_mm = 1.0, y_mm = 2.0}]\n")
+    assert setup.world.bumps == (Bump(1.0, 2.0),)
+    assert setup.true_radius_mm == 13.5
+    assert setup.eye.radius_mm == 12.5
+
+
+@pytest.mark.parametrize(
+    ("text", "key"),
+    [
+        ("[eye]\nradius_mm = -1.0", "eye.radius_mm"),
+        ("[eye]\nradius_mm = 0", "eye.radius_mm"),
+        ("[eye]\nradius_mm = nan", "eye.radius_mm"),
+        ("[eye]\nradius_mm = inf", "eye.radius_mm"),
+        ("[eye]\nradius_mm = 'big'", "eye.radius_mm"),
+        ("[eye]\nradius_mm = true", "eye.radius_mm"),
+        ("[eye]\nradius = 12.5", "eye.radius"),
+        ("[camera]\nwidth_px = 5000.5", "camera.width_px"),
+        ("[camera]\nwidth_px = 0", "camera.width_px"),
+        ("[camera]\ndistance_mm = 20.0", "camera.distance_mm"),
+        ("[camera]\nfocal_length_mm = -300.0", "camera.focal_length_mm"),
+        ("[instrument]\nbeam_half_angle_deg = 0.0", "instrument.beam_half_angle_deg"),
+        ("[instrument]\nbeam_half_angle_deg = 45.0", "instrument.beam_half_angle_deg"),
+        ("[instrument]\nbeam_half_angle_deg = 60.0", "instrument.beam_half_angle_deg"),
+        ("[instrument]\nbeam_count = 2", "instrument.beam_count"),
+        ("[instrument]\ninsertion_point_mm = [0.0, 6.0]", "instrument.insertion_point_mm"),
+        ("[instrument]\ninsertion_point_mm = [0.0, 60.0, 20.0]", "instrument.insertion_point_mm"),
+        ("[light]\nblend = 1.5", "light.blend"),
+        ("[light]\npower_w = -1.0", "light.power_w"),
+        ("[render]\ntexture = 'marble'", "render.texture"),
+        ("[world]\neye_radius_mm = -2.0", "world.eye_radius_mm"),
+        ("[world]\nbumps = [{x_mm = 0.0, y_mm = 0.0, radius_mm = -1.0}]", "world.bumps.radius_mm"),
+        ("[world]\nbumps = [{x_mm = 0.0}]", "world.bumps"),
+        ("[tip]\nx = 1", "[tip]"),
+        ("eye = 3", "[eye]"),
+        ("[eye\nradius_mm = 1", "not valid TOML"),
+    ],
+)
+def test_bad_values_name_the_key(text: str, key: str) -> None:
+    with pytest.raises(SetupError) as error:
+        setup_from_toml(text)
+    message = str(error.value)
+    assert key in message
+    assert "\n" not in message
+
+
+def test_range_is_stated() -> None:
+    with pytest.raises(SetupError, match=r"allowed \(0, 45\)"):
+        setup_from_toml("[instrument]\nbeam_half_angle_deg = 50.0")
+
+
+def test_camera_inside_the_true_eye_is_rejected() -> None:
+    with pytest.raises(SetupError, match=r"world\.eye_radius_mm"):
+        setup_from_toml("[camera]\ndistance_mm = 26.0\n[world]\neye_radius_mm = 13.5")
+
+
+def test_setup_is_immutable() -> None:
+    setup = Setup()
+    with pytest.raises(AttributeError):
+        setup.eye.radius_mm = 3.0  # type: ignore[misc]
+
+
+def test_contains_point() -> None:
+    setup = Setup()
+    assert setup.contains_point([0.0, 0.0, 5.0])
+    assert not setup.contains_point([0.0, 0.0, -0.1])
+    assert not setup.contains_point([0.0, 0.0, 0.5], margin_mm=1.0)
+
+
+values = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(10**6), 10**6),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=5),
+    st.lists(st.floats(-100, 100), max_size=4),
+)
+
+
+@given(
+    section=st.sampled_from(["eye", "camera", "instrument", "light", "world", "render"]),
+    key=st.sampled_from(
+        [
+            "radius_mm",
+            "width_px",
+            "distance_mm",
+            "beam_half_angle_deg",
+            "beam_count",
+            "insertion_point_mm",
+            "power_w",
+            "blend",
+            "eye_radius_mm",
+            "supersampling",
+            "texture",
+            "bogus",
+        ]
+    ),
+    value=values,
+)
+def test_any_value_builds_or_raises_setup_error(section: str, key: str, value: object) -> None:
+    data = {section: {key: value}} if value is not None else {section: {}}
+    try:
+        setup = setup_from_dict(data)
+    except SetupError as error:
+        assert str(error)
+    else:
+        assert isinstance(setup, Setup)

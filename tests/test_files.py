@@ -1,0 +1,67 @@
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from spotnav.config import SetupError
+from spotnav.files import POSES_COLUMNS, ImageReadError, pose_row, read_image, read_setup, write_image, write_poses_csv
+from spotnav.localize import PoseEstimate
+
+
+def test_rgb_round_trip(tmp_path: Path) -> None:
+    rgb = np.zeros((8, 9, 3), np.uint8)
+    rgb[..., 0] = 200  # red
+    write_image(tmp_path / "a.png", rgb)
+    back = read_image(tmp_path / "a.png")
+    np.testing.assert_array_equal(back, rgb)
+
+
+@pytest.mark.parametrize(
+    ("array", "shape", "dtype"),
+    [
+        (np.full((6, 7), 40000, np.uint16), (6, 7), np.uint16),
+        (np.full((6, 7), 40, np.uint8), (6, 7), np.uint8),
+        (np.full((6, 7, 4), 40, np.uint8), (6, 7, 4), np.uint8),
+    ],
+)
+def test_grey_16_bit_and_rgba_are_read(tmp_path: Path, array: np.ndarray, shape: tuple, dtype: type) -> None:
+    cv2.imwrite(str(tmp_path / "x.png"), array)
+    image = read_image(tmp_path / "x.png")
+    assert image.shape == shape and image.dtype == dtype
+
+
+def test_bad_images_raise_one_line_errors(tmp_path: Path) -> None:
+    (tmp_path / "empty.png").write_bytes(b"")
+    (tmp_path / "text.png").write_text("not an image")
+    cv2.imwrite(str(tmp_path / "good.png"), np.full((64, 64, 3), 90, np.uint8))
+    data = (tmp_path / "good.png").read_bytes()
+    (tmp_path / "cut.png").write_bytes(data[: len(data) // 2])
+    cases = {"missing.png": "no such file", "empty.png": "empty", "text.png": "not an image", "cut.png": "not an image"}
+    for name, message in cases.items():
+        with pytest.raises(ImageReadError, match=message) as error:
+            read_image(tmp_path / name)
+        assert name in str(error.value) and "\n" not in str(error.value)
+
+
+def test_read_setup_names_the_file(tmp_path: Path) -> None:
+    with pytest.raises(SetupError, match="cannot read"):
+        read_setup(tmp_path / "none.toml")
+    (tmp_path / "bad.toml").write_text("[eye]\nradius_mm = -3\n")
+    with pytest.raises(SetupError, match=r"bad\.toml: eye\.radius_mm"):
+        read_setup(tmp_path / "bad.toml")
+
+
+def test_poses_csv_has_the_contract_columns_first(tmp_path: Path) -> None:
+    ok = PoseEstimate("ok", tip_in_eye=np.array([1.0, 2.0, 3.0]), axis=np.array([0.0, 0.0, -1.0]), spots=1)
+    rows = [pose_row("a.png", ok, 12.0), pose_row("b.png", PoseEstimate("no_spot", detail="dark"))]
+    write_poses_csv(tmp_path / "poses.csv", rows)
+    with (tmp_path / "poses.csv").open() as handle:
+        table = list(csv.DictReader(handle))
+    assert list(table[0])[:8] == ["image", "status", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z"]
+    assert tuple(table[0]) == POSES_COLUMNS
+    assert float(table[0]["z_mm"]) == 3.0 and table[0]["status"] == "ok"
+    assert table[1]["x_mm"] == "" and table[1]["detail"] == "dark"

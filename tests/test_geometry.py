@@ -1,0 +1,128 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from spotnav.geometry import (
+    InstrumentPose,
+    approximation_deviation,
+    beam_axes,
+    cone_generators,
+    cone_sphere_curve,
+    intersect_rays_sphere,
+    normalize,
+    orthonormal_basis,
+    rotation_about_y,
+    rotation_about_z,
+)
+
+THESIS_TABLE_4_1 = {5: 0.08, 7: 0.23, 9: 0.49, 11: 0.91, 13: 1.51, 15: 2.34}
+
+unit_vectors = (
+    st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1))
+    .filter(lambda v: np.linalg.norm(v) > 0.1)
+    .map(lambda v: normalize(np.array(v)))
+)
+
+
+@pytest.mark.parametrize(("beta", "thesis_um"), THESIS_TABLE_4_1.items())
+def test_table_4_1_matches_the_printed_digits(beta: int, thesis_um: float) -> None:
+    deviation = approximation_deviation(np.radians(beta))
+    assert round(deviation.gap_y_um, 2) == thesis_um
+
+
+def test_full_3d_deviation_is_about_3_um_at_9_deg() -> None:
+    deviation = approximation_deviation(np.radians(9.0))
+    assert 2.5 < deviation.to_plane_um < 3.5
+    assert deviation.along_ray_um >= deviation.to_plane_um
+
+
+@pytest.mark.parametrize("angle", [0.3, -1.2, 2.0])
+def test_rotations_are_proper(angle: float) -> None:
+    for matrix in (rotation_about_y(angle), rotation_about_z(angle)):
+        np.testing.assert_allclose(matrix @ matrix.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(matrix) == pytest.approx(1.0)
+    # Right-handed: +x turns toward +y about z, and +z toward +x about y.
+    np.testing.assert_allclose(rotation_about_z(np.pi / 2) @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(rotation_about_y(np.pi / 2) @ [0, 0, 1], [1, 0, 0], atol=1e-12)
+
+
+@given(axis=unit_vectors)
+def test_orthonormal_basis_is_right_handed(axis: np.ndarray) -> None:
+    e1, e2 = orthonormal_basis(axis)
+    frame = np.column_stack([e1, e2, axis])
+    np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-9)
+    assert np.linalg.det(frame) == pytest.approx(1.0)
+
+
+@settings(max_examples=60)
+@given(
+    # Every apex in this box is inside the sphere: the corner (3, 3, 1) is 12.26 mm from the centre.
+    apex=st.tuples(st.floats(-3, 3), st.floats(-3, 3), st.floats(1, 10)),
+    axis=unit_vectors,
+    half_angle=st.floats(0.05, 0.7),
+)
+def test_cone_sphere_curve_lies_on_both_surfaces(apex: tuple, axis: np.ndarray, half_angle: float) -> None:
+    center, radius = np.array([0.0, 0.0, 12.5]), 12.5
+    apex = np.array(apex)
+    points = cone_sphere_curve(apex, axis, half_angle, center, radius, count=64)
+    np.testing.assert_allclose(np.linalg.norm(points - center, axis=1), radius, rtol=1e-9)
+    angles = np.arccos(np.clip(normalize(points - apex) @ axis, -1, 1))
+    np.testing.assert_allclose(angles, half_angle, atol=1e-7)
+
+
+def test_cone_sphere_curve_rejects_apex_outside() -> None:
+    with pytest.raises(ValueError, match="inside"):
+        cone_sphere_curve(np.array([0.0, 5.0, 1.0]), np.array([0.0, 1.0, 0.0]), 0.25, np.array([0, 0, 12.5]), 12.5)
+
+
+def test_intersect_rays_sphere_misses_give_nan() -> None:
+    t = intersect_rays_sphere(
+        np.array([0.0, 0.0, 100.0]), np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]), np.zeros(3), 1.0
+    )
+    assert t[0] == pytest.approx(101.0)
+    assert np.isnan(t[1])
+
+
+def test_cone_generators_make_the_half_angle() -> None:
+    axis = normalize(np.array([0.2, -0.3, -1.0]))
+    rays = cone_generators(axis, 0.25, np.linspace(0, 6, 7))
+    np.testing.assert_allclose(rays @ axis, np.cos(0.25))
+    np.testing.assert_allclose(np.linalg.norm(rays, axis=1), 1.0)
+
+
+@given(axis=unit_vectors, tilt=st.floats(0.01, 0.7))
+def test_three_beams_follow_the_contract(axis: np.ndarray, tilt: float) -> None:
+    beams = beam_axes(axis, 3, tilt)
+    np.testing.assert_allclose(beams @ axis, np.cos(tilt), atol=1e-9)
+    e1, _ = orthonormal_basis(axis)
+    radial = beams - np.outer(beams @ axis, axis)
+    radial = radial / np.linalg.norm(radial, axis=1, keepdims=True)
+    np.testing.assert_allclose(radial[0], e1, atol=1e-9)  # beam 0 toward the +x projection
+    for k in (1, 2):
+        # Counter-clockwise seen from the tip looking along the axis: (r0 x rk) points against the axis.
+        assert np.dot(np.cross(radial[0], radial[k]), axis) * (1 if k == 1 else -1) < 0
+        assert np.dot(radial[0], radial[k]) == pytest.approx(-0.5, abs=1e-9)
+
+
+def test_beam_0_tilts_toward_x_when_looking_down() -> None:
+    beams = beam_axes(np.array([0.0, 0.0, -1.0]), 3, np.radians(15))
+    assert beams[0, 0] > 0 and abs(beams[0, 1]) < 1e-12
+    # Seen from above (looking down), beam 1 is 120 deg counter-clockwise from +x: +y side.
+    assert beams[1, 1] > 0 and beams[2, 1] < 0
+
+
+def test_one_beam_is_the_axis() -> None:
+    axis = normalize(np.array([0.1, 0.2, -1.0]))
+    np.testing.assert_allclose(beam_axes(axis, 1, 0.3), axis[None, :])
+
+
+def test_pose_validation() -> None:
+    pose = InstrumentPose.through_insertion([3.0, 3.0, 5.0], [0.0, 6.0, 20.0])
+    np.testing.assert_allclose(pose.axis, normalize(np.array([3.0, -3.0, -15.0])))
+    with pytest.raises(ValueError, match="axis"):
+        InstrumentPose([0, 0, 1], [0, 0, 0])
+    with pytest.raises(ValueError, match="tip"):
+        InstrumentPose([0, np.nan, 1], [0, 0, -1])
