@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from spotnav.camera import pixel_rays, project_points, unproject_pixels_to_sphere
+from spotnav.camera import pixel_rays, project_points, unproject_pixels_to_plane, unproject_pixels_to_sphere
 from spotnav.config import Camera
 
 CAMERA = Camera()  # the thesis's: 5000 px, 36 mm sensor, 300 mm lens, 110 mm
@@ -61,3 +61,16 @@ def test_rays_off_the_bowl_are_nan() -> None:
     wide = Camera(width_px=100, height_px=100, sensor_width_mm=36.0, focal_length_mm=10.0, distance_mm=30.0)
     corner = unproject_pixels_to_sphere(wide, np.array([0.0, 0.0]), 12.5)
     assert np.all(np.isnan(corner))
+
+
+@given(x=st.floats(-6, 6), y=st.floats(-6, 6), height=st.floats(-3, 3))
+def test_unproject_to_plane_inverts_project(x: float, y: float, height: float) -> None:
+    camera = Camera()
+    point = np.array([x, y, height])
+    back = unproject_pixels_to_plane(camera, project_points(camera, point), height)
+    np.testing.assert_allclose(back, point, atol=1e-9)
+
+
+def test_plane_above_the_camera_is_rejected() -> None:
+    with pytest.raises(ValueError, match="below the camera"):
+        unproject_pixels_to_plane(Camera(), np.zeros(2), 200.0)

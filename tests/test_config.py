@@ -55,6 +55,9 @@ def test_bumps_are_parsed() -> None:
         ("[world]\neye_radius_mm = -2.0", "world.eye_radius_mm"),
         ("[world]\nbumps = [{x_mm = 0.0, y_mm = 0.0, radius_mm = -1.0}]", "world.bumps.radius_mm"),
         ("[world]\nbumps = [{x_mm = 0.0}]", "world.bumps"),
+        ("[world]\nsurface = 'cube'", "world.surface"),
+        ("[world]\nsurface = 'plane'\nbumps = [{x_mm = 0.0, y_mm = 0.0}]", "world.bumps"),
+        ("[instrument]\nheight_correction = 3.0", "instrument.height_correction"),
         ("[tip]\nx = 1", "[tip]"),
         ("eye = 3", "[eye]"),
         ("[eye\nradius_mm = 1", "not valid TOML"),
@@ -116,6 +119,8 @@ values = st.one_of(
             "eye_radius_mm",
             "supersampling",
             "texture",
+            "surface",
+            "height_correction",
             "bogus",
         ]
     ),

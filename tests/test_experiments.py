@@ -3,9 +3,20 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from conftest import small_setup
 
-from spotnav.experiments import approximation_rows, reproduce, run_frames, summarize, working_volume_tips
+from spotnav.experiments import (
+    approximation_rows,
+    helix_tips,
+    reproduce,
+    run_frames,
+    square_tips,
+    summarize,
+    working_volume_tips,
+)
+from spotnav.experiments.chapter6 import bump_grid
+from spotnav.experiments.paths import SQUARE_CORNERS_MM
 from spotnav.geometry import InstrumentPose
 
 
@@ -50,3 +61,61 @@ def test_reproduce_writes_report(tmp_path: Path) -> None:
     assert "Table 4.1" in report and "| 9 | 0.49 | 0.494 |" in report
     assert (tmp_path / "approximation.csv").exists()
     assert lines and lines[0].startswith("approximation")
+
+
+def test_square_is_closed_and_evenly_spaced() -> None:
+    tips = square_tips(100)
+    np.testing.assert_allclose(tips[0], SQUARE_CORNERS_MM[0])
+    steps = np.linalg.norm(np.diff(np.vstack([tips, tips[:1]]), axis=0), axis=1)
+    # Every step is one hundredth of the perimeter, except at the corners, where it is cut short.
+    perimeter = np.sum(np.linalg.norm(np.diff(np.vstack([SQUARE_CORNERS_MM, SQUARE_CORNERS_MM[:1]]), axis=0), axis=1))
+    assert np.median(steps) == pytest.approx(perimeter / 100)
+    assert steps.max() <= perimeter / 100 + 1e-12
+    for corner in SQUARE_CORNERS_MM:  # passes through every corner
+        assert np.min(np.linalg.norm(tips - corner, axis=1)) < perimeter / 100
+
+
+def test_helix_parameters() -> None:
+    tips = helix_tips(101)
+    np.testing.assert_allclose(np.hypot(tips[:, 0], tips[:, 1]), 2.0)
+    np.testing.assert_allclose(tips[[0, -1], 2], [3.0, 6.0])
+    turns = np.sum(np.diff(np.unwrap(np.arctan2(tips[:, 1], tips[:, 0])))) / (2 * np.pi)
+    assert turns == pytest.approx(2.0)
+
+
+def test_bump_grid_is_3_by_5() -> None:
+    bumps = bump_grid()
+    assert len(bumps) == 15
+    assert len({b.y_mm for b in bumps}) == 3 and len({b.x_mm for b in bumps}) == 5
+    assert all(b.radius_mm == 0.25 and b.height_mm == 0.1 for b in bumps)
+
+
+def test_rotation_errors() -> None:
+    setup = small_setup(512)
+    insertion = setup.instrument.insertion_in_eye
+    pose = InstrumentPose.through_insertion([1.0, -1.0, 4.0], insertion)
+    result = run_frames(setup, [pose])[0]
+    about_y, _, angle = result.rotation_error_deg
+    assert 0 < angle < 0.5
+    assert about_y <= angle + 1e-9  # a change of tilt is at most the angle between the axes
+    # With the axis from the insertion point, the axis error is the tip error seen from that point.
+    seen = np.degrees(np.arcsin(result.error_mm / np.linalg.norm(pose.tip_in_eye - insertion)))
+    assert angle <= seen + 1e-9
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_reproduce_every_thesis_table(tmp_path: Path, workers: int) -> None:
+    # The chapter-6 experiments at a tiny size: every table is there and no cell is empty.
+    reproduce(tmp_path, size_px=384, poses=3, workers=workers, only=["ellipse", "paths", "bumps", "radius"], log=print)
+    report = (tmp_path / "report.md").read_text()
+    for number in ("6.1", "6.5", "6.7", "6.9", "6.10", "6.11", "6.12", "6.13", "6.14", "6.15", "6.16", "6.17", "6.18"):
+        assert f"Table {number}" in report or f"Tables {number}" in report, number
+    for line in report.splitlines():
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            assert all(cells[1:]), line
+    for name in ("path_square", "path_helix", "error_helix", "rotation_square", "power_mean", "power_gallery"):
+        assert (tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
+    rows = (tmp_path / "paths.csv").read_text().splitlines()
+    plain = 2 * 2 * 7 * 3  # paths x beam counts x powers x poses
+    assert plain < len(rows) - 1 <= 2 * plain  # plus the calibrated rows where the calibration worked

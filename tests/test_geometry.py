@@ -7,7 +7,9 @@ from hypothesis import strategies as st
 
 from spotnav.geometry import (
     InstrumentPose,
+    angles_between,
     approximation_deviation,
+    axis_rotations,
     beam_axes,
     cone_generators,
     cone_sphere_curve,
@@ -126,3 +128,16 @@ def test_pose_validation() -> None:
         InstrumentPose([0, 0, 1], [0, 0, 0])
     with pytest.raises(ValueError, match="tip"):
         InstrumentPose([0, np.nan, 1], [0, 0, -1])
+
+
+@given(about_y=st.floats(0.01, 3.13), about_z=st.floats(-3.14, 3.14))
+def test_axis_rotations_round_trip(about_y: float, about_z: float) -> None:
+    axis = rotation_about_z(about_z) @ rotation_about_y(about_y) @ np.array([0.0, 0.0, -1.0])
+    np.testing.assert_allclose(axis_rotations(axis), [about_y, about_z], atol=1e-9)
+
+
+def test_angles_between() -> None:
+    assert angles_between(np.array([1.0, 0, 0]), np.array([0.0, 2.0, 0])) == pytest.approx(np.pi / 2)
+    assert angles_between(np.array([0.0, 0, -1]), np.array([0.0, 0, -1])) == pytest.approx(0.0, abs=1e-12)
+    small = np.array([np.sin(1e-7), 0.0, -np.cos(1e-7)])
+    assert angles_between(small, np.array([0.0, 0, -1])) == pytest.approx(1e-7, rel=1e-6)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.config import Light
+from spotnav.config import Light, Setup
 from spotnav.experiments import working_volume_tips
 from spotnav.geometry import InstrumentPose
-from spotnav.localize import STATUSES, PoseEstimate, localize
+from spotnav.localize import STATUSES, PoseEstimate, fit_height_correction, localize
 from spotnav.render import Renderer
 
 
@@ -89,3 +89,60 @@ def test_estimate_invariants() -> None:
         PoseEstimate("fine")
     with pytest.raises(ValueError, match="exactly when"):
         PoseEstimate("no_spot", tip_in_eye=np.zeros(3), axis=np.array([0, 0, 1.0]))
+
+
+def _three_beam(setup: Setup) -> Setup:
+    return replace(setup, instrument=replace(setup.instrument, beam_count=3))
+
+
+def test_three_beams_round_trip_2048(renderer_2048: Renderer) -> None:
+    # Algorithm 2 over the working volume, sharp edge: as accurate as one beam (under 0.03 mm mean).
+    setup = _three_beam(renderer_2048.setup)
+    renderer = Renderer(setup)
+    errors = []
+    for i, tip in enumerate(working_volume_tips(8, seed=11)):
+        pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
+        estimate = localize(renderer.render(pose, seed=i), setup, "thesis")
+        assert estimate.ok and estimate.spots == 3, estimate.detail
+        errors.append(np.linalg.norm(estimate.tip_in_eye - tip))
+    assert np.mean(errors) < 0.03
+    assert np.max(errors) < 0.1
+
+
+def test_three_beams_answer_from_two_spots(renderer_512: Renderer) -> None:
+    # Beam 0 tilts toward +x: near the right border its spot is cut, the other two still give the tip.
+    setup = _three_beam(renderer_512.setup)
+    pose = InstrumentPose([5.5, 0.0, 4.0], [0.0, 0.0, -1.0])
+    estimate = localize(Renderer(setup).render(pose, seed=0), setup)
+    assert estimate.ok and estimate.spots == 2
+    assert "2 of 3" in estimate.detail
+    assert np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < 0.1
+
+
+def test_height_correction_removes_the_soft_edge_bias() -> None:
+    # Section 5.5: one frame at a known pose gives the factor; it cuts the soft edge's error.
+    setup = small_setup(1024, blend=0.15)
+    renderer = Renderer(setup)
+    known = InstrumentPose.through_insertion([0.0, 0.0, 4.5], setup.instrument.insertion_in_eye)
+    factor = fit_height_correction(renderer.render(known, seed=50), setup, known.tip_in_eye)
+    assert 1.01 < factor < 1.1
+    calibrated = replace(setup, instrument=replace(setup.instrument, height_correction=factor))
+    plain_errors, calibrated_errors = [], []
+    for i, tip in enumerate(working_volume_tips(6, seed=2)):
+        image = renderer.render(InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye), seed=i)
+        plain_errors.append(np.linalg.norm(localize(image, setup).tip_in_eye - tip))
+        calibrated_errors.append(np.linalg.norm(localize(image, calibrated).tip_in_eye - tip))
+    assert np.mean(calibrated_errors) < 0.5 * np.mean(plain_errors)
+
+
+def test_height_correction_is_one_for_a_sharp_edge(renderer_2048: Renderer) -> None:
+    setup = renderer_2048.setup
+    known = InstrumentPose.through_insertion([0.0, 0.0, 4.5], setup.instrument.insertion_in_eye)
+    factor = fit_height_correction(renderer_2048.render(known, seed=3), setup, known.tip_in_eye)
+    assert factor == pytest.approx(1.0, abs=0.01)
+
+
+def test_height_correction_needs_a_spot(renderer_512: Renderer) -> None:
+    dark = renderer_512.render(InstrumentPose([0.0, 0.0, 4.0], [0.0, 0.0, -1.0]), power_w=0.0)
+    with pytest.raises(ValueError, match="no whole spot"):
+        fit_height_correction(dark, renderer_512.setup, np.array([0.0, 0.0, 4.0]))

@@ -6,7 +6,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spotnav.geometry import InstrumentPose, cone_generators, cone_sphere_curve, normalize
-from spotnav.reconstruct import apex_candidates, choose_by_insertion, fit_ellipse, triangle_from_ellipse
+from spotnav.reconstruct import (
+    apex_candidates,
+    choose_by_insertion,
+    fit_ellipse,
+    sphere_normal,
+    triangle_from_ellipse,
+)
 
 BETA = np.radians(9.0)
 INSERTION = np.array([0.0, 6.0, 20.0])
@@ -62,8 +68,7 @@ def test_exact_on_a_plane(x: float, y: float, z: float, tilt: float, azimuth: fl
     axis = np.array([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), -np.cos(tilt)])
     rays = cone_generators(axis, beta, np.linspace(0, 2 * np.pi, 720, endpoint=False))
     points = apex + (-z / rays[:, 2])[:, None] * rays
-    far_center = np.array([0.0, 0.0, 1e9])  # a plane is a sphere of infinite radius
-    candidates = apex_candidates(points, far_center, beta)
+    candidates = apex_candidates(points, np.array([0.0, 0.0, 1.0]), beta)
     errors = np.linalg.norm(candidates.apexes - apex, axis=1)
     assert errors.min() < 1e-3
     assert np.degrees(candidates.alpha) == pytest.approx(np.degrees(tilt), abs=0.05)
@@ -78,7 +83,7 @@ def test_sphere_curve_within_the_planar_approximation(x: float, y: float, z: flo
     # working volume it costs at most 0.025 mm even on an exact contour.
     pose = InstrumentPose.through_insertion([x, y, z], INSERTION)
     points = cone_sphere_curve(pose.tip_in_eye, pose.axis, BETA, CENTER, 12.5, count=1000)
-    candidates = apex_candidates(points, CENTER, BETA)
+    candidates = apex_candidates(points, sphere_normal(points, CENTER), BETA)
     index, misalignment = choose_by_insertion(candidates, INSERTION)
     assert np.linalg.norm(candidates.apexes[index] - pose.tip_in_eye) < 0.025
     assert misalignment < np.radians(1.0)
@@ -87,7 +92,7 @@ def test_sphere_curve_within_the_planar_approximation(x: float, y: float, z: flo
 def test_choose_by_insertion_takes_the_aligned_candidate() -> None:
     pose = InstrumentPose.through_insertion([2.0, -1.0, 4.0], INSERTION)
     points = cone_sphere_curve(pose.tip_in_eye, pose.axis, BETA, CENTER, 12.5, count=1000)
-    candidates = apex_candidates(points, CENTER, BETA)
+    candidates = apex_candidates(points, sphere_normal(points, CENTER), BETA)
     index, _ = choose_by_insertion(candidates, INSERTION)
     other = 1 - index
     assert np.linalg.norm(candidates.apexes[index] - pose.tip_in_eye) < np.linalg.norm(
@@ -95,3 +100,19 @@ def test_choose_by_insertion_takes_the_aligned_candidate() -> None:
     )
     assert np.allclose(np.linalg.norm(candidates.cone_axes, axis=1), 1.0)
     assert normalize(candidates.cone_axes[index]) @ pose.axis > 0.999
+
+
+def test_height_correction_scales_the_triangle_about_the_ellipse_centre() -> None:
+    # A spot that looks 2 % too small (an edge inside the cone) puts the apex 2 % too low;
+    # a factor of 1 / 0.98 undoes it exactly on a plane.
+    apex, axis = np.array([1.0, 0.5, 5.0]), normalize(np.array([0.2, -0.1, -1.0]))
+    rays = cone_generators(axis, BETA, np.linspace(0, 2 * np.pi, 720, endpoint=False))
+    points = apex + (-apex[2] / rays[:, 2])[:, None] * rays
+    shrunk = points.mean(axis=0) + 0.98 * (points - points.mean(axis=0))
+    normal = np.array([0.0, 0.0, 1.0])
+    plain = apex_candidates(shrunk, normal, BETA)
+    corrected = apex_candidates(shrunk, normal, BETA, height_correction=1 / 0.98)
+    assert np.min(np.abs(plain.apexes[:, 2] - apex[2])) > 0.09
+    assert np.min(np.linalg.norm(corrected.apexes - apex, axis=1)) < 1e-3
+    np.testing.assert_allclose(corrected.plane_normal_in_eye, normal, atol=1e-12)
+    assert corrected.s2 == pytest.approx(plain.s2)

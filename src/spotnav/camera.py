@@ -12,7 +12,7 @@ import numpy as np
 from spotnav.config import Camera
 from spotnav.geometry import intersect_rays_sphere
 
-__all__ = ["pixel_rays", "project_points", "unproject_pixels_to_sphere"]
+__all__ = ["pixel_rays", "project_points", "unproject_pixels_to_plane", "unproject_pixels_to_sphere"]
 
 
 def _check_last_axis(name: str, array: np.ndarray, size: int) -> np.ndarray:
@@ -90,3 +90,25 @@ def unproject_pixels_to_sphere(camera: Camera, pixels: np.ndarray, radius_mm: fl
     points = origin + t[..., None] * rays
     points[points[..., 2] > radius_mm] = np.nan  # only the bowl exists
     return points
+
+
+def unproject_pixels_to_plane(camera: Camera, pixels: np.ndarray, height_mm: float = 0.0) -> np.ndarray:
+    """Back-project pixels onto the horizontal plane ``z = height_mm``.
+
+    Parameters
+    ----------
+    camera : Camera
+    pixels : ndarray, shape (..., 2)
+    height_mm : float
+        Height of the plane in the eye frame, below the camera.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Points on the plane in the eye frame.
+    """
+    if height_mm >= camera.distance_mm:
+        raise ValueError(f"the plane z = {height_mm:g} mm must lie below the camera ({camera.distance_mm:g} mm)")
+    rays = pixel_rays(camera, pixels)
+    t = (camera.distance_mm - height_mm) / -rays[..., 2]
+    return camera.center_in_eye + t[..., None] * rays

@@ -85,8 +85,6 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 def _cmd_localize(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
-    if setup.instrument.beam_count != 1:
-        raise UsageError(f"method {args.method!r} handles instrument.beam_count = 1 only (three beams come later)")
     rows = []
     statuses: Counter[str] = Counter()
     for name in tqdm(args.images, desc="localize", unit="image", disable=None):

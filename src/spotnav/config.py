@@ -161,12 +161,16 @@ class Instrument:
         1 or 3.
     beam_tilt_deg : float
         Tilt of each beam axis from the instrument axis when ``beam_count = 3``.
+    height_correction : float
+        The thesis method's height correction factor (section 5.5), in
+        [0.5, 2]: it scales each reconstructed cone triangle. 1 = none.
     """
 
     insertion_point_mm: tuple[float, float, float] = (0.0, 6.0, 20.0)
     beam_half_angle_deg: float = 9.0
     beam_count: int = 1
     beam_tilt_deg: float = 15.0
+    height_correction: float = 1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -181,6 +185,8 @@ class Instrument:
             raise SetupError(f"instrument.beam_count = {count} is not allowed, allowed 1 or 3")
         key = "instrument.beam_tilt_deg"
         _in_range(key, _number(key, self.beam_tilt_deg), 0.0, 45.0, high_open=True)
+        key = "instrument.height_correction"
+        _in_range(key, _number(key, self.height_correction), 0.5, 2.0)
 
     @property
     def beam_half_angle(self) -> float:
@@ -256,16 +262,24 @@ class World:
         True retina radius used for rendering; ``None`` means ``eye.radius_mm``.
     bumps : tuple of Bump
         Deformations of the retina.
+    surface : str
+        ``"sphere"`` (the retina) or ``"plane"``: the plane ``z = 0`` through the
+        pole, for the thesis's ellipse tests (section 6.2).
     """
 
     eye_radius_mm: float | None = None
     bumps: tuple[Bump, ...] = ()
+    surface: str = "sphere"
 
     def __post_init__(self) -> None:
         if self.eye_radius_mm is not None:
             key = "world.eye_radius_mm"
             _in_range(key, _number(key, self.eye_radius_mm), 0.0, low_open=True)
         object.__setattr__(self, "bumps", tuple(self.bumps))
+        if self.surface not in ("sphere", "plane"):
+            raise SetupError(f"world.surface = {self.surface!r} is not allowed, allowed 'sphere' or 'plane'")
+        if self.surface == "plane" and self.bumps:
+            raise SetupError("world.bumps need world.surface = 'sphere'; the plane has no bumps")
 
 
 @dataclass(frozen=True)
@@ -454,6 +468,7 @@ insertion_point_mm = [0.0, 6.0, 20.0]   # remote centre of motion
 beam_half_angle_deg = 9.0     # cone half-angle (beta), in (0, 45)
 beam_count = 1                # 1 or 3
 beam_tilt_deg = 15.0          # tilt of each beam from the axis when beam_count = 3
+height_correction = 1.0       # thesis method only: section 5.5 height factor, 1 = none
 
 [light]                       # simulator only, Blender's conventions
 power_w = 1.0                 # radiant intensity power_w / (4 pi) W/sr on the axis
@@ -462,6 +477,7 @@ blend = 0.15                  # soft edge over the outer part of the cone, 0 = s
 [world]                       # simulator only: where the world differs from [eye]
 # eye_radius_mm = 13.5        # true retina radius (default: eye.radius_mm)
 # bumps = [{ x_mm = 0.0, y_mm = 0.0, radius_mm = 0.25, height_mm = 0.1 }]
+surface = "sphere"            # "sphere" (retina) or "plane" (z = 0, thesis section 6.2)
 
 [render]                      # simulator only: the built-in renderer
 exposure_stops = 0.0          # 0: white surface 5 mm below 1 W, facing it, is full scale

@@ -88,6 +88,12 @@ def to_gray8(image: np.ndarray) -> np.ndarray:
     raise ValueError(f"image must be grey, RGB or RGBA, got shape {image.shape}")
 
 
+def _histogram_median(histogram: np.ndarray) -> int:
+    """Median level of a histogram of integer levels (the lower one on a tie)."""
+    cumulative = np.cumsum(histogram)
+    return int(np.searchsorted(cumulative, 0.5 * cumulative[-1]))
+
+
 def detect_spots_otsu(image: np.ndarray, blur_px: int = 5) -> SpotDetection:
     """Find the bright spots as the thesis does.
 
@@ -113,9 +119,12 @@ def detect_spots_otsu(image: np.ndarray, blur_px: int = 5) -> SpotDetection:
     largest = int(np.argmax(areas))
     mask = np.zeros_like(binary)
     cv2.drawContours(mask, contours, largest, 255, thickness=cv2.FILLED)
-    background = blurred[binary == 0].astype(np.float32)
-    spread = 1.4826 * np.median(np.abs(background - np.median(background)))
-    contrast = float(blurred[mask > 0].mean() - np.median(background))
+    histogram = cv2.calcHist([blurred], [0], cv2.bitwise_not(binary), [256], [0, 256]).ravel()
+    median = _histogram_median(histogram)
+    levels = np.arange(256)
+    deviations = np.bincount(np.abs(levels - median), weights=histogram, minlength=256)
+    spread = 1.4826 * _histogram_median(deviations)
+    contrast = float(cv2.mean(blurred, mask)[0] - median)
     min_area = max(20.0, 1e-5 * gray.size)
     if areas[largest] < min_area or contrast < max(_MIN_CONTRAST_DN, _MIN_CONTRAST_SIGMA * spread):
         return SpotDetection((), float(threshold), contrast)

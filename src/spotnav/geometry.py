@@ -14,7 +14,9 @@ import numpy as np
 __all__ = [
     "ApproximationDeviation",
     "InstrumentPose",
+    "angles_between",
     "approximation_deviation",
+    "axis_rotations",
     "beam_axes",
     "cone_generators",
     "cone_sphere_curve",
@@ -58,7 +60,8 @@ def orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     ``e1`` is the projection of eye ``+x`` on the plane normal to ``axis`` (eye
     ``+y`` when that projection vanishes), the contract's zero roll, and
-    ``e2 = axis x e1``.
+    ``e2 = axis x e1``. The projection counts as vanished within 1e-6 rad of
+    ``+-x``, where its direction is lost to rounding.
 
     Parameters
     ----------
@@ -67,9 +70,10 @@ def orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     axis = normalize(axis)
     e1 = np.array([1.0, 0.0, 0.0]) - axis[0] * axis
-    if np.linalg.norm(e1) < 1e-9:
+    if np.linalg.norm(e1) < 1e-6:
         e1 = np.array([0.0, 1.0, 0.0]) - axis[1] * axis
     e1 = normalize(e1)
+    e1 = normalize(e1 - (e1 @ axis) * axis)  # remove what rounding left along the axis
     return e1, np.cross(axis, e1)
 
 
@@ -190,6 +194,35 @@ def beam_axes(axis: np.ndarray, beam_count: int, tilt: float) -> np.ndarray:
     # Counter-clockwise seen looking along the axis is a positive turn about -axis.
     azimuths = -2.0 * np.pi * np.arange(beam_count) / beam_count
     return cone_generators(axis, tilt, azimuths)
+
+
+def axis_rotations(axes: np.ndarray) -> np.ndarray:
+    """The instrument axis as a rotation about ``y`` then about ``z`` (thesis 6.4, Table 6.10).
+
+    ``axis = Rz(about_z) @ Ry(about_y) @ (0, 0, -1)`` with ``about_y`` in
+    ``[0, pi]`` (the tilt from straight down) and ``about_z`` in ``(-pi, pi]``
+    (the direction of the tilt).
+
+    Parameters
+    ----------
+    axes : ndarray, shape (..., 3)
+        Unit axes.
+
+    Returns
+    -------
+    ndarray, shape (..., 2)
+        ``(about_y, about_z)``, radians.
+    """
+    axes = normalize(np.asarray(axes, dtype=float))
+    about_y = np.arccos(np.clip(-axes[..., 2], -1.0, 1.0))
+    about_z = np.arctan2(-axes[..., 1], -axes[..., 0])
+    return np.stack([about_y, about_z], axis=-1)
+
+
+def angles_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle between directions, shape of the broadcast leading axes, radians (robust near 0)."""
+    a, b = normalize(np.asarray(a, dtype=float)), normalize(np.asarray(b, dtype=float))
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,8 @@ Statuses
     No spot stands out from the background.
 ``ambiguous``
     More spots than beams.
+``too_few_spots``
+    Fewer whole spots than the method needs (three beams need two).
 ``clipped``
     A spot reaches the image's border or leaves the retina.
 ``wrong_size``
@@ -21,20 +23,30 @@ Statuses
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spotnav.camera import unproject_pixels_to_sphere
+from spotnav.camera import unproject_pixels_to_plane, unproject_pixels_to_sphere
 from spotnav.config import Setup
-from spotnav.detect import detect_spots_otsu
+from spotnav.detect import Spot, SpotDetection, detect_spots_otsu
 from spotnav.geometry import normalize
-from spotnav.reconstruct import apex_candidates, choose_by_insertion
+from spotnav.reconstruct import ConeCandidates, apex_candidates, choose_by_insertion, sphere_normal
 
-__all__ = ["METHODS", "STATUSES", "PoseEstimate", "localize", "localize_thesis"]
+__all__ = [
+    "METHODS",
+    "STATUSES",
+    "PoseEstimate",
+    "fit_height_correction",
+    "localize",
+    "localize_thesis",
+    "locate_from_spots",
+    "spot_candidates",
+]
 
-STATUSES = ("ok", "no_spot", "ambiguous", "clipped", "wrong_size", "unreliable", "unreadable")
+STATUSES = ("ok", "no_spot", "ambiguous", "too_few_spots", "clipped", "wrong_size", "unreliable", "unreadable")
 
 
 @dataclass(frozen=True)
@@ -85,7 +97,7 @@ def _check_size(image: np.ndarray, setup: Setup) -> PoseEstimate | None:
 
 
 def localize_thesis(image: np.ndarray, setup: Setup) -> PoseEstimate:
-    """The thesis's Algorithm 1 (one beam), with the candidate chosen by the insertion point.
+    """The thesis's method: Algorithm 1 (one beam) or Algorithm 2 (three beams).
 
     Parameters
     ----------
@@ -97,29 +109,114 @@ def localize_thesis(image: np.ndarray, setup: Setup) -> PoseEstimate:
     wrong = _check_size(image, setup)
     if wrong is not None:
         return wrong
-    if setup.instrument.beam_count != 1:
-        raise ValueError("localize_thesis handles one beam; instrument.beam_count is 3")
-    detection = detect_spots_otsu(image)
-    if not detection.spots:
+    return locate_from_spots(detect_spots_otsu(image), setup)
+
+
+def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCandidates | None:
+    """Both apex candidates of one spot (Algorithm 1 after detection).
+
+    Parameters
+    ----------
+    spot : Spot
+    setup : Setup
+        The eye, camera and instrument (with its height correction).
+    surface : str
+        ``"sphere"``: the retina of ``eye.radius_mm``. ``"plane"``: the plane
+        ``z = 0``, the thesis's ellipse test (section 6.2).
+
+    Returns
+    -------
+    ConeCandidates or None
+        ``None`` when the spot is cut by the border or the retina's edge.
+    """
+    if spot.touches_border:
+        return None
+    if surface == "plane":
+        points = unproject_pixels_to_plane(setup.camera, spot.contour_px)
+        normal = np.array([0.0, 0.0, 1.0])
+    else:
+        points = unproject_pixels_to_sphere(setup.camera, spot.contour_px, setup.eye.radius_mm)
+        if not np.all(np.isfinite(points)):
+            return None
+        normal = sphere_normal(points, setup.eye.center_in_eye)
+    return apex_candidates(points, normal, setup.instrument.beam_half_angle, setup.instrument.height_correction)
+
+
+def _closest_set(candidates: list[ConeCandidates]) -> np.ndarray:
+    """One apex per contour, the combination with the smallest summed pairwise distance, shape (n, 3)."""
+    best, best_spread = None, np.inf
+    for choice in itertools.product((0, 1), repeat=len(candidates)):
+        apexes = np.array([c.apexes[i] for c, i in zip(candidates, choice, strict=True)])
+        spread = sum(np.linalg.norm(p - q) for p, q in itertools.combinations(apexes, 2))
+        if spread < best_spread:
+            best, best_spread = apexes, spread
+    assert best is not None
+    return best
+
+
+def locate_from_spots(detection: SpotDetection, setup: Setup, surface: str = "sphere") -> PoseEstimate:
+    """The thesis's reconstruction from detected spots (Algorithms 1 and 2).
+
+    One beam: the spot's two apex candidates, the one whose cone axis runs
+    along its line from the insertion point. Three beams: two candidates per
+    spot, the combination (one per spot) with the smallest spread, and its
+    coordinate-wise median; two visible spots still give a pose (their mean),
+    with ``spots = 2``. The instrument's axis comes from the insertion point.
+    ``instrument.height_correction`` (section 5.5) scales every triangle.
+    ``surface`` is that of :func:`spot_candidates`.
+    """
+    beams = setup.instrument.beam_count
+    spots = detection.spots
+    if not spots:
         return PoseEstimate(
             "no_spot", detail=f"no region brighter than the background (contrast {detection.contrast:.1f})"
         )
-    if len(detection.spots) > 1:
-        return PoseEstimate("ambiguous", spots=len(detection.spots), detail=f"{len(detection.spots)} spots, expected 1")
-    spot = detection.spots[0]
-    if spot.touches_border:
-        return PoseEstimate("clipped", spots=1, detail="the spot reaches the image border")
-    radius = setup.eye.radius_mm
-    points = unproject_pixels_to_sphere(setup.camera, spot.contour_px, radius)
-    if not np.all(np.isfinite(points)):
-        return PoseEstimate("clipped", spots=1, detail="part of the spot lies off the retina model")
-    candidates = apex_candidates(points, setup.eye.center_in_eye, setup.instrument.beam_half_angle)
-    index, _ = choose_by_insertion(candidates, setup.instrument.insertion_in_eye)
-    tip = candidates.apexes[index]
+    if len(spots) > beams:
+        return PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}")
+    usable = [c for c in (spot_candidates(s, setup, surface) for s in spots) if c]
+    needed = 1 if beams == 1 else 2
+    if len(usable) < needed:
+        if len(usable) < len(spots):
+            return PoseEstimate(
+                "clipped", spots=len(spots), detail="a spot reaches the image border or the retina's edge"
+            )
+        return PoseEstimate("too_few_spots", spots=len(spots), detail=f"{len(spots)} of {beams} spots, need {needed}")
+    if beams == 1:
+        index, _ = choose_by_insertion(usable[0], setup.instrument.insertion_in_eye)
+        tip = usable[0].apexes[index]
+    else:
+        tip = np.median(_closest_set(usable), axis=0)  # Algorithm 2; the median of two is their mean
     if not setup.contains_point(tip):
-        return PoseEstimate("unreliable", spots=1, detail="the fitted apex lies outside the eye")
+        return PoseEstimate("unreliable", spots=len(usable), detail="the fitted apex lies outside the eye")
     axis = normalize(tip - setup.instrument.insertion_in_eye)  # the thesis's axis
-    return PoseEstimate("ok", tip_in_eye=tip, axis=axis, spots=1)
+    detail = f"{len(usable)} of {beams} spots" if len(usable) < beams else ""
+    return PoseEstimate("ok", tip_in_eye=tip, axis=axis, spots=len(usable), detail=detail)
+
+
+def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarray) -> float:
+    """Section 5.5's factor from one frame with the tip at a known position.
+
+    The known height of the tip above each spot's fitting plane divided by the
+    reconstructed height ``s2``, averaged over the visible spots.
+
+    Raises
+    ------
+    ValueError
+        When the frame shows no usable spot.
+    """
+    wrong = _check_size(image, setup)
+    if wrong is not None:
+        raise ValueError(wrong.detail)
+    detection = detect_spots_otsu(image)
+    if len(detection.spots) > setup.instrument.beam_count:
+        raise ValueError(f"the calibration frame shows {len(detection.spots)} spots")
+    plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
+    fits = [c for c in (spot_candidates(s, plain) for s in detection.spots) if c]
+    if not fits:
+        raise ValueError("the calibration frame shows no whole spot")
+    tip_in_eye = np.asarray(tip_in_eye, dtype=float)
+    factors = [float((tip_in_eye - c.plane_origin_in_eye) @ c.plane_normal_in_eye) / c.s2 for c in fits]
+    return float(np.mean(factors))
 
 
 METHODS: dict[str, Callable[[np.ndarray, Setup], PoseEstimate]] = {"thesis": localize_thesis}

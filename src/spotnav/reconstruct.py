@@ -23,6 +23,7 @@ __all__ = [
     "apex_candidates",
     "choose_by_insertion",
     "fit_ellipse",
+    "sphere_normal",
     "triangle_from_ellipse",
 ]
 
@@ -107,9 +108,13 @@ class ConeCandidates:
     cone_axes : ndarray, shape (2, 3)
         Each candidate's beam axis, unit vectors pointing away from the apex.
     ellipse : Ellipse
-        The fit in the contour's tangent plane, mm.
+        The fit in the contour's tangent plane, mm, centred near the plane's origin.
     alpha, s1, s2 : float
-        The triangle of :func:`triangle_from_ellipse` (radians, mm, mm).
+        The triangle of :func:`triangle_from_ellipse` (radians, mm, mm), before
+        any height correction.
+    plane_origin_in_eye, plane_normal_in_eye : ndarray, shape (3,)
+        The fitting plane: through the contour's centroid, with the surface's
+        unit normal there, pointing toward the apexes.
     """
 
     apexes: np.ndarray
@@ -118,27 +123,43 @@ class ConeCandidates:
     alpha: float
     s1: float
     s2: float
+    plane_origin_in_eye: np.ndarray
+    plane_normal_in_eye: np.ndarray
 
 
-def apex_candidates(points_in_eye: np.ndarray, sphere_center: np.ndarray, half_angle: float) -> ConeCandidates:
-    """Both apex candidates of a contour on the retina (Algorithm 1).
+def sphere_normal(points_in_eye: np.ndarray, sphere_center: np.ndarray) -> np.ndarray:
+    """Inward unit normal of a sphere at the centroid of points on it, shape (3,)."""
+    return normalize(np.asarray(sphere_center, float) - np.asarray(points_in_eye, float).mean(axis=0))
+
+
+def apex_candidates(
+    points_in_eye: np.ndarray, surface_normal: np.ndarray, half_angle: float, height_correction: float = 1.0
+) -> ConeCandidates:
+    """Both apex candidates of a contour on the surface (Algorithm 1).
 
     Parameters
     ----------
     points_in_eye : ndarray, shape (N, 3)
-        The contour back-projected onto the retina, mm.
-    sphere_center : ndarray, shape (3,)
-        Centre of the retina sphere, mm.
+        The contour back-projected onto the surface, mm.
+    surface_normal : ndarray, shape (3,)
+        The surface's unit normal at the contour's centroid, toward the light
+        (:func:`sphere_normal` on the retina, ``+z`` on the plane ``z = 0``). It
+        must lie in the vertical plane through the centroid, as both do.
     half_angle : float
         Cone half-angle beta, radians.
+    height_correction : float
+        Section 5.5's factor: scales the triangle (``s1`` and ``s2``) about the
+        ellipse's centre, as a uniform growth of the spot would.
     """
     points_in_eye = np.asarray(points_in_eye, dtype=float)
     centroid = points_in_eye.mean(axis=0)
-    inward = np.asarray(sphere_center, dtype=float) - centroid
+    normal = normalize(np.asarray(surface_normal, dtype=float))
     azimuth = np.arctan2(centroid[1], centroid[0])
-    slope = np.arctan2(np.hypot(inward[0], inward[1]), inward[2])
-    # Rotate about z so the centre lies on +x, then about y so the inward normal is +z.
-    to_plane = rotation_about_y(slope) @ rotation_about_z(-azimuth)
+    to_x_axis = rotation_about_z(-azimuth)
+    normal_on_x = to_x_axis @ normal
+    slope = np.arctan2(-normal_on_x[0], normal_on_x[2])
+    # Rotate about z so the centre lies on +x, then about y so the normal is +z.
+    to_plane = rotation_about_y(slope) @ to_x_axis
     in_plane = (points_in_eye - centroid) @ to_plane.T
     fit = fit_ellipse(in_plane[:, :2] * _FIT_SCALE)
     ellipse = Ellipse(
@@ -148,7 +169,7 @@ def apex_candidates(points_in_eye: np.ndarray, sphere_center: np.ndarray, half_a
     major = np.array([*ellipse.major_direction, 0.0])
     up = np.array([0.0, 0.0, 1.0])
     signs = np.array([1.0, -1.0])[:, None]
-    apexes_in_plane = np.array([*ellipse.center, 0.0]) + signs * s1 * major + s2 * up
+    apexes_in_plane = np.array([*ellipse.center, 0.0]) + height_correction * (signs * s1 * major + s2 * up)
     # The axis leans from the apex's foot toward the ellipse's centre.
     axes_in_plane = -signs * np.sin(alpha) * major - np.cos(alpha) * up
     return ConeCandidates(
@@ -158,6 +179,8 @@ def apex_candidates(points_in_eye: np.ndarray, sphere_center: np.ndarray, half_a
         alpha=alpha,
         s1=s1,
         s2=s2,
+        plane_origin_in_eye=centroid,
+        plane_normal_in_eye=to_plane.T @ up,
     )
 
 

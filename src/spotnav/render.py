@@ -10,23 +10,30 @@ Poisson-Gaussian sensor noise, applies the sRGB curve with clipping and
 quantizes to 8 bits.
 
 The eye and the camera are static: the renderer caches the albedo seen by every
-pixel once, and each frame computes light only inside the spots' bounding box,
-supersampling the pixels that the cone's edge crosses.
+pixel, the ambient image and its noise once per world, and each frame computes
+light only inside the spots' bounding box, supersampling the pixels that the
+cone's edge crosses.
 """
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-from spotnav.camera import pixel_rays, project_points, unproject_pixels_to_sphere
-from spotnav.config import Bump, Setup
-from spotnav.geometry import InstrumentPose, beam_axes, cone_sphere_curve, intersect_rays_sphere
+from spotnav.camera import pixel_rays, project_points, unproject_pixels_to_plane, unproject_pixels_to_sphere
+from spotnav.config import Bump, Camera, Setup
+from spotnav.config import Render as RenderSettings
+from spotnav.geometry import InstrumentPose, beam_axes, cone_generators, cone_sphere_curve, intersect_rays_sphere
 from spotnav.texture import make_texture, sample_albedo
 
 __all__ = ["Renderer", "bump_height", "exposure_gain", "spot_mask"]
 
 _ROW_CHUNK = 256
 _NEWTON_STEPS = 8
+_NOISE_MARGIN = 1 << 20
+_NOISE_BANK_SEED = 0x5EED
+_BOX_AZIMUTHS = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
 
 
 def exposure_gain(exposure_stops: float) -> float:
@@ -99,27 +106,13 @@ class Renderer:
 
     def __init__(self, setup: Setup) -> None:
         self.setup = setup
-        self._albedo: np.ndarray | None = None
 
     @property
     def albedo(self) -> np.ndarray:
-        """Albedo seen by each pixel, shape (H, W, 3), float32 (cached).
-
-        Texture lookups use the sphere: a bump shifts its texture by at most its
-        height times the ray's slope (under 0.01 mm here), which is ignored.
-        """
-        if self._albedo is None:
-            camera = self.setup.camera
-            texture = make_texture(self.setup.render.texture, self.setup.render.texture_seed)
-            albedo = np.empty((camera.height_px, camera.width_px, 3), dtype=np.float32)
-            u = np.arange(camera.width_px, dtype=float)
-            for r0 in range(0, camera.height_px, _ROW_CHUNK):
-                rows = np.arange(r0, min(r0 + _ROW_CHUNK, camera.height_px), dtype=float)
-                pixels = np.stack(np.meshgrid(u, rows), axis=-1)
-                points = unproject_pixels_to_sphere(camera, pixels, self.setup.true_radius_mm)
-                albedo[r0 : r0 + len(rows)] = sample_albedo(texture, points[..., 0], points[..., 1])
-            self._albedo = albedo
-        return self._albedo
+        """Albedo seen by each pixel, shape (H, W, 3), float32 (cached)."""
+        return _static_images(
+            self.setup.camera, self.setup.true_radius_mm, self.setup.world.surface, self.setup.render
+        )[0]
 
     def surface_points(self, u: np.ndarray, v: np.ndarray, bumps: tuple[Bump, ...]) -> tuple[np.ndarray, np.ndarray]:
         """Retina points and inward unit normals seen by pixels.
@@ -137,6 +130,9 @@ class Renderer:
             Eye frame, mm; NaN where the ray misses the bowl.
         """
         camera = self.setup.camera
+        if self.setup.world.surface == "plane":
+            points = unproject_pixels_to_plane(camera, np.stack([u, v], axis=-1))
+            return points, np.broadcast_to(np.array([0.0, 0.0, 1.0]), points.shape).copy()
         radius = self.setup.true_radius_mm
         center = np.array([0.0, 0.0, radius])
         origin = camera.center_in_eye
@@ -165,13 +161,17 @@ class Renderer:
     def _spot_box(self, tip: np.ndarray, axes: np.ndarray) -> tuple[int, int, int, int] | None:
         """Pixel box ``(u0, v0, u1, v1)`` (exclusive ends) holding every lit pixel."""
         setup = self.setup
-        radius = setup.true_radius_mm
-        center = np.array([0.0, 0.0, radius])
-        curves = [
-            cone_sphere_curve(tip, axis, setup.instrument.beam_half_angle, center, radius, count=720) for axis in axes
-        ]
-        points = np.concatenate(curves)
-        points = points[np.isfinite(points[:, 2]) & (points[:, 2] <= radius)]
+        half_angle = setup.instrument.beam_half_angle
+        if setup.world.surface == "plane":
+            rays = np.concatenate([cone_generators(axis, half_angle, _BOX_AZIMUTHS) for axis in axes])
+            if np.any(rays[:, 2] >= -1e-9):  # a generator never meets the plane: the spot is unbounded
+                return 0, 0, setup.camera.width_px, setup.camera.height_px
+            points = tip + (-tip[2] / rays[:, 2])[:, None] * rays
+        else:
+            radius = setup.true_radius_mm
+            center = np.array([0.0, 0.0, radius])
+            points = np.concatenate([cone_sphere_curve(tip, axis, half_angle, center, radius, 720) for axis in axes])
+            points = points[np.isfinite(points[:, 2]) & (points[:, 2] <= radius)]
         if len(points) == 0:
             return None
         pixels = project_points(setup.camera, points)
@@ -244,6 +244,11 @@ class Renderer:
     def render(self, pose: InstrumentPose, *, seed: int = 0, power_w: float | None = None) -> np.ndarray:
         """Render one 8-bit RGB frame.
 
+        Sensor noise is Gaussian with the Poisson variance of the signal plus the
+        read noise. Its standard normals are read from a bank of independent
+        draws at a seeded random offset: every frame's noise is white and
+        reproducible, without drawing a new normal per pixel and channel.
+
         Parameters
         ----------
         pose : InstrumentPose
@@ -260,23 +265,77 @@ class Renderer:
         """
         cfg = self.setup.render
         camera = self.setup.camera
-        rng = np.random.default_rng(seed)
         lit = self.irradiance_image(pose, power_w)
         gain = exposure_gain(cfg.exposure_stops)
+        albedo, background, sigma, bank = _static_images(
+            camera, self.setup.true_radius_mm, self.setup.world.surface, cfg
+        )
+        noisy = cfg.full_well_e > 0
+        if noisy:
+            offset = int(np.random.default_rng(seed).integers(0, _NOISE_MARGIN))
+            noise = bank[offset : offset + background.size].reshape(background.shape)
         out = np.empty((camera.height_px, camera.width_px, 3), dtype=np.uint8)
-        albedo = self.albedo
+        scratch = np.empty((_ROW_CHUNK, camera.width_px, 3), dtype=np.float32)
         for r0 in range(0, camera.height_px, _ROW_CHUNK):
             r1 = min(r0 + _ROW_CHUNK, camera.height_px)
-            linear = albedo[r0:r1] * np.float32(cfg.ambient)
+            linear = background[r0:r1].copy()
+            chunk_sigma = sigma[r0:r1]
             if lit is not None and lit[1][1] < r1 and lit[1][3] > r0:
                 irradiance, (u0, v0, u1, v1) = lit
                 a, b = max(r0, v0), min(r1, v1)
                 light = (gain * irradiance[a - v0 : b - v0, :, None]).astype(np.float32)
                 linear[a - r0 : b - r0, u0:u1] += albedo[a:b, u0:u1] * light
-            if cfg.full_well_e > 0:
-                variance = np.maximum(linear, 0.0) / np.float32(cfg.full_well_e)
-                variance += np.float32((cfg.read_noise_e / cfg.full_well_e) ** 2)
-                linear += np.sqrt(variance) * rng.standard_normal(linear.shape, dtype=np.float32)
-            codes = (np.clip(linear, 0.0, 1.0) * 65535.0 + 0.5).astype(np.uint16)
-            out[r0:r1] = _SRGB_LUT[codes]
+                if noisy:
+                    chunk_sigma = chunk_sigma.copy()
+                    chunk_sigma[a - r0 : b - r0, u0:u1] = _noise_sigma(
+                        linear[a - r0 : b - r0, u0:u1], cfg.full_well_e, cfg.read_noise_e
+                    )
+            if noisy:
+                linear += np.multiply(chunk_sigma, noise[r0:r1], out=scratch[: r1 - r0])
+            np.clip(linear, 0.0, 1.0, out=linear)
+            linear *= np.float32(65535.0)
+            linear += np.float32(0.5)
+            out[r0:r1] = _SRGB_LUT[linear.astype(np.uint16)]
         return out
+
+
+@functools.lru_cache(maxsize=1)
+def _static_images(
+    camera: Camera, radius_mm: float, surface: str, cfg: RenderSettings
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What does not change between frames of one world, computed once (the last world is kept).
+
+    Returns
+    -------
+    albedo, background, sigma : ndarray, shape (H, W, 3), float32
+        Albedo seen by each pixel, the ambient-lit linear image and its noise sigma.
+    bank : ndarray, shape (H * W * 3 + margin,), float32
+        Independent standard normals; each frame reads them at a seeded offset.
+
+    Texture lookups use the sphere: a bump shifts its texture by at most its
+    height times the ray's slope (under 0.01 mm here), which is ignored.
+    """
+    texture = make_texture(cfg.texture, cfg.texture_seed)
+    albedo = np.empty((camera.height_px, camera.width_px, 3), dtype=np.float32)
+    u = np.arange(camera.width_px, dtype=float)
+    for r0 in range(0, camera.height_px, _ROW_CHUNK):
+        rows = np.arange(r0, min(r0 + _ROW_CHUNK, camera.height_px), dtype=float)
+        pixels = np.stack(np.meshgrid(u, rows), axis=-1)
+        if surface == "plane":
+            points = unproject_pixels_to_plane(camera, pixels)
+        else:
+            points = unproject_pixels_to_sphere(camera, pixels, radius_mm)
+        albedo[r0 : r0 + len(rows)] = sample_albedo(texture, points[..., 0], points[..., 1])
+    background = albedo * np.float32(cfg.ambient)
+    sigma = _noise_sigma(background, cfg.full_well_e, cfg.read_noise_e)
+    size = albedo.size + _NOISE_MARGIN
+    bank = np.random.default_rng(_NOISE_BANK_SEED).standard_normal(size, dtype=np.float32)
+    return albedo, background, sigma, bank
+
+
+def _noise_sigma(linear: np.ndarray, full_well_e: float, read_noise_e: float) -> np.ndarray:
+    """Standard deviation of shot plus read noise for linear pixel values (full scale 1)."""
+    if full_well_e <= 0:
+        return np.zeros_like(linear)
+    variance = np.maximum(linear, 0.0) / np.float32(full_well_e) + np.float32((read_noise_e / full_well_e) ** 2)
+    return np.sqrt(variance)

@@ -1,0 +1,98 @@
+"""Experiments: render known poses, localize them, measure the error and write the report.
+
+This layer may do I/O (CSV, Markdown, PNG figures, progress bars); the algorithm
+modules below it do none. Frames are seeded per pose, so results do not depend
+on the number of worker processes.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from functools import partial
+from pathlib import Path
+
+from spotnav.experiments.chapter6 import Experiment, Options, run_ellipse, run_paths, run_world
+from spotnav.experiments.core import THESIS_TABLE_4_1_UM, approximation_rows, run_approximation, run_volume
+from spotnav.experiments.paths import helix_tips, square_tips, working_volume_tips
+from spotnav.experiments.runner import ErrorSummary, FrameResult, FrameRunner, run_frames, summarize
+
+__all__ = [
+    "EXPERIMENTS",
+    "THESIS_TABLE_4_1_UM",
+    "ErrorSummary",
+    "Experiment",
+    "FrameResult",
+    "approximation_rows",
+    "helix_tips",
+    "reproduce",
+    "run_frames",
+    "square_tips",
+    "summarize",
+    "working_volume_tips",
+]
+
+EXPERIMENTS: dict[str, Callable[[Options], Experiment]] = {
+    "approximation": run_approximation,
+    "ellipse": run_ellipse,
+    "paths": run_paths,
+    "bumps": partial(run_world, "bumps"),
+    "radius": partial(run_world, "radius"),
+    "volume": run_volume,
+}
+
+
+def reproduce(
+    out: Path,
+    *,
+    quick: bool = False,
+    only: Sequence[str] = (),
+    workers: int = 1,
+    size_px: int | None = None,
+    poses: int | None = None,
+    log: Callable[[str], None] = print,
+) -> list[Experiment]:
+    """Run the experiments and write their CSVs, figures and ``report.md`` into ``out``.
+
+    Parameters
+    ----------
+    out : Path
+    quick : bool
+        1024 px and 25 poses per path instead of 5000 px and 100.
+    only : sequence of str
+        Experiment names (default: all of :data:`EXPERIMENTS`, in its order).
+    workers : int
+        Processes for rendering and localizing.
+    size_px, poses : int, optional
+        Override the image size and the number of poses per path.
+    log : callable
+        Receives one line per finished experiment.
+    """
+    unknown = sorted(set(only) - set(EXPERIMENTS))
+    if unknown:
+        raise ValueError(f"unknown experiment {unknown[0]!r}, allowed: {', '.join(EXPERIMENTS)}")
+    out.mkdir(parents=True, exist_ok=True)
+    size_px = size_px or (1024 if quick else 5000)
+    count = poses or (25 if quick else 100)
+    done = []
+    started = time.perf_counter()
+    with FrameRunner(workers) as runner:
+        options = Options(out, size_px, count, runner)
+        for name, run in EXPERIMENTS.items():
+            if only and name not in only:
+                continue
+            start = time.perf_counter()
+            experiment = run(options)
+            done.append(experiment)
+            log(f"{experiment.name} ({time.perf_counter() - start:.0f} s): {experiment.summary}")
+    command = "spotnav reproduce" + (" --quick" if quick else "")
+    header = [
+        "# spotnav reproduction of Hennerkes (2020)",
+        "",
+        f"Mode: {'quick' if quick else 'full'}, {size_px} px, {count} poses per path, {workers} workers, "
+        f"{time.perf_counter() - started:.0f} s. Regenerate with `{command}`.",
+        "",
+        "",
+    ]
+    (out / "report.md").write_text("\n".join(header) + "\n\n".join(e.markdown for e in done) + "\n", encoding="utf-8")
+    return done

@@ -1,0 +1,108 @@
+"""Figures in the style of the thesis's chapter 6 (PNG, matplotlib's Agg backend)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+__all__ = [
+    "plot_against_power",
+    "plot_gallery",
+    "plot_path_3d",
+    "plot_per_step",
+]
+
+_COLOURS = {"1 beam": "tab:green", "3 beams": "tab:blue"}
+
+
+@contextmanager
+def _figure(path: Path, rows: int, cols: int, size: tuple[float, float], title: str, **kw: Any) -> Iterator[np.ndarray]:
+    figure, axes = plt.subplots(rows, cols, figsize=size, squeeze=False, **kw)
+    try:
+        yield axes
+        figure.suptitle(title)
+        figure.tight_layout()
+        figure.savefig(path, dpi=110)
+    finally:
+        plt.close(figure)
+
+
+def plot_path_3d(path: Path, truth_tips: np.ndarray, estimates: Mapping[str, np.ndarray], title: str) -> None:
+    """True path as a line and estimated tips as dots, one 3D panel per estimate set (Figures 6.5, 6.6).
+
+    Parameters
+    ----------
+    truth_tips : ndarray, shape (N, 3)
+    estimates : mapping of label to ndarray, shape (N, 3)
+        NaN rows (no pose) are left out.
+    """
+    with _figure(path, 1, len(estimates), (5.5 * len(estimates), 5), title, subplot_kw={"projection": "3d"}) as axes:
+        for ax, (label, tips) in zip(axes[0], estimates.items(), strict=True):
+            ax.plot(*truth_tips.T, color="black", lw=1, label="true path")
+            ax.scatter(*tips.T, s=8, color=_COLOURS.get(label, "tab:red"), label="estimated")
+            ax.set(title=label, xlabel="x [mm]", ylabel="y [mm]", zlabel="z [mm]")
+            ax.legend(loc="upper left")
+
+
+def plot_per_step(
+    path: Path, panels: Mapping[str, Mapping[str, np.ndarray]], ylabel: str, title: str, *, bars: bool = False
+) -> None:
+    """One panel per key of ``panels``, each with curves over the path's steps (Figures 6.7-6.9).
+
+    Parameters
+    ----------
+    panels : mapping of panel title to (mapping of curve label to ndarray, shape (N,))
+    bars : bool
+        Draw the curves as side-by-side bars instead of lines.
+    """
+    with _figure(path, len(panels), 1, (10, 2.8 * len(panels)), title) as axes:
+        for ax, (name, curves) in zip(axes[:, 0], panels.items(), strict=True):
+            width = 0.8 / max(len(curves), 1)
+            for k, (label, values) in enumerate(curves.items()):
+                steps = np.arange(len(values))
+                colour = _COLOURS.get(label)
+                if bars:
+                    ax.bar(steps + (k - (len(curves) - 1) / 2) * width, values, width, label=label, color=colour)
+                else:
+                    ax.plot(steps, values, ".-", lw=0.8, ms=3, label=label, color=colour)
+            ax.axhline(0.0, color="grey", lw=0.6)
+            ax.set(title=name, xlabel="step", ylabel=ylabel)
+            ax.legend(fontsize="small")
+
+
+def plot_against_power(
+    path: Path, powers_w: Sequence[float], panels: Mapping[str, Mapping[str, Sequence[float]]], ylabel: str, title: str
+) -> None:
+    """Error against the light's power, one panel per path (Figures 6.17, 6.18).
+
+    Curve labels read ``"<beams>, <variant>"``: the colour follows the beams, the
+    line style the variant (solid for ours, dashed for ours calibrated, dotted for
+    the thesis's printed numbers).
+    """
+    styles = {"printed": (":", "x"), "5.5": ("--", "s")}
+    with _figure(path, 1, len(panels), (6.5 * len(panels), 4.5), title) as axes:
+        for ax, (name, curves) in zip(axes[0], panels.items(), strict=True):
+            for label, values in curves.items():
+                style, marker = next((v for k, v in styles.items() if k in label), ("-", "o"))
+                colour = _COLOURS.get(label.split(",")[0])
+                ax.plot(powers_w, values, linestyle=style, marker=marker, color=colour, label=label)
+            ax.set(title=name, xscale="log", xlabel="power [W]", ylabel=ylabel)
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize="small")
+
+
+def plot_gallery(path: Path, images: Mapping[str, np.ndarray], title: str) -> None:
+    """Images side by side with their titles (Figure 6.16)."""
+    with _figure(path, 1, len(images), (2.2 * len(images), 2.6), title) as axes:
+        for ax, (label, image) in zip(axes[0], images.items(), strict=True):
+            ax.imshow(image)
+            ax.set_title(label, fontsize="small")
+            ax.axis("off")

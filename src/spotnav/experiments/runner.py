@@ -1,0 +1,236 @@
+"""Render known poses, localize them and measure the error, across worker processes.
+
+Frames are seeded per pose, so results do not depend on the number of workers.
+Each worker keeps its renderer's static images between jobs of the same world.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from spotnav.config import Setup
+from spotnav.geometry import InstrumentPose, angles_between, axis_rotations
+from spotnav.localize import PoseEstimate, fit_height_correction, localize
+from spotnav.render import Renderer
+
+__all__ = [
+    "ErrorSummary",
+    "FrameJob",
+    "FrameResult",
+    "FrameRunner",
+    "Variant",
+    "run_frames",
+    "summarize",
+]
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One way to localize a rendered frame.
+
+    Attributes
+    ----------
+    label : str
+        Column name in reports.
+    setup : Setup
+        The localizer's setup (it may differ from the rendered world).
+    method : str
+        A :data:`spotnav.localize.METHODS` name.
+    """
+
+    label: str
+    setup: Setup
+    method: str = "thesis"
+
+
+@dataclass(frozen=True)
+class FrameJob:
+    """Render ``pose`` in ``world`` with noise ``seed`` and localize it with each variant."""
+
+    world: Setup
+    pose: InstrumentPose
+    seed: int
+    variants: tuple[Variant, ...]
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """One rendered frame localized by one variant.
+
+    Attributes
+    ----------
+    truth : InstrumentPose
+    estimate : PoseEstimate
+    render_ms, localize_ms : float
+        Wall time of each stage.
+    """
+
+    truth: InstrumentPose
+    estimate: PoseEstimate
+    render_ms: float
+    localize_ms: float
+
+    @property
+    def error_xyz_mm(self) -> np.ndarray:
+        """Estimate minus truth, shape (3,), mm; NaN unless ``ok``."""
+        if self.estimate.tip_in_eye is None:
+            return np.full(3, np.nan)
+        return self.estimate.tip_in_eye - self.truth.tip_in_eye
+
+    @property
+    def error_mm(self) -> float:
+        """Euclidean tip error, mm; NaN unless ``ok``."""
+        return float(np.linalg.norm(self.error_xyz_mm))
+
+    @property
+    def rotation_error_deg(self) -> np.ndarray:
+        """Absolute error of the axis's rotation about y and about z, and the angle between axes.
+
+        Shape (3,), degrees (see :func:`spotnav.geometry.axis_rotations`); NaN unless ``ok``.
+        """
+        if self.estimate.axis is None:
+            return np.full(3, np.nan)
+        difference = axis_rotations(self.estimate.axis) - axis_rotations(self.truth.axis)
+        wrapped = np.abs((difference + np.pi) % (2 * np.pi) - np.pi)
+        return np.degrees([*wrapped, angles_between(self.estimate.axis, self.truth.axis)])
+
+
+@dataclass(frozen=True)
+class ErrorSummary:
+    """Accuracy over a set of frames (``ok`` frames only).
+
+    Attributes
+    ----------
+    frames, ok : int
+    mean_mm, max_mm : float
+        Euclidean tip error.
+    bias_xyz_mm : ndarray, shape (3,)
+        Mean signed error per axis.
+    rotation_mean_deg, rotation_max_deg : ndarray, shape (3,)
+        About y, about z, and the angle between axes.
+    render_ms, localize_ms : float
+        Medians.
+    """
+
+    frames: int
+    ok: int
+    mean_mm: float
+    max_mm: float
+    bias_xyz_mm: np.ndarray
+    rotation_mean_deg: np.ndarray
+    rotation_max_deg: np.ndarray
+    render_ms: float
+    localize_ms: float
+
+
+def summarize(results: Sequence[FrameResult]) -> ErrorSummary:
+    """Mean and max tip and rotation errors, bias and median timings."""
+    errors = np.array([r.error_mm for r in results])
+    ok = np.isfinite(errors)
+    xyz = np.array([r.error_xyz_mm for r in results]).reshape(-1, 3)[ok]
+    rotations = np.array([r.rotation_error_deg for r in results]).reshape(-1, 3)[ok]
+    nan3 = np.full(3, np.nan)
+    return ErrorSummary(
+        frames=len(results),
+        ok=int(ok.sum()),
+        mean_mm=float(errors[ok].mean()) if ok.any() else float("nan"),
+        max_mm=float(errors[ok].max()) if ok.any() else float("nan"),
+        bias_xyz_mm=xyz.mean(axis=0) if ok.any() else nan3,
+        rotation_mean_deg=rotations.mean(axis=0) if ok.any() else nan3,
+        rotation_max_deg=rotations.max(axis=0) if ok.any() else nan3,
+        render_ms=float(np.median([r.render_ms for r in results])),
+        localize_ms=float(np.median([r.localize_ms for r in results])),
+    )
+
+
+def run_frame(job: FrameJob) -> tuple[FrameResult, ...]:
+    """Render one job's frame and localize it with each of its variants."""
+    start = time.perf_counter()
+    image = Renderer(job.world).render(job.pose, seed=job.seed)
+    render_ms = 1000 * (time.perf_counter() - start)
+    results = []
+    for variant in job.variants:
+        start = time.perf_counter()
+        estimate = localize(image, variant.setup, variant.method)
+        results.append(FrameResult(job.pose, estimate, render_ms, 1000 * (time.perf_counter() - start)))
+    return tuple(results)
+
+
+def calibrate_height(job: FrameJob) -> float:
+    """Section 5.5: render the job's pose and fit the height factor of its first variant's setup.
+
+    NaN when the frame shows no usable spot or the factor leaves the setup's range [0.5, 2].
+    """
+    image = Renderer(job.world).render(job.pose, seed=job.seed)
+    try:
+        factor = fit_height_correction(image, job.variants[0].setup, job.pose.tip_in_eye)
+    except ValueError:
+        return float("nan")
+    return factor if 0.5 <= factor <= 2.0 else float("nan")
+
+
+def render_frame(job: FrameJob) -> np.ndarray:
+    """Render the job's frame only."""
+    return Renderer(job.world).render(job.pose, seed=job.seed)
+
+
+class FrameRunner:
+    """Run jobs in this process (``workers = 1``) or in a pool of processes, with a progress bar.
+
+    Use as a context manager so that the pool is shut down.
+    """
+
+    def __init__(self, workers: int = 1) -> None:
+        if workers < 1:
+            raise ValueError(f"workers must be at least 1, got {workers}")
+        self.workers = workers
+        self._pool = ProcessPoolExecutor(workers) if workers > 1 else None
+
+    def __enter__(self) -> FrameRunner:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
+    ) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+
+    def map(self, function: Callable[[FrameJob], Any], jobs: Sequence[FrameJob], label: str) -> list[Any]:
+        """``[function(job) for job in jobs]``, in order, with a progress bar named ``label``."""
+        bar = tqdm(total=len(jobs), desc=label, unit="frame", leave=False, disable=None)
+        try:
+            if self._pool is None:
+                outputs: Iterable[Any] = map(function, jobs)
+            else:
+                outputs = self._pool.map(function, jobs, chunksize=max(1, len(jobs) // (8 * self.workers)))
+            results = []
+            for output in outputs:
+                results.append(output)
+                bar.update()
+            return results
+        finally:
+            bar.close()
+
+
+def run_frames(
+    setup: Setup,
+    poses: Sequence[InstrumentPose],
+    method: str = "thesis",
+    *,
+    seed: int = 0,
+    workers: int = 1,
+    label: str = "frames",
+) -> list[FrameResult]:
+    """Render and localize every pose in ``setup``'s world; frame ``i`` uses noise seed ``seed + i``."""
+    variant = (Variant(method, setup, method),)
+    jobs = [FrameJob(setup, pose, seed + i, variant) for i, pose in enumerate(poses)]
+    with FrameRunner(workers) as runner:
+        return [results[0] for results in runner.map(run_frame, jobs, label)]
