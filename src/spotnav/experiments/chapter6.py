@@ -270,6 +270,10 @@ ELLIPSE_CASES = {
     ),
 }
 ELLIPSE_TIP = (3.0, 3.0, 5.0)
+ELLIPSE_COLUMNS = (
+    "case beams true_x true_y true_z x_mm y_mm z_mm error_mm error_x error_y error_z "
+    "centre_u_px centre_v_px minor_px major_px rotation_deg alpha_deg s1_px s2_px"
+).split()
 
 
 def _ellipse_world(size_px: int, beams: int, surface: str) -> Setup:
@@ -343,6 +347,7 @@ def run_ellipse(options: Options) -> Experiment:
     header = ["case", "source", "centre u", "centre v", "axis 1", "axis 2", "rotation [deg]", "alpha [deg]", "s1", "s2"]
     rows, tips_rows, worst = [], [], 0.0
     truth = np.array(ELLIPSE_TIP)
+    csv_rows: list[list[object]] = []
     for index, (name, (_, _, ellipse, triangle, thesis_tips)) in enumerate(ELLIPSE_CASES.items()):
         one, three = outputs[2 * index], outputs[2 * index + 1]
         rows.append([name, "thesis", *(f"{v:.3f}" for v in ellipse), *(f"{v:.3f}" for v in triangle)])
@@ -353,17 +358,27 @@ def run_ellipse(options: Options) -> Experiment:
             worst = max(worst, float(errors.min()))
             ours = " / ".join("(" + ", ".join(f"{v:.3f}" for v in c) + ")" for c in candidates)
             one_text = f"{ours}; nearest {errors.min():.4f} mm"
+            nearest = candidates[np.argmin(errors)]
+            csv_rows.append(
+                [name, 1, *truth, *nearest, errors.min(), *(nearest - truth), *one["ellipse"], *one["triangle"]]
+            )
         else:
             rows.append(["", "spotnav", *["no fit"] * 8])
             one_text = f"no single whole spot ({one['spots']} found)"
         pose = three["pose"]
         if pose is not None and pose.ok:
             three_text = f"{np.linalg.norm(pose.tip_in_eye - truth):.4f} mm ({pose.spots} spots)"
+            error = pose.tip_in_eye - truth
+            csv_rows.append([name, 3, *truth, *pose.tip_in_eye, np.linalg.norm(error), *error] + [""] * 8)
         else:
             three_text = "no pose" if pose is None else f"{pose.status}: {pose.detail}"
         tips_rows.append([name, thesis_tips, one_text, three_text])
     lines += _table(header, rows)
     lines += ["", *_table(["case", "thesis: candidates", "spotnav, 1 beam: candidates", "spotnav, 3 beams"], tips_rows)]
+    with (options.out / "ellipse.csv").open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(ELLIPSE_COLUMNS)
+        writer.writerows([[f"{v:.6f}" if isinstance(v, float) else v for v in row] for row in csv_rows])
     return Experiment("ellipse", "\n".join(lines), f"ellipse tests: nearest candidate within {worst:.4f} mm")
 
 
