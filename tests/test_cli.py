@@ -11,6 +11,7 @@ import pytest
 
 from spotnav.cli import main
 from spotnav.config import EXAMPLE_SETUP, Setup, setup_from_toml
+from spotnav.geometry import edge_angle_of_blend
 
 
 def write_scene(path: Path, size_px: int = 5000, blend: float = 0.0) -> Path:
@@ -18,6 +19,8 @@ def write_scene(path: Path, size_px: int = 5000, blend: float = 0.0) -> Path:
         "height_px = 5000", f"height_px = {size_px}"
     )
     text = text.replace("blend = 0.15 ", f"blend = {blend} ")
+    edge = np.degrees(edge_angle_of_blend(np.radians(9.0), blend))  # the precise method's edge model
+    text = text.replace("# edge_half_angle_deg = 8.656 #", f"edge_half_angle_deg = {edge:.6f} #")
     path.write_text(text)
     return path
 
@@ -52,7 +55,7 @@ def test_round_trip_at_5000_px(tmp_path: Path) -> None:
 
 
 def test_localize_keeps_going_past_bad_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    scene = write_scene(tmp_path / "setup.toml", size_px=256)
+    scene = write_scene(tmp_path / "setup.toml", size_px=384)
     good = tmp_path / "good.png"
     assert main(["render", "--scene", str(scene), "--tip", "0", "0", "4", "--out", str(good)]) == 0
     dark = tmp_path / "dark.png"

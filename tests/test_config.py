@@ -58,6 +58,8 @@ def test_bumps_are_parsed() -> None:
         ("[world]\nsurface = 'cube'", "world.surface"),
         ("[world]\nsurface = 'plane'\nbumps = [{x_mm = 0.0, y_mm = 0.0}]", "world.bumps"),
         ("[instrument]\nheight_correction = 3.0", "instrument.height_correction"),
+        ("[instrument]\nedge_half_angle_deg = 0.0", "instrument.edge_half_angle_deg"),
+        ("[instrument]\nedge_half_angle_deg = 'wide'", "instrument.edge_half_angle_deg"),
         ("[tip]\nx = 1", "[tip]"),
         ("eye = 3", "[eye]"),
         ("[eye\nradius_mm = 1", "not valid TOML"),
@@ -121,6 +123,7 @@ values = st.one_of(
             "texture",
             "surface",
             "height_correction",
+            "edge_half_angle_deg",
             "bogus",
         ]
     ),

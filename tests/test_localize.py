@@ -7,9 +7,9 @@ import pytest
 from conftest import small_setup
 
 from spotnav.config import Light, Setup
-from spotnav.experiments import working_volume_tips
-from spotnav.geometry import InstrumentPose
-from spotnav.localize import STATUSES, PoseEstimate, fit_height_correction, localize
+from spotnav.experiments import helix_tips, working_volume_tips
+from spotnav.geometry import InstrumentPose, angles_between
+from spotnav.localize import STATUSES, PoseEstimate, edge_half_angle, fit_height_correction, localize
 from spotnav.render import Renderer
 
 
@@ -35,35 +35,42 @@ def test_soft_edge_biases_the_height_down() -> None:
     dz = []
     for i, tip in enumerate(working_volume_tips(5, seed=1)):
         pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
-        estimate = localize(renderer.render(pose, seed=i), setup)
+        estimate = localize(renderer.render(pose, seed=i), setup, "thesis")
         assert estimate.ok
         dz.append(estimate.tip_in_eye[2] - tip[2])
     assert np.all(np.array(dz) < -0.02)
 
 
-def test_no_spot(renderer_512: Renderer) -> None:
+METHOD_NAMES = ["thesis", "precise", "precise-free"]
+
+
+@pytest.mark.parametrize("method", METHOD_NAMES)
+def test_no_spot(renderer_512: Renderer, method: str) -> None:
     image = renderer_512.render(InstrumentPose([0.0, 0.0, 5.0], [0.0, 0.0, -1.0]), power_w=0.0)
-    estimate = localize(image, renderer_512.setup)
+    estimate = localize(image, renderer_512.setup, method)
     assert estimate.status == "no_spot"
     assert estimate.tip_in_eye is None and estimate.axis is None
 
 
-def test_spot_cut_by_the_border_is_clipped(renderer_512: Renderer) -> None:
+@pytest.mark.parametrize("method", METHOD_NAMES)
+def test_spot_cut_by_the_border_is_clipped(renderer_512: Renderer, method: str) -> None:
     image = renderer_512.render(InstrumentPose([6.4, 0.0, 4.0], [0.0, 0.0, -1.0]))
-    assert localize(image, renderer_512.setup).status == "clipped"
+    assert localize(image, renderer_512.setup, method).status == "clipped"
 
 
-def test_three_spots_for_one_beam_are_ambiguous(renderer_512: Renderer) -> None:
+@pytest.mark.parametrize("method", METHOD_NAMES)
+def test_three_spots_for_one_beam_are_ambiguous(renderer_512: Renderer, method: str) -> None:
     setup = renderer_512.setup
     three = replace(setup, instrument=replace(setup.instrument, beam_count=3))
     image = Renderer(three).render(InstrumentPose([0.0, 0.0, 4.0], [0.0, 0.0, -1.0]))
-    estimate = localize(image, setup)
+    estimate = localize(image, setup, method)
     assert estimate.status == "ambiguous"
     assert estimate.spots == 3
 
 
-def test_wrong_size(renderer_512: Renderer) -> None:
-    estimate = localize(np.zeros((100, 120, 3), np.uint8), renderer_512.setup)
+@pytest.mark.parametrize("method", METHOD_NAMES)
+def test_wrong_size(renderer_512: Renderer, method: str) -> None:
+    estimate = localize(np.zeros((100, 120, 3), np.uint8), renderer_512.setup, method)
     assert estimate.status == "wrong_size"
     assert "120x100" in estimate.detail
 
@@ -71,7 +78,7 @@ def test_wrong_size(renderer_512: Renderer) -> None:
 def test_low_power_is_still_found_or_refused_never_wrong(renderer_512: Renderer) -> None:
     setup = replace(renderer_512.setup, light=Light(power_w=0.01, blend=0.0))
     pose = InstrumentPose.through_insertion([0.5, 0.5, 4.0], setup.instrument.insertion_in_eye)
-    estimate = localize(Renderer(setup).render(pose), setup)
+    estimate = localize(Renderer(setup).render(pose), setup, "thesis")
     # At 0.01 W the spot barely clears the textured background: Otsu may split the
     # background too (ambiguous) or see nothing (no_spot); a pose, if any, must be close.
     assert estimate.status in STATUSES
@@ -113,7 +120,7 @@ def test_three_beams_answer_from_two_spots(renderer_512: Renderer) -> None:
     # Beam 0 tilts toward +x: near the right border its spot is cut, the other two still give the tip.
     setup = _three_beam(renderer_512.setup)
     pose = InstrumentPose([5.5, 0.0, 4.0], [0.0, 0.0, -1.0])
-    estimate = localize(Renderer(setup).render(pose, seed=0), setup)
+    estimate = localize(Renderer(setup).render(pose, seed=0), setup, "thesis")
     assert estimate.ok and estimate.spots == 2
     assert "2 of 3" in estimate.detail
     assert np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < 0.1
@@ -130,8 +137,8 @@ def test_height_correction_removes_the_soft_edge_bias() -> None:
     plain_errors, calibrated_errors = [], []
     for i, tip in enumerate(working_volume_tips(6, seed=2)):
         image = renderer.render(InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye), seed=i)
-        plain_errors.append(np.linalg.norm(localize(image, setup).tip_in_eye - tip))
-        calibrated_errors.append(np.linalg.norm(localize(image, calibrated).tip_in_eye - tip))
+        plain_errors.append(np.linalg.norm(localize(image, setup, "thesis").tip_in_eye - tip))
+        calibrated_errors.append(np.linalg.norm(localize(image, calibrated, "thesis").tip_in_eye - tip))
     assert np.mean(calibrated_errors) < 0.5 * np.mean(plain_errors)
 
 
@@ -146,3 +153,64 @@ def test_height_correction_needs_a_spot(renderer_512: Renderer) -> None:
     dark = renderer_512.render(InstrumentPose([0.0, 0.0, 4.0], [0.0, 0.0, -1.0]), power_w=0.0)
     with pytest.raises(ValueError, match="no whole spot"):
         fit_height_correction(dark, renderer_512.setup, np.array([0.0, 0.0, 4.0]))
+
+
+def test_precise_round_trip_2048_soft_edge() -> None:
+    # The default soft edge (blend 0.15) and its default edge model: the precise method's error is a
+    # few micrometres where the thesis method's is over 0.1 mm, and its 3-sigma bounds hold.
+    setup = small_setup(2048, blend=0.15)
+    renderer = Renderer(setup)
+    errors, sigmas = [], []
+    for i, tip in enumerate(helix_tips(8)):
+        pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
+        estimate = localize(renderer.render(pose, seed=i), setup)
+        assert estimate.ok, estimate.detail
+        errors.append(np.linalg.norm(estimate.tip_in_eye - tip))
+        sigmas.append(estimate.sigma_mm)
+        assert estimate.rms_px < 1.0
+    assert np.mean(errors) < 0.008 and np.max(errors) < 0.025
+    assert np.mean(np.array(errors) < 3 * np.array(sigmas)) >= 0.75
+
+
+def test_precise_three_beams_jointly() -> None:
+    setup = _three_beam(small_setup(1024, blend=0.15))
+    renderer = Renderer(setup)
+    errors = []
+    for i, tip in enumerate(helix_tips(5)):
+        pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
+        estimate = localize(renderer.render(pose, seed=i), setup, "precise")
+        assert estimate.ok and estimate.spots == 3, estimate.detail
+        errors.append(np.linalg.norm(estimate.tip_in_eye - tip))
+    assert np.mean(errors) < 0.005
+
+
+def test_precise_answers_from_two_of_three_spots(renderer_512: Renderer) -> None:
+    setup = _three_beam(renderer_512.setup)
+    setup = replace(setup, instrument=replace(setup.instrument, edge_half_angle_deg=9.0))  # sharp edge
+    pose = InstrumentPose.through_insertion([5.3, 0.5, 4.0], setup.instrument.insertion_in_eye)
+    estimate = localize(Renderer(setup).render(pose, seed=0), setup, "precise")
+    assert estimate.ok and estimate.spots == 2, estimate.detail
+    assert np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < 0.05
+
+
+def test_precise_refuses_a_pose_off_the_insertion_line_but_precise_free_finds_it() -> None:
+    # Three beams fix the axis; one beam leaves a mirror-image cone that fits alike.
+    setup = small_setup(1024, blend=0.15)
+    pose = InstrumentPose([1.0, 1.0, 4.5], [0.25, 0.1, -1.0])
+    one = Renderer(setup).render(pose, seed=3)
+    assert localize(one, setup, "precise").status in ("unreliable", "ambiguous")
+    assert localize(one, setup, "precise-free").status == "ambiguous"
+    three_setup = _three_beam(setup)
+    three = Renderer(three_setup).render(pose, seed=3)
+    assert localize(three, three_setup, "precise").status in ("unreliable", "ambiguous")
+    free = localize(three, three_setup, "precise-free")
+    assert free.ok, free.detail
+    assert np.linalg.norm(free.tip_in_eye - pose.tip_in_eye) < 0.01
+    assert angles_between(free.axis, pose.axis) < np.radians(0.5)
+
+
+def test_edge_half_angle_default_and_override() -> None:
+    setup = small_setup(256)
+    assert np.degrees(edge_half_angle(setup)) == pytest.approx(8.6553, abs=1e-4)  # blend 0.15 on 9 deg
+    sharp = replace(setup, instrument=replace(setup.instrument, edge_half_angle_deg=9.0))
+    assert edge_half_angle(sharp) == pytest.approx(np.radians(9.0))

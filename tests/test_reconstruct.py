@@ -5,10 +5,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spotnav.geometry import InstrumentPose, cone_generators, cone_sphere_curve, normalize
+from spotnav.geometry import InstrumentPose, angles_between, beam_axes, cone_generators, cone_sphere_curve, normalize
 from spotnav.reconstruct import (
     apex_candidates,
     choose_by_insertion,
+    fit_cones,
     fit_ellipse,
     sphere_normal,
     triangle_from_ellipse,
@@ -116,3 +117,47 @@ def test_height_correction_scales_the_triangle_about_the_ellipse_centre() -> Non
     assert np.min(np.linalg.norm(corrected.apexes - apex, axis=1)) < 1e-3
     np.testing.assert_allclose(corrected.plane_normal_in_eye, normal, atol=1e-12)
     assert corrected.s2 == pytest.approx(plain.s2)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    x=st.floats(-2.5, 2.5),
+    y=st.floats(-2.5, 2.5),
+    z=st.floats(3, 6),
+    roll=st.floats(-np.pi, np.pi),
+    beams=st.sampled_from([1, 3]),
+)
+def test_fit_cones_recovers_the_pose_from_exact_curves(x: float, y: float, z: float, roll: float, beams: int) -> None:
+    # Points on the exact cone-sphere curves, a start 0.1 mm off: the fit lands on the truth.
+    tilt = np.radians(15.0)
+    pose = InstrumentPose.through_insertion([x, y, z], INSERTION)
+    axes = beam_axes(pose.axis, beams, tilt, roll if beams == 3 else 0.0)
+    curves = [cone_sphere_curve(pose.tip_in_eye, a, BETA, CENTER, 12.5, count=200) for a in axes]
+    fit = fit_cones(
+        curves,
+        list(range(beams)),
+        BETA,
+        beam_count=beams,
+        tilt=tilt,
+        tip_in_eye=pose.tip_in_eye + np.array([0.05, -0.05, 0.08]),
+        axis=pose.axis,
+        roll=(roll + 0.05) if beams == 3 else 0.0,
+        insertion_in_eye=INSERTION,
+    )
+    np.testing.assert_allclose(fit.tip_in_eye, pose.tip_in_eye, atol=1e-6)
+    np.testing.assert_allclose(fit.axis, pose.axis, atol=1e-6)
+    assert fit.inliers.all()
+    assert fit.tip_sigma_mm < 1e-6
+
+
+def test_fit_cones_frees_the_axis_and_reports_the_edge_model_uncertainty() -> None:
+    pose = InstrumentPose([1.0, -0.5, 4.5], [0.2, -0.1, -1.0])  # not through the insertion point
+    curve = cone_sphere_curve(pose.tip_in_eye, pose.axis, BETA, CENTER, 12.5, count=300)
+    rng = np.random.default_rng(0)
+    noisy = curve + rng.normal(0.0, 0.001, curve.shape)
+    common = {"beam_count": 1, "tilt": 0.0, "tip_in_eye": pose.tip_in_eye + 0.05, "axis": pose.axis}
+    free = fit_cones([noisy], [0], BETA, **common)
+    assert np.linalg.norm(free.tip_in_eye - pose.tip_in_eye) < 3 * free.tip_sigma_mm + 1e-4
+    assert angles_between(free.axis, pose.axis) < np.radians(1.0)
+    with_model = fit_cones([noisy], [0], BETA, edge_sigma=np.radians(0.01), **common)
+    assert with_model.tip_sigma_mm > free.tip_sigma_mm

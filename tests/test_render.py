@@ -9,7 +9,8 @@ from conftest import small_setup
 from spotnav.camera import project_points
 from spotnav.config import Bump, World
 from spotnav.geometry import InstrumentPose, cone_sphere_curve
-from spotnav.render import Renderer, bump_height, exposure_gain, spot_mask
+from spotnav.geometry import spot_attenuation as spot_mask
+from spotnav.render import Renderer, bump_height, exposure_gain
 
 
 def test_spot_mask_is_cycles_smoothstep() -> None:

@@ -164,6 +164,11 @@ class Instrument:
     height_correction : float
         The thesis method's height correction factor (section 5.5), in
         [0.5, 2]: it scales each reconstructed cone triangle. 1 = none.
+    edge_half_angle_deg : float or None
+        The precise method's edge model: the angle from each beam's axis at
+        which the detected edge (the level halfway between the spot's plateau
+        and the background) sits, in (0, 45) degrees. ``None``: that of a
+        Cycles spot of ``beam_half_angle_deg`` with Blender's default blend 0.15.
     """
 
     insertion_point_mm: tuple[float, float, float] = (0.0, 6.0, 20.0)
@@ -171,6 +176,7 @@ class Instrument:
     beam_count: int = 1
     beam_tilt_deg: float = 15.0
     height_correction: float = 1.0
+    edge_half_angle_deg: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -187,6 +193,9 @@ class Instrument:
         _in_range(key, _number(key, self.beam_tilt_deg), 0.0, 45.0, high_open=True)
         key = "instrument.height_correction"
         _in_range(key, _number(key, self.height_correction), 0.5, 2.0)
+        if self.edge_half_angle_deg is not None:
+            key = "instrument.edge_half_angle_deg"
+            _in_range(key, _number(key, self.edge_half_angle_deg), 0.0, 45.0, low_open=True, high_open=True)
 
     @property
     def beam_half_angle(self) -> float:
@@ -469,6 +478,7 @@ beam_half_angle_deg = 9.0     # cone half-angle (beta), in (0, 45)
 beam_count = 1                # 1 or 3
 beam_tilt_deg = 15.0          # tilt of each beam from the axis when beam_count = 3
 height_correction = 1.0       # thesis method only: section 5.5 height factor, 1 = none
+# edge_half_angle_deg = 8.656 # precise method's edge model (default: beta with Blender's blend 0.15)
 
 [light]                       # simulator only, Blender's conventions
 power_w = 1.0                 # radiant intensity power_w / (4 pi) W/sr on the axis

@@ -1,7 +1,9 @@
-"""Spot detection as in the thesis (section 5.3, Algorithm 1).
+"""Spot detection: the thesis's (section 5.3, Algorithm 1) and spotnav's sub-pixel edges.
 
-Grey conversion, median blur, Gaussian blur, Otsu threshold and
+The thesis's: grey conversion, median blur, Gaussian blur, Otsu threshold and
 ``findContours`` without approximation; contours of more than 5 points.
+spotnav's precise method starts from those contours and locates each spot's
+edge to a fraction of a pixel along rays (:func:`detect_edge_subpixel`).
 """
 
 from __future__ import annotations
@@ -10,13 +12,21 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
-__all__ = ["Spot", "SpotDetection", "detect_spots_otsu", "to_gray8"]
+__all__ = [
+    "Spot",
+    "SpotDetection",
+    "SpotEdge",
+    "detect_edge_subpixel",
+    "detect_spots_otsu",
+    "linear_luminance",
+    "to_gray8",
+]
 
 _MIN_CONTOUR_POINTS = 5
 _MIN_AREA_FRACTION = 0.1  # blobs smaller than this fraction of the largest are clutter
 _MIN_CONTRAST_DN = 6.0
-_MIN_CONTRAST_SIGMA = 6.0
 
 
 @dataclass(frozen=True)
@@ -94,7 +104,7 @@ def _histogram_median(histogram: np.ndarray) -> int:
     return int(np.searchsorted(cumulative, 0.5 * cumulative[-1]))
 
 
-def detect_spots_otsu(image: np.ndarray, blur_px: int = 5) -> SpotDetection:
+def detect_spots_otsu(image: np.ndarray, blur_px: int = 5, min_contrast_sigma: float = 6.0) -> SpotDetection:
     """Find the bright spots as the thesis does.
 
     Parameters
@@ -103,6 +113,9 @@ def detect_spots_otsu(image: np.ndarray, blur_px: int = 5) -> SpotDetection:
         Grey, RGB or RGBA, 8 or 16 bits (see :func:`to_gray8`).
     blur_px : int
         Odd kernel size of the median and Gaussian blurs.
+    min_contrast_sigma : float
+        A spot must stand out from the background's median by this many of the
+        background's robust standard deviations (and by 6 grey levels).
 
     Returns
     -------
@@ -126,7 +139,7 @@ def detect_spots_otsu(image: np.ndarray, blur_px: int = 5) -> SpotDetection:
     spread = 1.4826 * _histogram_median(deviations)
     contrast = float(cv2.mean(blurred, mask)[0] - median)
     min_area = max(20.0, 1e-5 * gray.size)
-    if areas[largest] < min_area or contrast < max(_MIN_CONTRAST_DN, _MIN_CONTRAST_SIGMA * spread):
+    if areas[largest] < min_area or contrast < max(_MIN_CONTRAST_DN, min_contrast_sigma * spread):
         return SpotDetection((), float(threshold), contrast)
     height, width = gray.shape
     order = np.argsort(-areas)
@@ -144,3 +157,193 @@ def detect_spots_otsu(image: np.ndarray, blur_px: int = 5) -> SpotDetection:
         if areas[i] >= _MIN_AREA_FRACTION * areas[largest]
     )
     return SpotDetection(spots, float(threshold), contrast)
+
+
+def _srgb_to_linear(codes: np.ndarray) -> np.ndarray:
+    values = codes.astype(np.float64)
+    return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+_LINEAR_8 = _srgb_to_linear(np.arange(256) / 255.0)
+_LINEAR_16 = _srgb_to_linear(np.arange(65536) / 65535.0)
+_LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # Rec. 709, on linear values
+
+
+def linear_luminance(image: np.ndarray) -> np.ndarray:
+    """Linear luminance of an sRGB-encoded frame, full scale 1.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W), (H, W, 3) or (H, W, 4), uint8 or uint16
+        sRGB-encoded grey or RGB(A), as the built-in renderer and Blender's
+        standard view transform write.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+    """
+    if image.dtype == np.uint8:
+        linear = _LINEAR_8[image]
+    elif image.dtype == np.uint16:
+        linear = _LINEAR_16[image]
+    else:
+        raise ValueError(f"image must be 8-bit or 16-bit, got {image.dtype}")
+    if linear.ndim == 2:
+        return linear
+    if linear.ndim == 3 and linear.shape[2] in (3, 4):
+        return linear[..., :3] @ _LUMINANCE
+    raise ValueError(f"image must be grey, RGB or RGBA, got shape {image.shape}")
+
+
+@dataclass(frozen=True)
+class SpotEdge:
+    """A spot's boundary located to a fraction of a pixel.
+
+    Attributes
+    ----------
+    pixels : ndarray, shape (N, 2)
+        Edge points ``(u, v)``, one per valid ray, in ray order around the spot.
+    ray_angles : ndarray, shape (N,)
+        Direction of each point's ray from the spot's centre, radians.
+    width_px : float
+        Width of the edge: full width at half maximum of the mean intensity slope.
+    saturated : bool
+        Whether the spot reaches full scale somewhere.
+    rays : int
+        Rays cast; ``len(pixels)`` of them gave an edge.
+    """
+
+    pixels: np.ndarray
+    ray_angles: np.ndarray
+    width_px: float
+    saturated: bool
+    rays: int
+
+
+_STEP_PX = 0.5
+
+
+def detect_edge_subpixel(image: np.ndarray, spot: Spot) -> SpotEdge:
+    """Locate a spot's edge to a fraction of a pixel, independently of the light's power.
+
+    Rays are cast from the spot's centre across its coarse (Otsu) boundary. On
+    each ray the linear luminance (of the brightest channel that does not clip)
+    is lightly smoothed; straight lines are fitted to the plateau inside the
+    edge and to the background outside it, and the edge is put where the
+    profile crosses the level halfway between them. Levels relative to the
+    local plateau and background do not move when the power changes, and the
+    lines follow the light's fall-off across the edge. The edge's width (from
+    the mean profile of all rays) sets where the lines are fitted. Rays without
+    a clear crossing give no point.
+
+    Parameters
+    ----------
+    image : ndarray
+        The frame, sRGB-encoded (see :func:`linear_luminance`).
+    spot : Spot
+        The spot's coarse detection.
+
+    Returns
+    -------
+    SpotEdge
+    """
+    contour = spot.contour_px.astype(float)
+    centre = contour.mean(axis=0)
+    offsets = contour - centre
+    contour_angles = np.arctan2(offsets[:, 1], offsets[:, 0])
+    order = np.argsort(contour_angles)
+    contour_radii = np.hypot(offsets[:, 0], offsets[:, 1])[order]
+    perimeter = float(cv2.arcLength(spot.contour_px.astype(np.float32).reshape(-1, 1, 2), True))
+    rays = int(np.clip(perimeter / 2.0, 64, 1024))
+    ray_angles = np.linspace(-np.pi, np.pi, rays, endpoint=False)
+    radii = np.interp(ray_angles, contour_angles[order], contour_radii, period=2 * np.pi)
+    half_window = 0.15 * float(np.mean(radii)) + 8.0
+    steps = np.arange(-half_window, half_window + _STEP_PX, _STEP_PX)
+    directions = np.column_stack([np.cos(ray_angles), np.sin(ray_angles)])
+    positions = centre + (radii[:, None, None] + steps[None, :, None]) * directions[:, None, :]
+    profiles, saturated = _sample_linear(image, positions)
+    finite = np.all(np.isfinite(profiles), axis=1)
+    mean_profile = np.nanmedian(profiles, axis=0)
+    mean_slope = -np.gradient(gaussian_filter1d(mean_profile, 2.0))
+    width = max(_full_width_at_half_maximum(mean_slope), 3.0)  # samples
+    middle = int(np.argmax(mean_slope))
+    smooth = gaussian_filter1d(np.where(finite[:, None], profiles, mean_profile), 2.0, axis=1)
+    plateau = _fit_lines(smooth, middle - 2.5 * width, middle - 1.0 * width)
+    background = _fit_lines(smooth, middle + 1.0 * width, middle + 2.5 * width)
+    index = np.arange(len(steps), dtype=float)
+    level = 0.5 * (plateau[0][:, None] + plateau[1][:, None] * index + background[0][:, None])
+    level += 0.5 * background[1][:, None] * index
+    above = smooth - level
+    lo, hi = max(int(middle - width), 0), min(int(middle + width) + 1, len(steps) - 1)
+    # The first fall from above the level to below it, searching outward within the edge.
+    falls = (above[:, lo:hi] > 0) & (above[:, lo + 1 : hi + 1] <= 0)
+    has_fall = falls.any(axis=1)
+    first = lo + np.argmax(falls, axis=1)
+    rows = np.arange(rays)
+    a, b = above[rows, first], above[rows, first + 1]
+    fraction = a / np.where(a - b > 0, a - b, 1.0)
+    contrast = (plateau[0] + plateau[1] * first) - (background[0] + background[1] * first)
+    noise = 1.4826 * np.median(np.abs(np.diff(profiles[finite], axis=1))) / np.sqrt(2) if finite.any() else 0.0
+    valid = finite & has_fall & (contrast > max(4.0 * noise, 1e-4))
+    edge_radii = radii + steps[0] + (first + fraction) * _STEP_PX
+    pixels = centre + edge_radii[:, None] * directions
+    return SpotEdge(pixels[valid], ray_angles[valid], width * _STEP_PX, saturated, rays)
+
+
+def _fit_lines(profiles: np.ndarray, start: float, stop: float) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares line ``a + b * index`` through each row's samples with index in [start, stop]."""
+    count = profiles.shape[1]
+    first, last = int(np.clip(np.ceil(start), 0, count - 2)), int(np.clip(np.floor(stop), 1, count - 1))
+    last = max(last, first + 1)
+    x = np.arange(first, last + 1, dtype=float)
+    y = profiles[:, first : last + 1]
+    x_mean = x.mean()
+    slope = ((y - y.mean(axis=1, keepdims=True)) @ (x - x_mean)) / np.sum((x - x_mean) ** 2)
+    return y.mean(axis=1) - slope * x_mean, slope
+
+
+def _sample_linear(image: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Bilinear samples of the linear luminance at ``positions`` (..., 2); NaN off the image."""
+    height, width = image.shape[:2]
+    u0 = max(int(np.floor(np.nanmin(positions[..., 0]))) - 1, 0)
+    v0 = max(int(np.floor(np.nanmin(positions[..., 1]))) - 1, 0)
+    u1 = min(int(np.ceil(np.nanmax(positions[..., 0]))) + 2, width)
+    v1 = min(int(np.ceil(np.nanmax(positions[..., 1]))) + 2, height)
+    crop, saturated = _brightest_unsaturated_channel(image[v0:v1, u0:u1])
+    map_u = (positions[..., 0] - u0).astype(np.float32)
+    map_v = (positions[..., 1] - v0).astype(np.float32)
+    samples = cv2.remap(crop, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    outside = (map_u < 0) | (map_v < 0) | (map_u > crop.shape[1] - 1) | (map_v > crop.shape[0] - 1)
+    samples[outside] = np.nan
+    return samples, saturated
+
+
+def _brightest_unsaturated_channel(image: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The linear channel with the most signal that never reaches full scale (else the least clipped one).
+
+    A clipped channel bends the profile where it clips; another channel still
+    holds the edge's true shape. Returns the channel and whether any clipped.
+    """
+    lut = _LINEAR_8 if image.dtype == np.uint8 else _LINEAR_16
+    linear = lut[image] if image.ndim == 3 else lut[image][..., None]
+    linear = linear[..., :3]
+    clipped = np.count_nonzero(linear >= 0.99, axis=(0, 1))
+    if np.any(clipped == 0):
+        brightest = np.where(clipped == 0, linear.max(axis=(0, 1)), -1.0)
+        channel = int(np.argmax(brightest))
+    else:
+        channel = int(np.argmin(clipped))
+    return np.ascontiguousarray(linear[..., channel]), bool(np.any(clipped))
+
+
+def _full_width_at_half_maximum(values: np.ndarray) -> float:
+    """Width, in samples, of the region around the maximum above half of it."""
+    peak = int(np.nanargmax(values))
+    half = 0.5 * values[peak]
+    left = peak
+    while left > 0 and values[left - 1] > half:
+        left -= 1
+    right = peak
+    while right < len(values) - 1 and values[right + 1] > half:
+        right += 1
+    return float(right - left + 1)

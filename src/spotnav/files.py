@@ -32,7 +32,10 @@ __all__ = [
     "write_truth_json",
 ]
 
-POSES_COLUMNS = ("image", "status", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z", "spots", "time_ms", "detail")
+POSES_COLUMNS = (
+    *("image", "status", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z"),  # the contract's
+    *("spots", "sigma_mm", "rms_px", "other_dir_x", "other_dir_y", "other_dir_z", "time_ms", "detail"),
+)
 
 
 class ImageReadError(ValueError):
@@ -125,12 +128,20 @@ def pose_row(image: str, estimate: PoseEstimate, time_ms: float | None = None) -
         numbers = [_format(v) for v in (*estimate.tip_in_eye, *estimate.axis)]
     else:
         numbers = [""] * 6
+    quality = ["" if not np.isfinite(v) else _format(v) for v in (estimate.sigma_mm, estimate.rms_px)]
+    other = [""] * 3 if estimate.other_axis is None else [_format(v) for v in estimate.other_axis]
     timing = "" if time_ms is None else f"{time_ms:.1f}"
-    return [image, estimate.status, *numbers, str(estimate.spots), timing, estimate.detail]
+    return [image, estimate.status, *numbers, str(estimate.spots), *quality, *other, timing, estimate.detail]
 
 
 def write_poses_csv(path: str | Path, rows: Iterable[Sequence[str]]) -> None:
-    """Write ``poses.csv`` (contract columns first, then spots, time_ms, detail)."""
+    """Write ``poses.csv``: the contract's columns first, then :data:`POSES_COLUMNS`' own.
+
+    ``sigma_mm`` is the precise method's 1-sigma tip uncertainty, ``rms_px`` its
+    edge points' RMS distance from the fitted cones, ``other_dir_*`` its
+    cross-check axis (fitted without the insertion point, or with it for
+    ``precise-free``); all empty for the thesis's method.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="", encoding="utf-8") as handle:

@@ -20,11 +20,13 @@ __all__ = [
     "beam_axes",
     "cone_generators",
     "cone_sphere_curve",
+    "edge_angle_of_blend",
     "intersect_rays_sphere",
     "normalize",
     "orthonormal_basis",
     "rotation_about_y",
     "rotation_about_z",
+    "spot_attenuation",
 ]
 
 
@@ -177,12 +179,13 @@ def cone_sphere_curve(
     return apex + t[:, None] * rays
 
 
-def beam_axes(axis: np.ndarray, beam_count: int, tilt: float) -> np.ndarray:
+def beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float = 0.0) -> np.ndarray:
     """Beam axes of the instrument, contract's roll convention.
 
     One beam shares the instrument axis. Three beams tilt by ``tilt`` from it,
-    beam 0 toward ``e1`` of :func:`orthonormal_basis`, beams 1 and 2 at +120 and
-    +240 degrees counter-clockwise seen from the tip looking along the axis.
+    beam 0 toward ``e1`` of :func:`orthonormal_basis` turned by ``roll``, beams
+    1 and 2 at +120 and +240 degrees further; turns are counter-clockwise seen
+    from the tip looking along the axis. The contract's zero roll is ``roll = 0``.
 
     Returns
     -------
@@ -192,8 +195,38 @@ def beam_axes(axis: np.ndarray, beam_count: int, tilt: float) -> np.ndarray:
     if beam_count == 1:
         return axis[None, :]
     # Counter-clockwise seen looking along the axis is a positive turn about -axis.
-    azimuths = -2.0 * np.pi * np.arange(beam_count) / beam_count
+    azimuths = -(roll + 2.0 * np.pi * np.arange(beam_count) / beam_count)
     return cone_generators(axis, tilt, azimuths)
+
+
+def spot_attenuation(cos_angle: np.ndarray, half_angle: float, blend: float) -> np.ndarray:
+    """Cycles' spot attenuation: 0 outside the cone, a smoothstep in cosine space over the blend.
+
+    Parameters
+    ----------
+    cos_angle : ndarray
+        Cosine of the angle between the beam axis and the direction to the point.
+    half_angle : float
+        Cone half-angle, radians.
+    blend : float
+        Blender's ``spot_blend`` in [0, 1].
+    """
+    cos_edge = np.cos(half_angle)
+    if blend == 0.0:
+        return (cos_angle > cos_edge).astype(float)
+    t = np.clip((cos_angle - cos_edge) / ((1.0 - cos_edge) * blend), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def edge_angle_of_blend(half_angle: float, blend: float) -> float:
+    """Angle from the beam axis where a Cycles spot's light is half of its full value, radians.
+
+    The midpoint of the smoothstep in cosine space: where an edge detector that
+    takes the level halfway between the local plateau and background puts the
+    spot's edge. A sharp edge (``blend = 0``) gives ``half_angle``.
+    """
+    cos_edge = np.cos(half_angle)
+    return float(np.arccos(cos_edge + 0.5 * blend * (1.0 - cos_edge)))
 
 
 def axis_rotations(axes: np.ndarray) -> np.ndarray:

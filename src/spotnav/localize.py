@@ -26,25 +26,49 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
 from spotnav.camera import unproject_pixels_to_plane, unproject_pixels_to_sphere
 from spotnav.config import Setup
-from spotnav.detect import Spot, SpotDetection, detect_spots_otsu
-from spotnav.geometry import normalize
-from spotnav.reconstruct import ConeCandidates, apex_candidates, choose_by_insertion, sphere_normal
+from spotnav.detect import Spot, SpotDetection, detect_edge_subpixel, detect_spots_otsu
+from spotnav.geometry import edge_angle_of_blend, normalize, orthonormal_basis
+from spotnav.reconstruct import (
+    ConeCandidates,
+    ConeFit,
+    apex_candidates,
+    choose_by_insertion,
+    fit_cones,
+    sphere_normal,
+)
 
 __all__ = [
     "METHODS",
     "STATUSES",
     "PoseEstimate",
+    "edge_half_angle",
     "fit_height_correction",
     "localize",
+    "localize_precise",
     "localize_thesis",
     "locate_from_spots",
     "spot_candidates",
 ]
+
+DEFAULT_BLEND = 0.15  # Blender's default spot_blend: the edge model when the setup gives none
+_MIN_EDGE_POINTS = 20
+_MIN_INLIER_FRACTION = 0.5
+# A fit is poor when its edge points lie both this far in angle (some 0.015 deg on a textured retina at 1 W)
+# and this far in pixels (some 0.3 px from noise) from their cones.
+_MAX_RMS_DEG = 0.1
+_MAX_RMS_PX = 2.0
+_PRECISE_CONTRAST_SIGMA = 4.0
+_MAX_CLUTTER_AREA = 0.25
+_MIRROR_RESIDUAL_RATIO = 1.1
+_MIRROR_DISTANCE_MM = 0.1
+_EDGE_MODEL_SIGMA_DEG = 0.003  # uncertainty of the edge's angle on a textured retina, added to the tip's sigma
+_MAX_SIGMA_MM = 0.05
 
 STATUSES = ("ok", "no_spot", "ambiguous", "too_few_spots", "clipped", "wrong_size", "unreliable", "unreadable")
 
@@ -64,7 +88,15 @@ class PoseEstimate:
     spots : int
         Number of spots used.
     detail : str
-        Human-readable reason for a status other than ``ok``.
+        Human-readable reason for a status other than ``ok``, or a remark.
+    sigma_mm : float
+        1-sigma tip uncertainty, mm (precise method; NaN otherwise).
+    rms_px : float
+        RMS distance of the edge points from the fitted cones, pixels
+        (approximate: the angular residual times the range over the pixel size).
+    other_axis : ndarray, shape (3,), or None
+        The precise method's cross-check: the axis fitted without the insertion
+        point (or with it, when the pose was fitted without).
     """
 
     status: str
@@ -72,6 +104,9 @@ class PoseEstimate:
     axis: np.ndarray | None = None
     spots: int = 0
     detail: str = ""
+    sigma_mm: float = float("nan")
+    rms_px: float = float("nan")
+    other_axis: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -142,16 +177,61 @@ def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCa
     return apex_candidates(points, normal, setup.instrument.beam_half_angle, setup.instrument.height_correction)
 
 
-def _closest_set(candidates: list[ConeCandidates]) -> np.ndarray:
-    """One apex per contour, the combination with the smallest summed pairwise distance, shape (n, 3)."""
-    best, best_spread = None, np.inf
+def _closest_set(candidates: list[ConeCandidates]) -> tuple[int, ...]:
+    """One candidate per contour: the combination whose apexes have the smallest summed pairwise distance."""
+    best, best_spread = (0,) * len(candidates), np.inf
     for choice in itertools.product((0, 1), repeat=len(candidates)):
-        apexes = np.array([c.apexes[i] for c, i in zip(candidates, choice, strict=True)])
+        apexes = [c.apexes[i] for c, i in zip(candidates, choice, strict=True)]
         spread = sum(np.linalg.norm(p - q) for p, q in itertools.combinations(apexes, 2))
         if spread < best_spread:
-            best, best_spread = apexes, spread
-    assert best is not None
+            best, best_spread = choice, spread
     return best
+
+
+@dataclass(frozen=True)
+class _ThesisSolution:
+    estimate: PoseEstimate
+    spots: tuple[Spot, ...] = ()
+    candidates: tuple[ConeCandidates, ...] = ()
+    chosen: tuple[int, ...] = ()
+
+
+def _solve_thesis(detection: SpotDetection, setup: Setup, surface: str) -> _ThesisSolution:
+    beams = setup.instrument.beam_count
+    spots = detection.spots
+    if not spots:
+        return _ThesisSolution(
+            PoseEstimate(
+                "no_spot", detail=f"no region brighter than the background (contrast {detection.contrast:.1f})"
+            )
+        )
+    if len(spots) > beams:
+        return _ThesisSolution(
+            PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}")
+        )
+    pairs = [(spot, c) for spot, c in ((spot, spot_candidates(spot, setup, surface)) for spot in spots) if c]
+    needed = 1 if beams == 1 else 2
+    if len(pairs) < needed:
+        if len(pairs) < len(spots):
+            detail = "a spot reaches the image border or the retina's edge"
+            return _ThesisSolution(PoseEstimate("clipped", spots=len(spots), detail=detail))
+        detail = f"{len(spots)} of {beams} spots, need {needed}"
+        return _ThesisSolution(PoseEstimate("too_few_spots", spots=len(spots), detail=detail))
+    usable = [c for _, c in pairs]
+    if beams == 1:
+        chosen: tuple[int, ...] = (choose_by_insertion(usable[0], setup.instrument.insertion_in_eye)[0],)
+        tip = usable[0].apexes[chosen[0]]
+    else:
+        chosen = _closest_set(usable)
+        apexes = np.array([c.apexes[i] for c, i in zip(usable, chosen, strict=True)])
+        tip = np.median(apexes, axis=0)  # Algorithm 2; the median of two is their mean
+    if not setup.contains_point(tip):
+        estimate = PoseEstimate("unreliable", spots=len(usable), detail="the fitted apex lies outside the eye")
+    else:
+        axis = normalize(tip - setup.instrument.insertion_in_eye)  # the thesis's axis
+        detail = f"{len(usable)} of {beams} spots" if len(usable) < beams else ""
+        estimate = PoseEstimate("ok", tip_in_eye=tip, axis=axis, spots=len(usable), detail=detail)
+    return _ThesisSolution(estimate, tuple(s for s, _ in pairs), tuple(usable), chosen)
 
 
 def locate_from_spots(detection: SpotDetection, setup: Setup, surface: str = "sphere") -> PoseEstimate:
@@ -165,32 +245,164 @@ def locate_from_spots(detection: SpotDetection, setup: Setup, surface: str = "sp
     ``instrument.height_correction`` (section 5.5) scales every triangle.
     ``surface`` is that of :func:`spot_candidates`.
     """
+    return _solve_thesis(detection, setup, surface).estimate
+
+
+def edge_half_angle(setup: Setup) -> float:
+    """The precise method's edge model, radians: ``instrument.edge_half_angle_deg`` or its default.
+
+    The default is the half-light angle of a Cycles spot of the nominal half-angle
+    with Blender's default blend 0.15 (:func:`spotnav.geometry.edge_angle_of_blend`).
+    """
+    instrument = setup.instrument
+    if instrument.edge_half_angle_deg is not None:
+        return float(np.radians(instrument.edge_half_angle_deg))
+    return edge_angle_of_blend(instrument.beam_half_angle, DEFAULT_BLEND)
+
+
+def _beam_assignment(solution: _ThesisSolution, axis: np.ndarray, setup: Setup) -> tuple[list[int], float] | None:
+    """Which beam made each spot, and the starting roll, from the candidates' cone axes (None if unclear)."""
+    if setup.instrument.beam_count == 1:
+        return [0], 0.0
+    e1, e2 = orthonormal_basis(axis)
+    cone_axes = [c.cone_axes[i] for c, i in zip(solution.candidates, solution.chosen, strict=True)]
+    azimuths = np.array([np.arctan2(a @ e2, a @ e1) for a in cone_axes])
+    step = 2.0 * np.pi / 3.0
+    beams = [int(np.round(((azimuths[0] - a) % (2.0 * np.pi)) / step)) % 3 for a in azimuths]
+    if len(set(beams)) < len(beams):
+        return None
+    return beams, float(-azimuths[0])
+
+
+def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PoseEstimate:
+    """spotnav's precise method: sub-pixel edges and a direct fit of the cones on the sphere.
+
+    The thesis's closed form (:func:`locate_from_spots`) gives the spots, which
+    beam made each and a starting pose. Each spot's edge is then located to a
+    fraction of a pixel (:func:`spotnav.detect.detect_edge_subpixel`) and
+    back-projected onto the retina, and one instrument pose is fitted to all
+    edge points by robust least squares on their angle from the cones of
+    half-angle :func:`edge_half_angle` (:func:`spotnav.reconstruct.fit_cones`).
+    The estimate carries its 1-sigma tip uncertainty, the RMS residual in
+    pixels and the axis fitted without the insertion point (a cross-check).
+    A fit that fails its checks gets status ``unreliable``.
+
+    The coarse detection accepts fainter spots than the thesis's; more bright
+    regions than beams are ``ambiguous`` unless the extra ones are less than a
+    quarter of the size of the smallest spot kept (clutter).
+
+    Parameters
+    ----------
+    image : ndarray
+        Camera frame, sRGB-encoded, 8 or 16 bits.
+    setup : Setup
+        Only ``eye``, ``camera`` and ``instrument`` are used.
+    through_insertion : bool
+        Constrain the axis through the insertion point (3 unknowns for one
+        beam, 4 with the roll for three); ``False`` fits the axis too.
+    """
+    wrong = _check_size(image, setup)
+    if wrong is not None:
+        return wrong
+    detection = detect_spots_otsu(image, min_contrast_sigma=_PRECISE_CONTRAST_SIGMA)
     beams = setup.instrument.beam_count
     spots = detection.spots
-    if not spots:
-        return PoseEstimate(
-            "no_spot", detail=f"no region brighter than the background (contrast {detection.contrast:.1f})"
-        )
     if len(spots) > beams:
-        return PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}")
-    usable = [c for c in (spot_candidates(s, setup, surface) for s in spots) if c]
-    needed = 1 if beams == 1 else 2
-    if len(usable) < needed:
-        if len(usable) < len(spots):
-            return PoseEstimate(
-                "clipped", spots=len(spots), detail="a spot reaches the image border or the retina's edge"
-            )
-        return PoseEstimate("too_few_spots", spots=len(spots), detail=f"{len(spots)} of {beams} spots, need {needed}")
-    if beams == 1:
-        index, _ = choose_by_insertion(usable[0], setup.instrument.insertion_in_eye)
-        tip = usable[0].apexes[index]
+        if spots[beams].area_px > _MAX_CLUTTER_AREA * spots[beams - 1].area_px:
+            return PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}")
+        detection = replace(detection, spots=spots[:beams])
+    estimate = _fit_precise(image, detection, setup, through_insertion)
+    if estimate.ok and len(spots) > beams:
+        ignored = f"{len(spots) - beams} much smaller bright regions ignored"
+        estimate = replace(estimate, detail="; ".join(filter(None, [estimate.detail, ignored])))
+    return estimate
+
+
+def _fit_precise(image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool) -> PoseEstimate:
+    plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
+    solution = _solve_thesis(detection, plain, "sphere")
+    start = solution.estimate
+    if not start.ok:
+        return start
+    assert start.tip_in_eye is not None and start.axis is not None
+    axis = start.axis
+    if not through_insertion and len(solution.candidates) == 3:
+        # Three symmetric beam axes sum along the instrument's axis, wherever the insertion point is.
+        axis = normalize(sum(c.cone_axes[i] for c, i in zip(solution.candidates, solution.chosen, strict=True)))
+    assignment = _beam_assignment(solution, axis, setup)
+    if assignment is None:
+        return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
+    beams, roll = assignment
+    points = []
+    for spot in solution.spots:
+        edge = detect_edge_subpixel(image, spot)
+        on_sphere = unproject_pixels_to_sphere(setup.camera, edge.pixels, setup.eye.radius_mm)
+        points.append(on_sphere[np.all(np.isfinite(on_sphere), axis=1)])
+    if min(len(p) for p in points) < _MIN_EDGE_POINTS:
+        return PoseEstimate("unreliable", spots=start.spots, detail="too few edge points")
+    instrument = setup.instrument
+    common = {
+        "beam_count": instrument.beam_count,
+        "tilt": instrument.beam_tilt,
+        "tip_in_eye": start.tip_in_eye,
+        "axis": start.axis,
+        "roll": roll,
+        "edge_sigma": np.radians(_EDGE_MODEL_SIGMA_DEG),
+    }
+    edge_angle = edge_half_angle(setup)
+    constrained = fit_cones(points, beams, edge_angle, insertion_in_eye=instrument.insertion_in_eye, **common)
+    # The cross-check continues from the constrained fit. A free pose also tries both thesis
+    # candidates for one beam (a cone and its mirror image fit one contour almost equally).
+    common.update(tip_in_eye=constrained.tip_in_eye, axis=constrained.axis, roll=constrained.roll)
+    free = fit_cones(points, beams, edge_angle, **common)
+    if through_insertion:
+        return _judge(constrained, free.axis, np.concatenate(points), setup, start)
+    fits = [free]
+    if instrument.beam_count == 1:
+        starts = list(zip(solution.candidates[0].apexes, solution.candidates[0].cone_axes, strict=True))
     else:
-        tip = np.median(_closest_set(usable), axis=0)  # Algorithm 2; the median of two is their mean
-    if not setup.contains_point(tip):
-        return PoseEstimate("unreliable", spots=len(usable), detail="the fitted apex lies outside the eye")
-    axis = normalize(tip - setup.instrument.insertion_in_eye)  # the thesis's axis
-    detail = f"{len(usable)} of {beams} spots" if len(usable) < beams else ""
-    return PoseEstimate("ok", tip_in_eye=tip, axis=axis, spots=len(usable), detail=detail)
+        starts = [(start.tip_in_eye, axis)]
+        common.update(roll=roll)
+    for start_tip, start_axis in starts:
+        common.update(tip_in_eye=start_tip, axis=start_axis)
+        fits.append(fit_cones(points, beams, edge_angle, **common))
+    inside = sorted(
+        (f for f in fits if setup.contains_point(f.tip_in_eye)), key=lambda f: float(np.mean(np.abs(f.residuals)))
+    )
+    if not inside:
+        return PoseEstimate("unreliable", spots=start.spots, detail="every fitted tip lies outside the eye")
+    best = inside[0]
+    for other in inside[1:]:
+        close_fit = np.mean(np.abs(other.residuals)) < _MIRROR_RESIDUAL_RATIO * np.mean(np.abs(best.residuals))
+        if close_fit and np.linalg.norm(other.tip_in_eye - best.tip_in_eye) > _MIRROR_DISTANCE_MM:
+            detail = "a cone and its mirror image fit alike: fix the axis by the insertion point (method precise)"
+            return PoseEstimate("ambiguous", spots=start.spots, detail=detail)
+    return _judge(best, constrained.axis, np.concatenate(points), setup, start)
+
+
+def _judge(fit: ConeFit, other_axis: np.ndarray, points: np.ndarray, setup: Setup, start: PoseEstimate) -> PoseEstimate:
+    """The fit as an estimate, or ``unreliable`` when it fails a check."""
+    camera = setup.camera
+    distance = np.linalg.norm(points - fit.tip_in_eye, axis=1)
+    residual_px = fit.residuals * distance * camera.focal_px / (camera.distance_mm - points[:, 2])
+    rms_px = float(np.sqrt(np.mean(residual_px[fit.inliers] ** 2)))
+    rms_deg = float(np.degrees(np.sqrt(np.mean(fit.residuals[fit.inliers] ** 2))))
+    sigma = fit.tip_sigma_mm
+    problems = []
+    if fit.inliers.mean() < _MIN_INLIER_FRACTION:
+        problems.append(f"only {100 * fit.inliers.mean():.0f} % of the edge fits the cones")
+    if rms_deg > _MAX_RMS_DEG and rms_px > _MAX_RMS_PX:
+        problems.append(f"RMS residual {rms_deg:.3f} deg ({rms_px:.2f} px)")
+    if sigma > _MAX_SIGMA_MM:
+        problems.append(f"tip uncertainty {sigma:.3f} mm")
+    if not setup.contains_point(fit.tip_in_eye):
+        problems.append("the fitted tip lies outside the eye")
+    common = {"spots": start.spots, "sigma_mm": sigma, "rms_px": rms_px}
+    if problems:
+        return PoseEstimate("unreliable", detail="; ".join(problems), **common)
+    return PoseEstimate(
+        "ok", tip_in_eye=fit.tip_in_eye, axis=fit.axis, other_axis=other_axis, detail=start.detail, **common
+    )
 
 
 def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarray) -> float:
@@ -219,8 +431,12 @@ def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarra
     return float(np.mean(factors))
 
 
-METHODS: dict[str, Callable[[np.ndarray, Setup], PoseEstimate]] = {"thesis": localize_thesis}
-DEFAULT_METHOD = "thesis"
+METHODS: dict[str, Callable[[np.ndarray, Setup], PoseEstimate]] = {
+    "precise": localize_precise,
+    "precise-free": partial(localize_precise, through_insertion=False),
+    "thesis": localize_thesis,
+}
+DEFAULT_METHOD = "precise"
 
 
 def localize(image: np.ndarray, setup: Setup, method: str = DEFAULT_METHOD) -> PoseEstimate:

@@ -1,11 +1,14 @@
-"""From a spot's contour to the cone's apex: the thesis's ellipse method (4.4, Algorithm 1).
+"""From a spot's contour to the cone's apex: the thesis's ellipse method and spotnav's cone fit.
 
-The contour is back-projected onto the retina sphere, moved to the origin,
-rotated about ``z`` then ``y`` so that the sphere's tangent plane at its centre
-becomes the ``xy`` plane, and fitted with an ellipse. The ellipse's axes give
-the cone's tilt ``alpha`` and the apex's offsets ``s1`` (along the major axis)
-and ``s2`` (the height above the plane); the two mirror-image apexes are
-rotated and moved back.
+The thesis's (4.4, Algorithm 1), :func:`apex_candidates`: the contour is
+back-projected onto the retina sphere, moved to the origin, rotated about ``z``
+then ``y`` so that the sphere's tangent plane at its centre becomes the ``xy``
+plane, and fitted with an ellipse. The ellipse's axes give the cone's tilt
+``alpha`` and the apex's offsets ``s1`` (along the major axis) and ``s2`` (the
+height above the plane); the two mirror-image apexes are rotated and moved back.
+
+spotnav's (:func:`fit_cones`) fits the cones themselves to the edge points on
+the sphere, by robust nonlinear least squares, for one or three beams at once.
 """
 
 from __future__ import annotations
@@ -14,14 +17,17 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.optimize import least_squares
 
-from spotnav.geometry import normalize, rotation_about_y, rotation_about_z
+from spotnav.geometry import axis_rotations, beam_axes, normalize, rotation_about_y, rotation_about_z
 
 __all__ = [
     "ConeCandidates",
+    "ConeFit",
     "Ellipse",
     "apex_candidates",
     "choose_by_insertion",
+    "fit_cones",
     "fit_ellipse",
     "sphere_normal",
     "triangle_from_ellipse",
@@ -201,3 +207,152 @@ def choose_by_insertion(candidates: ConeCandidates, insertion_in_eye: np.ndarray
     cosines = np.clip(np.sum(lines * candidates.cone_axes, axis=1), -1.0, 1.0)
     index = int(np.argmax(cosines))
     return index, float(np.arccos(cosines[index]))
+
+
+@dataclass(frozen=True)
+class ConeFit:
+    """The instrument pose whose light cones best explain the edge points (spotnav's precise method).
+
+    Attributes
+    ----------
+    tip_in_eye : ndarray, shape (3,)
+        Fitted tip (the cones' common apex), mm.
+    axis : ndarray, shape (3,)
+        Instrument axis, unit, insertion point toward the tip.
+    roll : float
+        Roll about the axis, radians (contract convention; 0 for one beam).
+    residuals : ndarray, shape (N,)
+        Angle of each edge point from its cone's surface, radians, all points in input order.
+    inliers : ndarray of bool, shape (N,)
+        Points kept by the robust fit.
+    tip_covariance : ndarray, shape (3, 3)
+        Covariance of the tip, mm^2, from the Jacobian and the inliers' residuals,
+        inflated for the correlation of neighbouring points.
+    """
+
+    tip_in_eye: np.ndarray
+    axis: np.ndarray
+    roll: float
+    residuals: np.ndarray
+    inliers: np.ndarray
+    tip_covariance: np.ndarray
+
+    @property
+    def tip_sigma_mm(self) -> float:
+        """1-sigma tip uncertainty: the square root of the covariance's trace, mm."""
+        return float(np.sqrt(np.trace(self.tip_covariance)))
+
+
+def _instrument_axis(params: np.ndarray, insertion_in_eye: np.ndarray | None) -> np.ndarray:
+    if insertion_in_eye is not None:
+        return normalize(params[:3] - insertion_in_eye)
+    about_y, about_z = params[3], params[4]
+    return rotation_about_z(about_z) @ rotation_about_y(about_y) @ np.array([0.0, 0.0, -1.0])
+
+
+def _cone_residuals(
+    params: np.ndarray,
+    points: np.ndarray,
+    beam_of_point: np.ndarray,
+    edge_angle: float,
+    beam_count: int,
+    tilt: float,
+    insertion_in_eye: np.ndarray | None,
+) -> np.ndarray:
+    tip = params[:3]
+    axis = _instrument_axis(params, insertion_in_eye)
+    roll = params[-1] if beam_count > 1 else 0.0
+    axes = beam_axes(axis, beam_count, tilt, roll)[beam_of_point]
+    rays = points - tip
+    along = np.sum(rays * axes, axis=1)
+    across = np.linalg.norm(np.cross(rays, axes), axis=1)
+    return np.arctan2(across, along) - edge_angle
+
+
+def fit_cones(
+    points_in_eye: list[np.ndarray],
+    beams: list[int],
+    edge_angle: float,
+    *,
+    beam_count: int,
+    tilt: float,
+    tip_in_eye: np.ndarray,
+    axis: np.ndarray,
+    roll: float = 0.0,
+    insertion_in_eye: np.ndarray | None = None,
+    edge_sigma: float = 0.0,
+) -> ConeFit:
+    """Fit one instrument pose to edge points on the retina, by robust nonlinear least squares.
+
+    Each point's residual is its angle from the surface of its beam's cone (the
+    cone of half-angle ``edge_angle`` about the beam axis, apex at the tip): no
+    planar ellipse approximation. With ``insertion_in_eye`` the axis runs from it
+    to the tip and the unknowns are the tip (and the roll, for three beams);
+    without it the axis is free too. A first fit with a soft-L1 loss finds the
+    outliers (points more than 3 robust sigmas off); a plain least-squares fit
+    of the rest gives the pose and its covariance.
+
+    Parameters
+    ----------
+    points_in_eye : list of ndarray, shape (N_k, 3)
+        Each spot's edge points on the retina, in order around the spot.
+    beams : list of int
+        The beam (0, 1 or 2) that made each spot.
+    edge_angle : float
+        Angle of the detected edge from each beam's axis, radians.
+    beam_count : int
+    tilt : float
+        Beam tilt from the instrument axis (three beams), radians.
+    tip_in_eye, axis, roll
+        The starting pose (the thesis's closed form).
+    insertion_in_eye : ndarray, shape (3,), optional
+        Constrain the axis through this point.
+    edge_sigma : float
+        Uncertainty of ``edge_angle`` itself, radians: a bias shared by every
+        point, which no number of points averages away. Its effect on the pose
+        is added to the covariance.
+    """
+    points = np.concatenate(points_in_eye)
+    beam_of_point = np.concatenate([np.full(len(p), b) for p, b in zip(points_in_eye, beams, strict=True)])
+    start = list(np.asarray(tip_in_eye, dtype=float))
+    if insertion_in_eye is None:
+        start += list(axis_rotations(axis))
+    if beam_count > 1:
+        start.append(roll)
+    args = (points, beam_of_point, edge_angle, beam_count, tilt, insertion_in_eye)
+    first = _cone_residuals(np.array(start), *args)
+    scale = max(1.4826 * float(np.median(np.abs(first - np.median(first)))), 1e-6)
+    robust = least_squares(_cone_residuals, start, args=args, loss="soft_l1", f_scale=scale, x_scale="jac")
+    spread = max(1.4826 * float(np.median(np.abs(robust.fun))), 1e-7)
+    inliers = np.abs(robust.fun) < 3.0 * spread
+    kept = (points[inliers], beam_of_point[inliers], *args[2:])
+    final = least_squares(_cone_residuals, robust.x, args=kept, x_scale="jac")
+    dof = max(int(inliers.sum()) - len(final.x), 1)
+    variance = float(np.sum(final.fun**2)) / dof
+    jacobian = final.jac
+    normal_inverse = np.linalg.pinv(jacobian.T @ jacobian)
+    covariance = variance * _correlation_factor(final.fun, beam_of_point[inliers]) * normal_inverse
+    # A change d of the edge angle shifts every residual by -d: the pose moves by (J^T J)^-1 J^T 1 d.
+    shift = normal_inverse @ jacobian.sum(axis=0)
+    covariance = covariance + edge_sigma**2 * np.outer(shift, shift)
+    params = final.x
+    return ConeFit(
+        tip_in_eye=params[:3].copy(),
+        axis=_instrument_axis(params, insertion_in_eye),
+        roll=float(params[-1]) if beam_count > 1 else 0.0,
+        residuals=_cone_residuals(params, *args),
+        inliers=inliers,
+        tip_covariance=covariance[:3, :3],
+    )
+
+
+def _correlation_factor(residuals: np.ndarray, groups: np.ndarray) -> float:
+    """Variance inflation ``(1 + rho) / (1 - rho)`` for the lag-1 correlation of neighbouring residuals."""
+    products, squares = 0.0, 0.0
+    for group in np.unique(groups):
+        r = residuals[groups == group]
+        r = r - r.mean()
+        products += float(np.sum(r[1:] * r[:-1]))
+        squares += float(np.sum(r * r))
+    rho = float(np.clip(products / squares, 0.0, 0.9)) if squares > 0 else 0.0
+    return (1.0 + rho) / (1.0 - rho)

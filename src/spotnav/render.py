@@ -24,10 +24,17 @@ import numpy as np
 from spotnav.camera import pixel_rays, project_points, unproject_pixels_to_plane, unproject_pixels_to_sphere
 from spotnav.config import Bump, Camera, Setup
 from spotnav.config import Render as RenderSettings
-from spotnav.geometry import InstrumentPose, beam_axes, cone_generators, cone_sphere_curve, intersect_rays_sphere
+from spotnav.geometry import (
+    InstrumentPose,
+    beam_axes,
+    cone_generators,
+    cone_sphere_curve,
+    intersect_rays_sphere,
+    spot_attenuation,
+)
 from spotnav.texture import make_texture, sample_albedo
 
-__all__ = ["Renderer", "bump_height", "exposure_gain", "spot_mask"]
+__all__ = ["Renderer", "bump_height", "exposure_gain"]
 
 _ROW_CHUNK = 256
 _NEWTON_STEPS = 8
@@ -43,25 +50,6 @@ def exposure_gain(exposure_stops: float) -> float:
     full scale (1.0): irradiance ``1 / (4 pi 25)`` W/mm^2, radiance that over pi.
     """
     return 100.0 * np.pi * 2.0**exposure_stops
-
-
-def spot_mask(cos_angle: np.ndarray, half_angle: float, blend: float) -> np.ndarray:
-    """Cycles' spot attenuation: 0 outside the cone, smoothstep over the blend.
-
-    Parameters
-    ----------
-    cos_angle : ndarray
-        Cosine of the angle between the beam axis and the direction to the point.
-    half_angle : float
-        Cone half-angle, radians.
-    blend : float
-        Blender's ``spot_blend`` in [0, 1].
-    """
-    cos_edge = np.cos(half_angle)
-    if blend == 0.0:
-        return (cos_angle > cos_edge).astype(float)
-    t = np.clip((cos_angle - cos_edge) / ((1.0 - cos_edge) * blend), 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
 
 
 def _srgb_lut() -> np.ndarray:
@@ -199,7 +187,7 @@ class Renderer:
         direction = to_point / np.sqrt(dist2)[..., None]
         incidence = np.clip(-np.sum(direction * normals, axis=-1), 0.0, None)
         cosines = np.einsum("...k,bk->b...", direction, axes)
-        mask = spot_mask(cosines, instrument.beam_half_angle, light.blend).sum(axis=0)
+        mask = spot_attenuation(cosines, instrument.beam_half_angle, light.blend).sum(axis=0)
         irradiance = np.nan_to_num(power_w / (4.0 * np.pi) * mask * incidence / dist2)
         return irradiance, cosines
 

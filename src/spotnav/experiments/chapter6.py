@@ -39,8 +39,8 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.geometry import InstrumentPose, rotation_about_y
-from spotnav.localize import locate_from_spots, spot_candidates
+from spotnav.geometry import InstrumentPose, edge_angle_of_blend, rotation_about_y
+from spotnav.localize import PoseEstimate, localize_precise, locate_from_spots, spot_candidates
 from spotnav.reconstruct import fit_ellipse, triangle_from_ellipse
 
 __all__ = ["POWERS_W", "THESIS", "Experiment", "Options", "bump_grid", "run_ellipse", "run_paths", "run_world"]
@@ -51,7 +51,8 @@ CALIBRATION_TIP_MM = (0.0, 0.0, 4.5)
 CALIBRATION_SEED = 99_999
 PATH_SEEDS = {"square": 0, "helix": 10_000}
 BEAMS = {"1 beam": 1, "3 beams": 3}
-PLAIN, CALIBRATED = "thesis", "thesis + 5.5"
+PLAIN, CALIBRATED, PRECISE = "thesis method", "thesis + 5.5", "precise"
+VARIANTS = (PLAIN, CALIBRATED, PRECISE)
 
 # The thesis's numbers: (mean, max) in mm, or rotation errors in degrees.
 THESIS: dict[str, dict[str, tuple[float, float]]] = {
@@ -130,10 +131,12 @@ def _run_configs(
     factors = dict(zip(keys, runner.map(calibrate_height, calibration, f"{label}: calibrate"), strict=True))
     jobs, job_keys = [], []
     for key in keys:
-        variants = [Variant(PLAIN, worlds[key])]
+        world = worlds[key]
+        variants = [Variant(PLAIN, world, "thesis")]
         if np.isfinite(factors[key]):
-            instrument = replace(worlds[key].instrument, height_correction=factors[key])
-            variants.append(Variant(CALIBRATED, replace(worlds[key], instrument=instrument)))
+            instrument = replace(world.instrument, height_correction=factors[key])
+            variants.append(Variant(CALIBRATED, replace(world, instrument=instrument), "thesis"))
+        variants.append(Variant(PRECISE, with_true_edge(world), "precise"))
         jobs += [FrameJob(worlds[key], pose, seed + i, tuple(variants)) for i, pose in enumerate(poses)]
         job_keys += [key] * len(poses)
     outputs = runner.map(run_frame, jobs, label)
@@ -142,6 +145,16 @@ def _run_configs(
         for variant, result in zip(job.variants, frame_results, strict=True):
             results[key].setdefault(variant.label, []).append(result)
     return results, factors
+
+
+def with_true_edge(world: Setup) -> Setup:
+    """The world with the precise method's edge model set from its simulated light's blend.
+
+    The simulation knows its light as the thesis's method knows beta; ``spotnav
+    calibrate`` fits the edge from images where the light is not known.
+    """
+    angle = edge_angle_of_blend(world.instrument.beam_half_angle, world.light.blend)
+    return replace(world, instrument=replace(world.instrument, edge_half_angle_deg=float(np.degrees(angle))))
 
 
 def _calibration_pose(world: Setup) -> InstrumentPose:
@@ -161,52 +174,61 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
 
 
 def _variant_summaries(results: Mapping[str, list[FrameResult]]) -> dict[str, ErrorSummary | None]:
-    return {label: summarize(results[label]) if label in results else None for label in (PLAIN, CALIBRATED)}
+    return {label: summarize(results[label]) if label in results else None for label in VARIANTS}
+
+
+def _value(summary: ErrorSummary | None, pick: Callable[[ErrorSummary], float]) -> str:
+    return "no calibration" if summary is None else _cell(pick(summary))
 
 
 def _error_table(thesis_key: str, by_beams: Mapping[str, Mapping[str, list[FrameResult]]]) -> list[str]:
-    """Mean and max Euclidean error, thesis beside ours, plain and calibrated (Tables 6.9, 6.11, 6.17, 6.18)."""
-    header = ["", *(f"{b}: {col}" for b in by_beams for col in ("thesis", "spotnav", "spotnav + 5.5"))]
+    """Mean and max Euclidean error, the thesis's printed numbers beside each method (Tables 6.9, 6.11, 6.17, 6.18)."""
+    header = ["", *(f"{b}: {col}" for b in by_beams for col in ("thesis (printed)", *VARIANTS))]
     rows: list[list[str]] = [["mean error [mm]"], ["max error [mm]"], ["frames with a pose"]]
     for beams, results in by_beams.items():
         thesis = THESIS[thesis_key][beams]
         summaries = _variant_summaries(results)
-        for row, index in ((rows[0], 0), (rows[1], 1)):
-            row.append(f"{thesis[index]:.3f}")
-            for s in summaries.values():
-                row.append("no calibration" if s is None else _cell(s.mean_mm if index == 0 else s.max_mm))
-        rows[2] += ["100/100"] + [("-" if s is None else f"{s.ok}/{s.frames}") for s in summaries.values()]
-    return _table(header, rows)
+        rows[0] += [f"{thesis[0]:.3f}", *(_value(s, lambda x: x.mean_mm) for s in summaries.values())]
+        rows[1] += [f"{thesis[1]:.3f}", *(_value(s, lambda x: x.max_mm) for s in summaries.values())]
+        rows[2] += ["100/100", *("-" if s is None else f"{s.ok}/{s.frames}" for s in summaries.values())]
+    return [*_table(header, rows), "", *_uncertainty_lines(by_beams)]
+
+
+def _uncertainty_lines(by_case: Mapping[str, Mapping[str, list[FrameResult]]]) -> list[str]:
+    lines = []
+    for case, results in by_case.items():
+        s = summarize(results[PRECISE])
+        lines.append(
+            f"- precise, {case}: {100 * s.within_3_sigma:.0f} % of the errors within 3 sigma "
+            f"(median 1-sigma {s.sigma_median_mm:.4f} mm)."
+        )
+    return lines
 
 
 def _rotation_table(path: str, by_beams: Mapping[str, Mapping[str, list[FrameResult]]]) -> list[str]:
     """Rotation errors about y and z and the axis angle, mean and max (Tables 6.10, 6.12)."""
-    header = ["", "about y: thesis", "about y: spotnav", "about z: thesis", "about z: spotnav", "axis angle: spotnav"]
-    header += ["axis angle: spotnav + 5.5"]
+    methods = (PLAIN, PRECISE)
+    header = [""]
+    header += [f"about {a}: {m}" for a in "yz" for m in ("thesis (printed)", *methods)]
+    header += [f"axis angle: {m}" for m in VARIANTS]
     rows = []
     for beams, results in by_beams.items():
-        plain = summarize(results[PLAIN])
-        calibrated = summarize(results[CALIBRATED]) if CALIBRATED in results else None
+        summaries = _variant_summaries(results)
         for index, name in ((0, "mean"), (1, "max")):
-            ours = plain.rotation_mean_deg if index == 0 else plain.rotation_max_deg
-            theirs_y = THESIS[f"{path} rotation y"][beams][index]
-            theirs_z = THESIS[f"{path} rotation z"][beams][index]
-            if calibrated is None:
-                cal = "no calibration"
-            else:
-                cal = _cell((calibrated.rotation_mean_deg if index == 0 else calibrated.rotation_max_deg)[2])
-            rows.append(
-                [
-                    f"{name} [deg], {beams}",
-                    f"{theirs_y:.3f}",
-                    _cell(ours[0]),
-                    f"{theirs_z:.3f}",
-                    _cell(ours[1]),
-                    _cell(ours[2]),
-                    cal,
-                ]
-            )
+            row = [f"{name} [deg], {beams}"]
+            for k, a in enumerate("yz"):
+                row.append(f"{THESIS[f'{path} rotation {a}'][beams][index]:.3f}")
+                row += [_rotation_cell(summaries[m], index, k) for m in methods]
+            row += [_rotation_cell(summaries[m], index, 2) for m in VARIANTS]
+            rows.append(row)
     return _table(header, rows)
+
+
+def _rotation_cell(summary: ErrorSummary | None, index: int, component: int) -> str:
+    """Mean (``index`` 0) or max rotation error: about y, about z or the axis angle (``component`` 0, 1, 2)."""
+    if summary is None:
+        return "no calibration"
+    return _cell((summary.rotation_mean_deg if index == 0 else summary.rotation_max_deg)[component])
 
 
 def _statuses(results: Sequence[FrameResult]) -> str:
@@ -220,7 +242,8 @@ def _write_csv(path: Path, rows: Sequence[tuple[dict[str, object], FrameResult]]
     """Every pose: its labels, truth, estimate, errors per axis, rotation errors and timings."""
     columns = ["true_x", "true_y", "true_z", "true_dir_x", "true_dir_y", "true_dir_z", "status", "spots"]
     columns += ["x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z", "error_mm", "error_x", "error_y", "error_z"]
-    columns += ["rot_error_y_deg", "rot_error_z_deg", "axis_error_deg", "render_ms", "localize_ms", "detail"]
+    columns += ["rot_error_y_deg", "rot_error_z_deg", "axis_error_deg", "sigma_mm", "rms_px"]
+    columns += ["render_ms", "localize_ms", "detail"]
     with path.open("w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
         labels = list(rows[0][0]) if rows else []
@@ -230,7 +253,7 @@ def _write_csv(path: Path, rows: Sequence[tuple[dict[str, object], FrameResult]]
             tip = estimate.tip_in_eye if estimate.tip_in_eye is not None else np.full(3, np.nan)
             axis = estimate.axis if estimate.axis is not None else np.full(3, np.nan)
             numbers = [*r.truth.tip_in_eye, *r.truth.axis]
-            tail = [*tip, *axis, r.error_mm, *r.error_xyz_mm, *r.rotation_error_deg]
+            tail = [*tip, *axis, r.error_mm, *r.error_xyz_mm, *r.rotation_error_deg, estimate.sigma_mm, estimate.rms_px]
             writer.writerow(
                 [*tags.values(), *(f"{v:.6f}" for v in numbers), estimate.status, estimate.spots]
                 + [("" if not np.isfinite(v) else f"{v:.6f}") for v in tail]
@@ -296,11 +319,13 @@ def measure_ellipse(job: FrameJob) -> dict[str, object]:
     """
     world = job.world
     surface = world.world.surface
-    detection = detect_spots_otsu(render_frame(job))
+    image = render_frame(job)
+    detection = detect_spots_otsu(image)
+    precise = localize_precise(image, with_true_edge(world)) if surface == "sphere" else None
     if world.instrument.beam_count == 3:
-        return {"pose": locate_from_spots(detection, world, surface), "spots": len(detection.spots)}
+        return {"pose": locate_from_spots(detection, world, surface), "spots": len(detection.spots), "precise": precise}
     if len(detection.spots) != 1:
-        return {"pose": None, "spots": len(detection.spots)}
+        return {"pose": None, "spots": len(detection.spots), "precise": precise}
     spot = detection.spots[0]
     candidates = spot_candidates(spot, world, surface)
     if candidates is None:
@@ -321,7 +346,16 @@ def measure_ellipse(job: FrameJob) -> dict[str, object]:
         "triangle": (np.degrees(alpha), s1 * THESIS_PX_PER_MM, s2 * THESIS_PX_PER_MM),
         "candidates": candidates.apexes,
         "spots": 1,
+        "precise": precise,
     }
+
+
+def _precise_text(estimate: PoseEstimate | None, truth: np.ndarray) -> str:
+    if estimate is None:
+        return "n/a: assumes the sphere"
+    if not estimate.ok:
+        return f"{estimate.status}: {estimate.detail}"
+    return f"{np.linalg.norm(estimate.tip_in_eye - truth):.4f} mm (sigma {estimate.sigma_mm:.4f})"
 
 
 def run_ellipse(options: Options) -> Experiment:
@@ -341,7 +375,7 @@ def run_ellipse(options: Options) -> Experiment:
         "thesis's pixels (mm x 378.79); the rotation is the minor axis's direction. The thesis fits the "
         "plane's ellipse in the image and the sphere's in the tangent plane; so do we. Its sphere-table centre "
         "is in a frame it does not state. One beam: the candidate nearest the truth, as the thesis picks in "
-        "these tests; three beams: Algorithm 2.",
+        "these tests; three beams: Algorithm 2. The precise method needs the sphere: it runs on 6.3's frames.",
         "",
     ]
     header = ["case", "source", "centre u", "centre v", "axis 1", "axis 2", "rotation [deg]", "alpha [deg]", "s1", "s2"]
@@ -372,9 +406,12 @@ def run_ellipse(options: Options) -> Experiment:
             csv_rows.append([name, 3, *truth, *pose.tip_in_eye, np.linalg.norm(error), *error] + [""] * 8)
         else:
             three_text = "no pose" if pose is None else f"{pose.status}: {pose.detail}"
-        tips_rows.append([name, thesis_tips, one_text, three_text])
+        tips_rows.append(
+            [name, thesis_tips, one_text, three_text, *(_precise_text(o["precise"], truth) for o in (one, three))]
+        )
     lines += _table(header, rows)
-    lines += ["", *_table(["case", "thesis: candidates", "spotnav, 1 beam: candidates", "spotnav, 3 beams"], tips_rows)]
+    header = ["case", "thesis: candidates", "thesis method, 1 beam: candidates", "thesis method, 3 beams"]
+    lines += ["", *_table([*header, "precise, 1 beam", "precise, 3 beams"], tips_rows)]
     with (options.out / "ellipse.csv").open("w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
         writer.writerow(ELLIPSE_COLUMNS)
@@ -439,19 +476,15 @@ def run_paths(options: Options) -> Experiment:
             lines += [f"Table {table_number}: {path}, {b}, error against power.", ""]
             lines += _power_table(path, b, results, factors)
             lines += ["", *_statuses_lines({f"{p:g} W, {b}": results[(b, p)] for p in POWERS_W}), ""]
-            for label in (PLAIN, CALIBRATED):
+            for label in VARIANTS:
                 summaries = [_variant_summaries(results[(b, p)])[label] for p in POWERS_W]
                 for kind in ("mean", "max"):
                     values = [np.nan if s is None else (s.mean_mm if kind == "mean" else s.max_mm) for s in summaries]
-                    name = "spotnav + 5.5" if label == CALIBRATED else "spotnav"
-                    power_curves[kind].setdefault(path, {})[f"{b}, {name}"] = values
+                    power_curves[kind].setdefault(path, {})[f"{b}, {label}"] = values
             for kind, index in (("mean", 0), ("max", 1)):
                 printed = [row[index] for row in THESIS_POWER[(path, b)]]
                 power_curves[kind][path][f"{b}, thesis printed"] = printed
-        s1, s3 = summarize(at_1w["1 beam"][PLAIN]), summarize(at_1w["3 beams"][PLAIN])
-        summary_parts.append(
-            f"{path} mean/max 1 beam {s1.mean_mm:.3f}/{s1.max_mm:.3f}, 3 beams {s3.mean_mm:.3f}/{s3.max_mm:.3f}"
-        )
+        summary_parts.append(f"{path}: {_summary_text(at_1w)}")
     for kind, number in (("mean", "6.17"), ("max", "6.18")):
         plot_against_power(
             out / f"power_{kind}.png",
@@ -472,62 +505,53 @@ def run_paths(options: Options) -> Experiment:
         "most of that bias (compare the `thesis` and `thesis + 5.5` columns above).",
     ]
     _write_csv(out / "paths.csv", csv_rows)
-    return Experiment("paths", "\n".join(lines), "; ".join(summary_parts) + " (thesis method, 1 W, mm)")
+    return Experiment("paths", "\n".join(lines), "; ".join(summary_parts) + " at 1 W")
 
 
 def _statuses_lines(by_case: Mapping[str, Mapping[str, list[FrameResult]]]) -> list[str]:
-    """One line per case whose thesis-method frames did not all give a pose from every beam."""
+    """One line per case and method whose frames did not all give a pose from every beam."""
     lines = []
     for case, results in by_case.items():
-        frames = results[PLAIN]
         beams = 3 if case.endswith("3 beams") else 1
-        partial = sum(1 for r in frames if r.estimate.ok and r.estimate.spots < beams)
-        if partial or any(not r.estimate.ok for r in frames):
-            lines.append(f"- {case}: {_statuses(frames)}; {partial} poses answered from fewer spots than beams.")
+        for method in (PLAIN, PRECISE):
+            frames = results[method]
+            partial = sum(1 for r in frames if r.estimate.ok and r.estimate.spots < beams)
+            if partial or any(not r.estimate.ok for r in frames):
+                text = f"{_statuses(frames)}; {partial} poses answered from fewer spots than beams"
+                lines.append(f"- {case}, {method}: {text}.")
     return lines
 
 
 def _power_table(
     path: str, beams: str, results: Mapping[tuple, Mapping[str, list[FrameResult]]], factors: Mapping[tuple, float]
 ) -> list[str]:
-    header = ["power [W]", "mean: thesis", "mean: spotnav", "mean: spotnav + 5.5", "max: thesis", "max: spotnav"]
-    header += ["max: spotnav + 5.5", "poses", "factor 5.5"]
+    header = ["power [W]", *(f"{k}: {m}" for k in ("mean", "max") for m in ("thesis (printed)", *VARIANTS))]
+    header += [f"poses: {m}" for m in (PLAIN, PRECISE)] + ["factor 5.5"]
     rows = []
-    for p, (t_mean, t_max) in zip(POWERS_W, THESIS_POWER[(path, beams)], strict=True):
-        by_variant = _variant_summaries(results[(beams, p)])
-        plain, calibrated = by_variant[PLAIN], by_variant[CALIBRATED]
-        assert plain is not None
-        cal_mean = "no calibration" if calibrated is None else _cell(calibrated.mean_mm)
-        cal_max = "no calibration" if calibrated is None else _cell(calibrated.max_mm)
+    for p, printed in zip(POWERS_W, THESIS_POWER[(path, beams)], strict=True):
+        summaries = _variant_summaries(results[(beams, p)])
+        row = [f"{p:g}"]
+        for index, pick in ((0, lambda x: x.mean_mm), (1, lambda x: x.max_mm)):
+            row += [f"{printed[index]:.3f}", *(_value(summaries[m], pick) for m in VARIANTS)]
+        counts = [summaries[m] for m in (PLAIN, PRECISE)]
+        row += [f"{c.ok}/{c.frames}" if c is not None else "-" for c in counts]
         factor = factors[(beams, p)]
-        rows.append(
-            [
-                f"{p:g}",
-                f"{t_mean:.3f}",
-                _cell(plain.mean_mm),
-                cal_mean,
-                f"{t_max:.3f}",
-                _cell(plain.max_mm),
-                cal_max,
-                f"{plain.ok}/{plain.frames}",
-                "failed" if not np.isfinite(factor) else f"{factor:.4f}",
-            ]
-        )
+        rows.append([*row, "failed" if not np.isfinite(factor) else f"{factor:.4f}"])
     return _table(header, rows)
 
 
 def _plot_path(out: Path, path: str, poses: Sequence[InstrumentPose], at_1w: Mapping[str, Mapping]) -> None:
     truth = np.array([p.tip_in_eye for p in poses])
-    plain = {b: at_1w[b][PLAIN] for b in BEAMS}
-    title = f"{path.capitalize()} path, thesis method, 1 W"
-    plot_path_3d(out / f"path_{path}.png", truth, {b: _tips(r) for b, r in plain.items()}, title)
-    errors = {b: np.array([r.error_mm for r in frames]) for b, frames in plain.items()}
-    plot_per_step(out / f"error_{path}.png", {"Euclidean error": errors}, "mm", title, bars=True)
-    xyz = {b: np.array([r.error_xyz_mm for r in frames]) for b, frames in plain.items()}
-    panels = {b: {axis: values[:, k] for k, axis in enumerate("xyz")} for b, values in xyz.items()}
+    title = f"{path.capitalize()} path, 1 W"
+    cases = {f"{b}, {m}": at_1w[b][m] for b in BEAMS for m in (PLAIN, PRECISE)}
+    plot_path_3d(out / f"path_{path}.png", truth, {c: _tips(r) for c, r in cases.items()}, title)
+    errors = {b: {m: np.array([r.error_mm for r in at_1w[b][m]]) for m in VARIANTS} for b in BEAMS}
+    plot_per_step(out / f"error_{path}.png", errors, "Euclidean error [mm]", title, log=True)
+    xyz = {c: np.array([r.error_xyz_mm for r in frames]) for c, frames in cases.items()}
+    panels = {c: {axis: values[:, k] for k, axis in enumerate("xyz")} for c, values in xyz.items()}
     plot_per_step(out / f"error_xyz_{path}.png", panels, "error [mm]", f"{title}: error per axis")
-    rotation = {b: np.array([r.rotation_error_deg for r in frames]) for b, frames in plain.items()}
-    panels = {b: {"about y": v[:, 0], "about z": v[:, 1], "axis angle": v[:, 2]} for b, v in rotation.items()}
+    rotation = {c: np.array([r.rotation_error_deg for r in frames]) for c, frames in cases.items()}
+    panels = {c: {"about y": v[:, 0], "about z": v[:, 1], "axis angle": v[:, 2]} for c, v in rotation.items()}
     plot_per_step(out / f"rotation_{path}.png", panels, "error [deg]", f"{title}: rotation error")
 
 
@@ -584,8 +608,8 @@ def run_world(name: str, options: Options) -> Experiment:
         "",
         *_statuses_lines(by_beams),
     ]
-    errors = {b: np.array([r.error_mm for r in by_beams[b][PLAIN]]) for b in BEAMS}
-    plot_per_step(options.out / f"error_{name}.png", {"Euclidean error": errors}, "mm", title, bars=True)
+    panels = {b: {m: np.array([r.error_mm for r in by_beams[b][m]]) for m in (PLAIN, PRECISE)} for b in BEAMS}
+    plot_per_step(options.out / f"error_{name}.png", panels, "Euclidean error [mm]", title, log=True)
     lines += ["", f"![{name}: error per step](error_{name}.png)"]
     csv_rows = [
         ({"beams": BEAMS[b], "variant": label, "step": i}, r)
@@ -594,6 +618,15 @@ def run_world(name: str, options: Options) -> Experiment:
         for i, r in enumerate(frames)
     ]
     _write_csv(options.out / f"{name}.csv", csv_rows)
-    s1, s3 = summarize(by_beams["1 beam"][PLAIN]), summarize(by_beams["3 beams"][PLAIN])
-    summary = f"1 beam {s1.mean_mm:.3f}/{s1.max_mm:.3f}, 3 beams {s3.mean_mm:.3f}/{s3.max_mm:.3f} mm mean/max"
-    return Experiment(name, "\n".join(lines), summary)
+    return Experiment(name, "\n".join(lines), _summary_text(by_beams))
+
+
+def _summary_text(by_beams: Mapping[str, Mapping[str, list[FrameResult]]]) -> str:
+    """Mean/max error per beam count, thesis method and precise, for the console."""
+    parts = []
+    for b, results in by_beams.items():
+        plain, precise = summarize(results[PLAIN]), summarize(results[PRECISE])
+        parts.append(
+            f"{b} thesis {plain.mean_mm:.4f}/{plain.max_mm:.4f}, precise {precise.mean_mm:.4f}/{precise.max_mm:.4f}"
+        )
+    return "; ".join(parts) + " mm mean/max"

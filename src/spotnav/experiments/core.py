@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from spotnav.config import Camera, Light, Setup
-from spotnav.experiments.chapter6 import Experiment, Options, _table, _write_csv
+from spotnav.experiments.chapter6 import Experiment, Options, _table, _write_csv, with_true_edge
 from spotnav.experiments.figures import plot_per_step
 from spotnav.experiments.paths import poses_through_insertion, working_volume_tips
 from spotnav.experiments.runner import FrameJob, Variant, run_frame, summarize
@@ -54,7 +54,7 @@ def run_volume(options: Options) -> Experiment:
     count = options.count
     straight = [InstrumentPose([3.0, 3.0, 5.0], [0.0, 0.0, -1.0])]
     volume = poses_through_insertion(working_volume_tips(count), base.instrument.insertion_in_eye)
-    header = ["case", "ok", "mean [mm]", "max [mm]", "bias x / y / z [mm]", "render [ms]", "localize [ms]"]
+    header = ["case", "method", "ok", "mean [mm]", "max [mm]", "bias x / y / z [mm]", "render [ms]", "localize [ms]"]
     rows, panels, summaries = [], {}, []
     for label, blend, poses, name in (
         ("(3, 3, 5) straight down, sharp edge", 0.0, straight, "perpendicular_sharp"),
@@ -62,23 +62,28 @@ def run_volume(options: Options) -> Experiment:
         ("volume, soft edge (blend 0.15)", 0.15, volume, "volume_soft"),
     ):
         setup = replace(base, light=Light(power_w=1.0, blend=blend))
-        jobs = [FrameJob(setup, pose, i, (Variant("thesis", setup),)) for i, pose in enumerate(poses)]
-        results = [r[0] for r in options.runner.map(run_frame, jobs, name)]
-        _write_csv(options.out / f"{name}.csv", [({"frame": i}, r) for i, r in enumerate(results)])
-        s = summarize(results)
-        summaries.append((label, s))
-        bias = " / ".join(f"{b:+.4f}" for b in s.bias_xyz_mm)
-        rows.append([label, f"{s.ok}/{s.frames}", f"{s.mean_mm:.4f}", f"{s.max_mm:.4f}", bias])
-        rows[-1] += [f"{s.render_ms:.0f}", f"{s.localize_ms:.0f}"]
-        if len(results) > 1:
-            panels[label] = {"|error|": np.array([r.error_mm for r in results])} | {
-                axis: np.array([r.error_xyz_mm[k] for r in results]) for k, axis in enumerate("xyz")
-            }
-    plot_per_step(
-        options.out / "volume_errors.png", panels, "mm", f"Thesis method, working volume, {options.size_px} px"
-    )
+        # The straight-down pose does not pass through the insertion point: fit its axis too.
+        precise = "precise-free" if poses is straight else "precise"
+        variants = (Variant("thesis method", setup, "thesis"), Variant(precise, with_true_edge(setup), precise))
+        jobs = [FrameJob(setup, pose, i, variants) for i, pose in enumerate(poses)]
+        outputs = options.runner.map(run_frame, jobs, name)
+        csv_rows = []
+        for index, variant in enumerate(variants):
+            results = [r[index] for r in outputs]
+            csv_rows += [({"variant": variant.label, "frame": i}, r) for i, r in enumerate(results)]
+            s = summarize(results)
+            summaries.append((f"{label}, {variant.label}", s))
+            bias = " / ".join(f"{b:+.4f}" for b in s.bias_xyz_mm)
+            rows.append([label, variant.label, f"{s.ok}/{s.frames}", f"{s.mean_mm:.4f}", f"{s.max_mm:.4f}", bias])
+            rows[-1] += [f"{s.render_ms:.0f}", f"{s.localize_ms:.0f}"]
+            if len(results) > 1:
+                panels[f"{label}, {variant.label}"] = {"|error|": np.array([r.error_mm for r in results])} | {
+                    axis: np.array([r.error_xyz_mm[k] for r in results]) for k, axis in enumerate("xyz")
+                }
+        _write_csv(options.out / f"{name}.csv", csv_rows)
+    plot_per_step(options.out / "volume_errors.png", panels, "mm", f"Working volume, {options.size_px} px")
     lines = [
-        "## Round trip over the working volume (thesis method, one beam)",
+        "## Round trip over the working volume (one beam)",
         "",
         f"{count} tips uniform in x, y in [-2.5, 2.5] mm, z in [3, 6] mm, axis through the insertion point "
         f"{base.instrument.insertion_point_mm}; {options.size_px} px, 1 W, procedural retina texture, sensor noise. "

@@ -23,6 +23,14 @@ __all__ = [
 _COLOURS = {"1 beam": "tab:green", "3 beams": "tab:blue"}
 
 
+def _colour(label: str) -> str | None:
+    """Colour by method when the label names one, else by beam count."""
+    for key, colour in (("precise", "tab:purple"), ("5.5", "tab:orange"), ("thesis method", "tab:green")):
+        if key in label:
+            return colour
+    return _COLOURS.get(label)
+
+
 @contextmanager
 def _figure(path: Path, rows: int, cols: int, size: tuple[float, float], title: str, **kw: Any) -> Iterator[np.ndarray]:
     figure, axes = plt.subplots(rows, cols, figsize=size, squeeze=False, **kw)
@@ -44,36 +52,35 @@ def plot_path_3d(path: Path, truth_tips: np.ndarray, estimates: Mapping[str, np.
     estimates : mapping of label to ndarray, shape (N, 3)
         NaN rows (no pose) are left out.
     """
-    with _figure(path, 1, len(estimates), (5.5 * len(estimates), 5), title, subplot_kw={"projection": "3d"}) as axes:
-        for ax, (label, tips) in zip(axes[0], estimates.items(), strict=True):
+    cols = min(len(estimates), 2)
+    rows = -(-len(estimates) // cols)
+    with _figure(path, rows, cols, (5.5 * cols, 5 * rows), title, subplot_kw={"projection": "3d"}) as axes:
+        for ax, (label, tips) in zip(axes.ravel(), estimates.items(), strict=True):
             ax.plot(*truth_tips.T, color="black", lw=1, label="true path")
-            ax.scatter(*tips.T, s=8, color=_COLOURS.get(label, "tab:red"), label="estimated")
+            ax.scatter(*tips.T, s=8, color=_colour(label) or "tab:red", label="estimated")
             ax.set(title=label, xlabel="x [mm]", ylabel="y [mm]", zlabel="z [mm]")
             ax.legend(loc="upper left")
 
 
 def plot_per_step(
-    path: Path, panels: Mapping[str, Mapping[str, np.ndarray]], ylabel: str, title: str, *, bars: bool = False
+    path: Path, panels: Mapping[str, Mapping[str, np.ndarray]], ylabel: str, title: str, *, log: bool = False
 ) -> None:
     """One panel per key of ``panels``, each with curves over the path's steps (Figures 6.7-6.9).
 
     Parameters
     ----------
     panels : mapping of panel title to (mapping of curve label to ndarray, shape (N,))
-    bars : bool
-        Draw the curves as side-by-side bars instead of lines.
+    log : bool
+        Logarithmic y axis (for errors that span decades between methods).
     """
     with _figure(path, len(panels), 1, (10, 2.8 * len(panels)), title) as axes:
         for ax, (name, curves) in zip(axes[:, 0], panels.items(), strict=True):
-            width = 0.8 / max(len(curves), 1)
-            for k, (label, values) in enumerate(curves.items()):
-                steps = np.arange(len(values))
-                colour = _COLOURS.get(label)
-                if bars:
-                    ax.bar(steps + (k - (len(curves) - 1) / 2) * width, values, width, label=label, color=colour)
-                else:
-                    ax.plot(steps, values, ".-", lw=0.8, ms=3, label=label, color=colour)
-            ax.axhline(0.0, color="grey", lw=0.6)
+            for label, values in curves.items():
+                ax.plot(np.arange(len(values)), values, ".-", lw=0.8, ms=3, label=label, color=_colour(label))
+            if log:
+                ax.set_yscale("log")
+            else:
+                ax.axhline(0.0, color="grey", lw=0.6)
             ax.set(title=name, xlabel="step", ylabel=ylabel)
             ax.legend(fontsize="small")
 
@@ -84,10 +91,10 @@ def plot_against_power(
     """Error against the light's power, one panel per path (Figures 6.17, 6.18).
 
     Curve labels read ``"<beams>, <variant>"``: the colour follows the beams, the
-    line style the variant (solid for ours, dashed for ours calibrated, dotted for
-    the thesis's printed numbers).
+    line style the variant (dash-dot: the thesis's method, dashed: with its
+    calibration, solid: the precise method, dotted: the thesis's printed numbers).
     """
-    styles = {"printed": (":", "x"), "5.5": ("--", "s")}
+    styles = {"printed": (":", "x"), "5.5": ("--", "s"), "precise": ("-", "^"), "thesis method": ("-.", "o")}
     with _figure(path, 1, len(panels), (6.5 * len(panels), 4.5), title) as axes:
         for ax, (name, curves) in zip(axes[0], panels.items(), strict=True):
             for label, values in curves.items():

@@ -118,6 +118,10 @@ class ErrorSummary:
         About y, about z, and the angle between axes.
     render_ms, localize_ms : float
         Medians.
+    within_3_sigma : float
+        Fraction of the ``ok`` frames whose error is within 3 reported sigmas (NaN without sigmas).
+    sigma_median_mm : float
+        Median reported 1-sigma tip uncertainty (NaN without sigmas).
     """
 
     frames: int
@@ -129,6 +133,8 @@ class ErrorSummary:
     rotation_max_deg: np.ndarray
     render_ms: float
     localize_ms: float
+    within_3_sigma: float
+    sigma_median_mm: float
 
 
 def summarize(results: Sequence[FrameResult]) -> ErrorSummary:
@@ -137,7 +143,9 @@ def summarize(results: Sequence[FrameResult]) -> ErrorSummary:
     ok = np.isfinite(errors)
     xyz = np.array([r.error_xyz_mm for r in results]).reshape(-1, 3)[ok]
     rotations = np.array([r.rotation_error_deg for r in results]).reshape(-1, 3)[ok]
-    nan3 = np.full(3, np.nan)
+    nan3, nan = np.full(3, np.nan), float("nan")
+    sigmas = np.array([r.estimate.sigma_mm for r in results])
+    with_sigma = ok & np.isfinite(sigmas)
     return ErrorSummary(
         frames=len(results),
         ok=int(ok.sum()),
@@ -148,6 +156,8 @@ def summarize(results: Sequence[FrameResult]) -> ErrorSummary:
         rotation_max_deg=rotations.max(axis=0) if ok.any() else nan3,
         render_ms=float(np.median([r.render_ms for r in results])),
         localize_ms=float(np.median([r.localize_ms for r in results])),
+        within_3_sigma=float(np.mean(errors[with_sigma] <= 3.0 * sigmas[with_sigma])) if with_sigma.any() else nan,
+        sigma_median_mm=float(np.median(sigmas[with_sigma])) if with_sigma.any() else nan,
     )
 
 
