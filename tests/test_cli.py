@@ -54,6 +54,28 @@ def test_round_trip_at_5000_px(tmp_path: Path) -> None:
     assert np.linalg.norm(tip - [3.0, 3.0, 5.0]) < 0.02
 
 
+def test_localize_three_beams_with_the_default_method(tmp_path: Path) -> None:
+    # Three beams, soft edge, the default (precise) method: one row with the tip, its sigma and the
+    # cross-check axis; the thesis method on the same frame fills only the contract's columns.
+    scene = write_scene(tmp_path / "setup.toml", size_px=1024, blend=0.15)
+    scene.write_text(scene.read_text().replace("beam_count = 1 ", "beam_count = 3 "))
+    frame = tmp_path / "frame.png"
+    assert main(["render", "--scene", str(scene), "--tip", "1", "-1", "4.5", "--out", str(frame)]) == 0
+    for method in ("precise", "thesis"):
+        poses = tmp_path / f"{method}.csv"
+        args = ["localize", "--scene", str(scene), str(frame), "--out", str(poses)]
+        assert main(args if method == "precise" else [*args, "--method", method]) == 0
+        (row,) = read_poses(poses)
+        assert row["status"] == "ok" and row["spots"] == "3"
+        tip = np.array([float(row[k]) for k in ("x_mm", "y_mm", "z_mm")])
+        if method == "precise":
+            assert np.linalg.norm(tip - [1.0, -1.0, 4.5]) < 0.01
+            assert 0 < float(row["sigma_mm"]) < 0.01 and float(row["rms_px"]) < 1.0
+            assert abs(np.linalg.norm([float(row[f"other_dir_{k}"]) for k in "xyz"]) - 1.0) < 1e-6
+        else:
+            assert row["sigma_mm"] == row["rms_px"] == row["other_dir_x"] == ""
+
+
 def test_localize_keeps_going_past_bad_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scene = write_scene(tmp_path / "setup.toml", size_px=384)
     good = tmp_path / "good.png"
