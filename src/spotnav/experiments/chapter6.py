@@ -438,7 +438,9 @@ def run_paths(options: Options) -> Experiment:
         f"Table 6.8's setup (36 mm sensor, 300 mm lens, beta 9 deg) at {size} px; soft edge blend 0.15; "
         f"procedural retina; sensor noise; {count} poses per path, axis through the insertion point "
         f"({insertion_text}). Three beams tilt 15 deg from the axis. Section 5.5's factor is fitted on one frame "
-        f"with the tip at {CALIBRATION_TIP_MM} mm in the same world (same power and beams).",
+        f"with the tip at {CALIBRATION_TIP_MM} mm in the same world (same power and beams). The precise method "
+        "gets the simulated light's edge model (`instrument.edge_half_angle_deg`, 8.655 deg for blend 0.15) and "
+        "constrains the axis through the insertion point; `sigma` is its reported 1-sigma tip uncertainty.",
         "",
         "Table 6.7, the square (closed, P1-P2-P3-P4-P1):",
         "",
@@ -502,7 +504,8 @@ def run_paths(options: Options) -> Experiment:
         "",
         "The thesis found that its height factor did not help and left it out. Here the default edge is soft, "
         "so the Otsu edge sits inside the cone, the spot looks small and the tip too low: the factor removes "
-        "most of that bias (compare the `thesis` and `thesis + 5.5` columns above).",
+        "most of that bias (compare the `thesis method` and `thesis + 5.5` columns above). The precise method "
+        "needs no such factor: its edge model puts the edge where the light is half of its full value.",
     ]
     _write_csv(out / "paths.csv", csv_rows)
     return Experiment("paths", "\n".join(lines), "; ".join(summary_parts) + " at 1 W")
