@@ -13,11 +13,13 @@ from spotnav.geometry import (
     beam_axes,
     cone_generators,
     cone_sphere_curve,
+    edge_angle_of_blend,
     intersect_rays_sphere,
     normalize,
     orthonormal_basis,
     rotation_about_y,
     rotation_about_z,
+    spot_attenuation,
 )
 
 THESIS_TABLE_4_1 = {5: 0.08, 7: 0.23, 9: 0.49, 11: 0.91, 13: 1.51, 15: 2.34}
@@ -78,6 +80,27 @@ def test_cone_sphere_curve_lies_on_both_surfaces(apex: tuple, axis: np.ndarray, 
 def test_cone_sphere_curve_rejects_apex_outside() -> None:
     with pytest.raises(ValueError, match="inside"):
         cone_sphere_curve(np.array([0.0, 5.0, 1.0]), np.array([0.0, 1.0, 0.0]), 0.25, np.array([0, 0, 12.5]), 12.5)
+
+
+def test_spot_attenuation_is_cycles_smoothstep() -> None:
+    beta = np.radians(9.0)
+    cosines = np.cos(np.radians([0.0, 7.0, 8.9, 9.1, 20.0]))
+    sharp = spot_attenuation(cosines, beta, 0.0)
+    np.testing.assert_array_equal(sharp, [1, 1, 1, 0, 0])
+    soft = spot_attenuation(cosines, beta, 0.15)
+    assert soft[0] == 1.0 and soft[3] == 0.0 and soft[4] == 0.0
+    assert 0.0 < soft[2] < soft[1] <= 1.0
+    inner = np.cos(beta) + 0.15 * (1 - np.cos(beta))  # the blend starts here
+    assert spot_attenuation(np.array([inner + 1e-9]), beta, 0.15)[0] == pytest.approx(1.0)
+
+
+def test_edge_angle_of_blend_is_the_half_light_angle() -> None:
+    beta = np.radians(9.0)
+    assert edge_angle_of_blend(beta, 0.0) == pytest.approx(beta)
+    for blend in (0.05, 0.15, 0.5):
+        edge = edge_angle_of_blend(beta, blend)
+        assert spot_attenuation(np.array([np.cos(edge)]), beta, blend)[0] == pytest.approx(0.5)
+        assert edge < beta
 
 
 def test_intersect_rays_sphere_misses_give_nan() -> None:
@@ -141,3 +164,11 @@ def test_angles_between() -> None:
     assert angles_between(np.array([0.0, 0, -1]), np.array([0.0, 0, -1])) == pytest.approx(0.0, abs=1e-12)
     small = np.array([np.sin(1e-7), 0.0, -np.cos(1e-7)])
     assert angles_between(small, np.array([0.0, 0, -1])) == pytest.approx(1e-7, rel=1e-6)
+
+
+@given(axis=unit_vectors, tilt=st.floats(0.05, 0.7), roll=st.floats(-np.pi, np.pi))
+def test_roll_turns_the_beams_to_the_next(axis: np.ndarray, tilt: float, roll: float) -> None:
+    # A roll of 120 deg puts beam 0 where beam 1 was; any roll keeps the tilt.
+    turned = beam_axes(axis, 3, tilt, 2 * np.pi / 3)
+    np.testing.assert_allclose(turned[0], beam_axes(axis, 3, tilt)[1], atol=1e-9)
+    np.testing.assert_allclose(beam_axes(axis, 3, tilt, roll) @ axis, np.cos(tilt), atol=1e-9)

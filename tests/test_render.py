@@ -9,20 +9,7 @@ from conftest import small_setup
 from spotnav.camera import project_points
 from spotnav.config import Bump, World
 from spotnav.geometry import InstrumentPose, cone_sphere_curve
-from spotnav.geometry import spot_attenuation as spot_mask
 from spotnav.render import Renderer, bump_height, exposure_gain
-
-
-def test_spot_mask_is_cycles_smoothstep() -> None:
-    beta = np.radians(9.0)
-    cosines = np.cos(np.radians([0.0, 7.0, 8.9, 9.1, 20.0]))
-    sharp = spot_mask(cosines, beta, 0.0)
-    np.testing.assert_array_equal(sharp, [1, 1, 1, 0, 0])
-    soft = spot_mask(cosines, beta, 0.15)
-    assert soft[0] == 1.0 and soft[3] == 0.0 and soft[4] == 0.0
-    assert 0.0 < soft[2] < soft[1] <= 1.0
-    inner = np.cos(beta) + 0.15 * (1 - np.cos(beta))  # the blend starts here
-    assert spot_mask(np.array([inner + 1e-9]), beta, 0.15)[0] == pytest.approx(1.0)
 
 
 def test_full_scale_at_5_mm_for_1_w() -> None:
