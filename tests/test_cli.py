@@ -144,3 +144,51 @@ def test_reproduce_quick_smoke(tmp_path: Path, capsys: pytest.CaptureFixture[str
 def test_python_dash_m() -> None:
     result = subprocess.run([sys.executable, "-m", "spotnav", "--version"], capture_output=True, text=True, check=True)
     assert result.stdout.startswith("spotnav ")
+
+
+def test_calibrate_writes_a_setup_that_localize_uses(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # Frames of a blend-0.3 beam at known tips (relative paths in known.csv), calibrate, then localize
+    # a new frame with the calibrated file: the fitted edge angle is used and the tip is found.
+    scene = write_scene(tmp_path / "setup.toml", size_px=768, blend=0.3)
+    scene.write_text(scene.read_text().replace("edge_half_angle_deg", "# edge_half_angle_deg"))
+    rows = ["image,x_mm,y_mm,z_mm"]
+    for i, tip in enumerate([(1.0, -1.0, 4.0), (-1.5, 0.5, 5.0), (0.5, 1.5, 3.5), (-0.5, -1.5, 4.5)]):
+        name = f"cal_{i}.png"
+        args = ["render", "--scene", str(scene), "--tip", *map(str, tip), "--seed", str(i)]
+        assert main([*args, "--out", str(tmp_path / name)]) == 0
+        rows.append(f"{name},{tip[0]},{tip[1]},{tip[2]}")
+    (tmp_path / "known.csv").write_text("\n".join(rows) + "\n")
+    calibrated = tmp_path / "calibrated.toml"
+    assert (
+        main(["calibrate", "--scene", str(scene), "--poses", str(tmp_path / "known.csv"), "--out", str(calibrated)])
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert "instrument.edge_half_angle_deg = " in out and "before" in out
+    fitted = setup_from_toml(calibrated.read_text()).instrument.edge_half_angle_deg
+    assert fitted == pytest.approx(np.degrees(edge_angle_of_blend(np.radians(9.0), 0.3)), abs=0.03)
+    frame = tmp_path / "test.png"
+    assert (
+        main(["render", "--scene", str(scene), "--tip", "0.3", "0.2", "4.2", "--seed", "9", "--out", str(frame)]) == 0
+    )
+    errors = {}
+    for name, setup_file in (("calibrated", calibrated), ("default", scene)):
+        assert main(["localize", "--scene", str(setup_file), str(frame), "--out", str(tmp_path / "poses.csv")]) == 0
+        (row,) = read_poses(tmp_path / "poses.csv")
+        tip = np.array([float(row[k]) for k in ("x_mm", "y_mm", "z_mm")])
+        errors[name] = np.linalg.norm(tip - [0.3, 0.2, 4.2])
+    # 0.03 deg of edge angle is 0.02 mm of height at 4.2 mm; the default model is 0.36 deg off.
+    assert errors["calibrated"] < 0.05 < 0.1 < errors["default"]
+
+
+def test_calibrate_rejects_unusable_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=256)
+    (tmp_path / "known.csv").write_text("image,x_mm,y_mm,z_mm\na.png,1,1,4\n")
+    args = ["calibrate", "--scene", str(scene), "--poses", str(tmp_path / "known.csv"), "--out", "c.toml"]
+    assert main(args) == 2
+    assert "at least 3 usable frames" in capsys.readouterr().err
+    assert main([*args, str(tmp_path / "other.png")]) == 2
+    assert "is not in" in capsys.readouterr().err
+    (tmp_path / "known.csv").write_text("image,x_mm\na.png,1\n")
+    assert main(args) == 2
+    assert "needs a header" in capsys.readouterr().err

@@ -7,8 +7,18 @@ import cv2
 import numpy as np
 import pytest
 
-from spotnav.config import SetupError
-from spotnav.files import POSES_COLUMNS, ImageReadError, pose_row, read_image, read_setup, write_image, write_poses_csv
+from spotnav.config import Bump, Instrument, Setup, SetupError, World, setup_from_toml
+from spotnav.files import (
+    POSES_COLUMNS,
+    ImageReadError,
+    pose_row,
+    read_image,
+    read_known_poses,
+    read_setup,
+    setup_to_toml,
+    write_image,
+    write_poses_csv,
+)
 from spotnav.localize import PoseEstimate
 
 
@@ -65,3 +75,32 @@ def test_poses_csv_has_the_contract_columns_first(tmp_path: Path) -> None:
     assert tuple(table[0]) == POSES_COLUMNS
     assert float(table[0]["z_mm"]) == 3.0 and table[0]["status"] == "ok"
     assert table[1]["x_mm"] == "" and table[1]["detail"] == "dark"
+
+
+def test_setup_to_toml_round_trips() -> None:
+    setups = [
+        Setup(),
+        Setup(
+            world=World(eye_radius_mm=13.0, bumps=(Bump(1.0, -2.0),), surface="sphere"),
+            instrument=Instrument(beam_count=3, edge_half_angle_deg=8.5, height_correction=1.03),
+        ),
+    ]
+    for setup in setups:
+        text = setup_to_toml(setup, "a header\nof two lines")
+        assert text.startswith("# a header\n# of two lines\n")
+        assert setup_from_toml(text) == setup
+
+
+def test_read_known_poses(tmp_path: Path) -> None:
+    (tmp_path / "known.csv").write_text(
+        "image,x_mm,y_mm,z_mm,dir_x,dir_y,dir_z\na.png,1,2,4,0,0,-1\n/abs/b.png,0,0,5,0,0,-1\n"
+    )
+    first, second = read_known_poses(tmp_path / "known.csv")
+    assert first.image == tmp_path / "a.png" and second.image == Path("/abs/b.png")
+    np.testing.assert_array_equal(first.tip_in_eye, [1, 2, 4])
+    np.testing.assert_array_equal(second.axis, [0, 0, -1])
+    (tmp_path / "bad.csv").write_text("image,x_mm,y_mm,z_mm\na.png,1,two,4\n")
+    with pytest.raises(ValueError, match="line 2"):
+        read_known_poses(tmp_path / "bad.csv")
+    with pytest.raises(ValueError, match="cannot read"):
+        read_known_poses(tmp_path / "missing.csv")

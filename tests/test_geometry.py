@@ -9,6 +9,7 @@ from spotnav.geometry import (
     InstrumentPose,
     angles_between,
     approximation_deviation,
+    assign_beams,
     axis_rotations,
     beam_axes,
     cone_generators,
@@ -172,3 +173,15 @@ def test_roll_turns_the_beams_to_the_next(axis: np.ndarray, tilt: float, roll: f
     turned = beam_axes(axis, 3, tilt, 2 * np.pi / 3)
     np.testing.assert_allclose(turned[0], beam_axes(axis, 3, tilt)[1], atol=1e-9)
     np.testing.assert_allclose(beam_axes(axis, 3, tilt, roll) @ axis, np.cos(tilt), atol=1e-9)
+
+
+@given(axis=unit_vectors, roll=st.floats(-np.pi, np.pi), first=st.integers(0, 2), count=st.sampled_from([2, 3]))
+def test_assign_beams_finds_each_beam(axis: np.ndarray, roll: float, first: int, count: int) -> None:
+    # Spots listed from any beam on: the first is called beam 0 and the roll absorbs the rest.
+    tilt = np.radians(15.0)
+    true_axes = beam_axes(axis, 3, tilt, roll)
+    order = [(first + k) % 3 for k in range(count)]
+    result = assign_beams(true_axes[order], axis)
+    assert result is not None
+    beams, fitted_roll = result
+    np.testing.assert_allclose(beam_axes(axis, 3, tilt, fitted_roll)[beams], true_axes[order], atol=1e-9)

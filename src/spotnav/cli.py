@@ -1,4 +1,4 @@
-"""Command line: ``spotnav scene|render|localize|analyze|reproduce``.
+"""Command line: ``spotnav scene|render|localize|calibrate|analyze|reproduce``.
 
 ``main(argv)`` returns the exit code, so tests call it in-process. Unusable
 arguments or setups end with one line ``spotnav: error: ...`` and exit code 2.
@@ -19,13 +19,16 @@ import numpy as np
 from tqdm import tqdm
 
 from spotnav import __version__
+from spotnav.calibrate import KnownFrame, calibrate_edge
 from spotnav.config import EXAMPLE_SETUP
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.files import (
     ImageReadError,
     pose_row,
     read_image,
+    read_known_poses,
     read_setup,
+    setup_to_toml,
     write_image,
     write_poses_csv,
     write_truth_json,
@@ -105,6 +108,45 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    setup = read_setup(args.scene)
+    known = read_known_poses(args.poses)
+    if args.images:
+        by_path = {pose.image.resolve(): pose for pose in known}
+        missing = [name for name in args.images if Path(name).resolve() not in by_path]
+        if missing:
+            raise UsageError(f"{missing[0]} is not in {args.poses}")
+        known = [by_path[Path(name).resolve()] for name in args.images]
+    frames = []
+    for pose in tqdm(known, desc="calibrate", unit="image", disable=None):
+        try:
+            image = read_image(pose.image)
+        except ImageReadError as error:
+            print(f"spotnav: warning: {error}; left out", file=sys.stderr)
+            continue
+        frames.append(KnownFrame(str(pose.image), image, pose.tip_in_eye, pose.axis))
+    result = calibrate_edge(frames, setup, fit_radius=args.fit_radius)
+    for reason in result.skipped:
+        print(f"spotnav: warning: {reason}; left out", file=sys.stderr)
+    lines = [
+        f"frames used: {result.frames} ({result.points} edge points)",
+        f"instrument.edge_half_angle_deg = {result.edge_half_angle_deg:.4f} +- {result.edge_sigma_deg:.4f} (1 sigma)",
+    ]
+    if args.fit_radius:
+        lines.append(f"eye.radius_mm = {result.radius_mm:.4f} +- {result.radius_sigma_mm:.4f} (1 sigma)")
+    lines.append(
+        f"RMS angle of the edge points from their cones: {result.rms_before_deg:.4f} deg before, "
+        f"{result.rms_after_deg:.4f} deg after"
+    )
+    print("\n".join(lines))
+    header = f"written by spotnav calibrate from {args.scene} and {args.poses}\n" + "\n".join(lines)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(setup_to_toml(result.apply(setup), header), encoding="utf-8")
+    print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
 def _cmd_analyze(args: argparse.Namespace) -> int:
     print("Table 4.1: largest deviation of the cone-plane ellipse from the cone-sphere curve")
     print("sphere centre (3.7, 0, -6.35) mm in the cone frame, r = 12.5 mm (thesis Table 4.2)")
@@ -161,6 +203,14 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--out", required=True, help="poses.csv path")
     loc.add_argument("images", nargs="+", metavar="IMAGE")
     loc.set_defaults(run=_cmd_localize)
+
+    cal = commands.add_parser("calibrate", help="fit the edge angle (and the eye's radius) from known poses")
+    cal.add_argument("--scene", required=True, help="setup TOML")
+    cal.add_argument("--poses", required=True, help="known.csv: image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z]")
+    cal.add_argument("--fit-radius", action="store_true", help="fit eye.radius_mm too")
+    cal.add_argument("--out", required=True, help="the calibrated setup TOML to write")
+    cal.add_argument("images", nargs="*", metavar="IMAGE", help="images to use (default: all in known.csv)")
+    cal.set_defaults(run=_cmd_calibrate)
 
     analyze = commands.add_parser("analyze", help="analyses of the method's geometry")
     analyze.add_argument("topic", choices=["approximation"], help="approximation: Table 4.1")

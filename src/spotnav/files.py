@@ -1,4 +1,4 @@
-"""Reading and writing spotnav's files: setups, images, truth and poses.csv.
+"""Reading and writing spotnav's files: setups, images, truth, known.csv and poses.csv.
 
 Only this module, the experiments layer and the CLI touch the file system.
 Every failure is a :class:`ValueError` subclass with a one-line message that
@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import json
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
@@ -23,10 +23,13 @@ from spotnav.localize import PoseEstimate
 __all__ = [
     "POSES_COLUMNS",
     "ImageReadError",
+    "KnownPose",
     "pose_row",
     "read_image",
+    "read_known_poses",
     "read_setup",
     "setup_to_dict",
+    "setup_to_toml",
     "write_image",
     "write_poses_csv",
     "write_truth_json",
@@ -148,3 +151,79 @@ def write_poses_csv(path: str | Path, rows: Iterable[Sequence[str]]) -> None:
         writer = csv.writer(handle)
         writer.writerow(POSES_COLUMNS)
         writer.writerows(rows)
+
+
+@dataclass(frozen=True)
+class KnownPose:
+    """One row of ``known.csv``: an image at a known tip position (and, optionally, axis)."""
+
+    image: Path
+    tip_in_eye: np.ndarray
+    axis: np.ndarray | None
+
+
+def read_known_poses(path: str | Path) -> list[KnownPose]:
+    """Read ``known.csv`` (contract: ``image,x_mm,y_mm,z_mm``; optional ``dir_x,dir_y,dir_z``).
+
+    Image paths are taken relative to the CSV's folder unless absolute.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the row for a missing column or a bad number.
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.DictReader(handle))
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read: {error.strerror}") from None
+    needed = ["image", "x_mm", "y_mm", "z_mm"]
+    if not rows or any(name not in rows[0] for name in needed):
+        raise ValueError(f"{path}: needs a header with the columns {', '.join(needed)} and at least one row")
+    has_axis = all(f"dir_{k}" in rows[0] for k in "xyz")
+    poses = []
+    for number, row in enumerate(rows, start=2):
+        try:
+            tip = np.array([float(row[k]) for k in ("x_mm", "y_mm", "z_mm")])
+            axis = np.array([float(row[f"dir_{k}"]) for k in "xyz"]) if has_axis else None
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}, line {number}: the position must be numbers") from None
+        if not np.all(np.isfinite(tip)) or (axis is not None and not np.all(np.isfinite(axis))):
+            raise ValueError(f"{path}, line {number}: the position must be finite")
+        image = Path(row["image"])
+        poses.append(KnownPose(image if image.is_absolute() else path.parent / image, tip, axis))
+    return poses
+
+
+def setup_to_toml(setup: Setup, header: str = "") -> str:
+    """The setup as a TOML file that :func:`read_setup` reads back to the same setup.
+
+    Parameters
+    ----------
+    setup : Setup
+    header : str
+        Comment lines to put first (without ``#``).
+    """
+    lines = [f"# {line}" for line in header.splitlines()]
+    for section, values in asdict(setup).items():
+        lines += ["", f"[{section}]"]
+        for key, value in values.items():
+            if value is None:
+                continue
+            lines.append(f"{key} = {_toml_value(value)}")
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} as TOML")

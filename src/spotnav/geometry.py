@@ -16,6 +16,7 @@ __all__ = [
     "InstrumentPose",
     "angles_between",
     "approximation_deviation",
+    "assign_beams",
     "axis_rotations",
     "beam_axes",
     "cone_generators",
@@ -197,6 +198,31 @@ def beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float = 0.0)
     # Counter-clockwise seen looking along the axis is a positive turn about -axis.
     azimuths = -(roll + 2.0 * np.pi * np.arange(beam_count) / beam_count)
     return cone_generators(axis, tilt, azimuths)
+
+
+def assign_beams(directions: np.ndarray, axis: np.ndarray) -> tuple[list[int], float] | None:
+    """Which of three beams points along each direction, and the roll that puts beam 0 on the first.
+
+    Parameters
+    ----------
+    directions : ndarray, shape (n, 3), n <= 3
+        Directions from the tip toward each spot (or each spot's beam axis).
+    axis : ndarray, shape (3,)
+        The instrument axis.
+
+    Returns
+    -------
+    beams, roll
+        Beam index per direction (the first is beam 0) and the roll of
+        :func:`beam_axes`, radians; ``None`` when two directions get one beam.
+    """
+    e1, e2 = orthonormal_basis(axis)
+    azimuths = np.arctan2(directions @ e2, directions @ e1)
+    step = 2.0 * np.pi / 3.0  # beam j sits at azimuth -(roll + j step)
+    beams = [int(np.round(((azimuths[0] - a) % (2.0 * np.pi)) / step)) % 3 for a in azimuths]
+    if len(set(beams)) < len(beams):
+        return None
+    return beams, float(-azimuths[0])
 
 
 def spot_attenuation(cos_angle: np.ndarray, half_angle: float, blend: float) -> np.ndarray:

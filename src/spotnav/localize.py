@@ -33,7 +33,7 @@ import numpy as np
 from spotnav.camera import unproject_pixels_to_plane, unproject_pixels_to_sphere
 from spotnav.config import Setup
 from spotnav.detect import Spot, SpotDetection, detect_edge_subpixel, detect_spots_otsu
-from spotnav.geometry import edge_angle_of_blend, normalize, orthonormal_basis
+from spotnav.geometry import assign_beams, edge_angle_of_blend, normalize
 from spotnav.reconstruct import (
     ConeCandidates,
     ConeFit,
@@ -264,14 +264,8 @@ def _beam_assignment(solution: _ThesisSolution, axis: np.ndarray, setup: Setup) 
     """Which beam made each spot, and the starting roll, from the candidates' cone axes (None if unclear)."""
     if setup.instrument.beam_count == 1:
         return [0], 0.0
-    e1, e2 = orthonormal_basis(axis)
-    cone_axes = [c.cone_axes[i] for c, i in zip(solution.candidates, solution.chosen, strict=True)]
-    azimuths = np.array([np.arctan2(a @ e2, a @ e1) for a in cone_axes])
-    step = 2.0 * np.pi / 3.0
-    beams = [int(np.round(((azimuths[0] - a) % (2.0 * np.pi)) / step)) % 3 for a in azimuths]
-    if len(set(beams)) < len(beams):
-        return None
-    return beams, float(-azimuths[0])
+    cone_axes = np.array([c.cone_axes[i] for c, i in zip(solution.candidates, solution.chosen, strict=True)])
+    return assign_beams(cone_axes, axis)
 
 
 def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PoseEstimate:

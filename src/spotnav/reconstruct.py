@@ -27,6 +27,7 @@ __all__ = [
     "Ellipse",
     "apex_candidates",
     "choose_by_insertion",
+    "correlation_inflation",
     "fit_cones",
     "fit_ellipse",
     "sphere_normal",
@@ -331,7 +332,7 @@ def fit_cones(
     variance = float(np.sum(final.fun**2)) / dof
     jacobian = final.jac
     normal_inverse = np.linalg.pinv(jacobian.T @ jacobian)
-    covariance = variance * _correlation_factor(final.fun, beam_of_point[inliers]) * normal_inverse
+    covariance = variance * correlation_inflation(final.fun, beam_of_point[inliers]) * normal_inverse
     # A change d of the edge angle shifts every residual by -d: the pose moves by (J^T J)^-1 J^T 1 d.
     shift = normal_inverse @ jacobian.sum(axis=0)
     covariance = covariance + edge_sigma**2 * np.outer(shift, shift)
@@ -346,8 +347,16 @@ def fit_cones(
     )
 
 
-def _correlation_factor(residuals: np.ndarray, groups: np.ndarray) -> float:
-    """Variance inflation ``(1 + rho) / (1 - rho)`` for the lag-1 correlation of neighbouring residuals."""
+def correlation_inflation(residuals: np.ndarray, groups: np.ndarray) -> float:
+    """Variance inflation ``(1 + rho) / (1 - rho)`` for the lag-1 correlation of neighbouring residuals.
+
+    Parameters
+    ----------
+    residuals : ndarray, shape (N,)
+        In order along each contour.
+    groups : ndarray, shape (N,)
+        Which contour each residual belongs to (neighbours are taken within one).
+    """
     products, squares = 0.0, 0.0
     for group in np.unique(groups):
         r = residuals[groups == group]

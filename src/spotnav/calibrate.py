@@ -1,0 +1,212 @@
+"""Calibration from frames at known tip positions: the beam's edge angle and, optionally, the eye's radius.
+
+The precise method puts each spot's edge where the light is half of its full
+value, at ``instrument.edge_half_angle_deg`` from the beam's axis. A real beam's
+soft edge, a lens's blur or a camera's tone curve move that angle, so it is
+measured: with the tip known (a robot reports it), every edge point's angle
+from its beam's axis is a measurement of it. All frames' points are fitted at
+once by robust least squares, together with each three-beam frame's roll and,
+with ``fit_radius``, the retina's radius (the points are back-projected onto a
+sphere of that radius, so only the true radius puts them all on cones of one
+angle).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from spotnav.camera import unproject_pixels_to_sphere
+from spotnav.config import Setup
+from spotnav.detect import detect_edge_subpixel, detect_spots_otsu
+from spotnav.geometry import assign_beams, beam_axes, normalize
+from spotnav.localize import edge_half_angle
+from spotnav.reconstruct import correlation_inflation
+
+__all__ = ["Calibration", "KnownFrame", "calibrate_edge"]
+
+MIN_FRAMES = 3
+MIN_FRAMES_FOR_RADIUS = 5
+MIN_SPREAD_FOR_RADIUS_MM = 1.0
+_CONTRAST_SIGMA = 4.0
+
+
+@dataclass(frozen=True)
+class KnownFrame:
+    """A calibration frame and where the tip was.
+
+    Attributes
+    ----------
+    name : str
+        For messages.
+    image : ndarray
+        The frame, sRGB-encoded RGB or grey.
+    tip_in_eye : ndarray, shape (3,)
+        The known tip, mm.
+    axis : ndarray, shape (3,), or None
+        The known instrument axis; ``None``: from the insertion point to the tip.
+    """
+
+    name: str
+    image: np.ndarray
+    tip_in_eye: np.ndarray
+    axis: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Fitted values, their 1-sigma uncertainties and the residuals before and after.
+
+    Attributes
+    ----------
+    edge_half_angle_deg, edge_sigma_deg : float
+    radius_mm : float
+        Fitted radius, or the setup's when it was not fitted.
+    radius_sigma_mm : float
+        NaN when the radius was not fitted.
+    rms_before_deg, rms_after_deg : float
+        RMS angle of the inlying edge points from their cones with the setup's
+        values and with the fitted ones.
+    frames : int
+        Frames used.
+    points : int
+        Edge points used.
+    skipped : tuple of str
+        Frames left out, with the reason.
+    """
+
+    edge_half_angle_deg: float
+    edge_sigma_deg: float
+    radius_mm: float
+    radius_sigma_mm: float
+    rms_before_deg: float
+    rms_after_deg: float
+    frames: int
+    points: int
+    skipped: tuple[str, ...] = ()
+
+    def apply(self, setup: Setup) -> Setup:
+        """The setup with the fitted edge angle (and radius) in place."""
+        instrument = replace(setup.instrument, edge_half_angle_deg=self.edge_half_angle_deg)
+        eye = replace(setup.eye, radius_mm=self.radius_mm)
+        return replace(setup, eye=eye, instrument=instrument)
+
+
+@dataclass(frozen=True)
+class _FrameEdges:
+    pixels: np.ndarray  # (N, 2)
+    beam_of_point: np.ndarray  # (N,)
+    group_of_point: np.ndarray  # (N,) one group per spot
+    tip: np.ndarray
+    axis: np.ndarray
+    roll: float
+
+
+def _frame_edges(frame: KnownFrame, setup: Setup, group: int) -> _FrameEdges | str:
+    """The frame's edge pixels, the beam of each and the starting roll, or why the frame cannot be used."""
+    instrument = setup.instrument
+    if frame.image.shape[:2] != (setup.camera.height_px, setup.camera.width_px):
+        return f"{frame.name}: image is {frame.image.shape[1]}x{frame.image.shape[0]} px, not the setup's size"
+    spots = detect_spots_otsu(frame.image, min_contrast_sigma=_CONTRAST_SIGMA).spots
+    if len(spots) != instrument.beam_count or any(s.touches_border for s in spots):
+        return f"{frame.name}: {len(spots)} whole spots, need {instrument.beam_count}"
+    tip = np.asarray(frame.tip_in_eye, dtype=float)
+    axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
+    pixels = [detect_edge_subpixel(frame.image, spot).pixels for spot in spots]
+    beams, roll = [0], 0.0
+    if len(spots) > 1:
+        centres = np.array(
+            [unproject_pixels_to_sphere(setup.camera, p.mean(axis=0), setup.eye.radius_mm) for p in pixels]
+        )
+        assignment = assign_beams(centres - tip, axis)
+        if assignment is None:
+            return f"{frame.name}: cannot tell which spot each beam made"
+        beams, roll = assignment
+    return _FrameEdges(
+        np.concatenate(pixels),
+        np.concatenate([np.full(len(p), b) for p, b in zip(pixels, beams, strict=True)]),
+        np.concatenate([np.full(len(p), group + k) for k, p in enumerate(pixels)]),
+        tip,
+        axis,
+        roll,
+    )
+
+
+def _residuals(params: np.ndarray, frames: list[_FrameEdges], setup: Setup, fit_radius: bool) -> np.ndarray:
+    edge = params[0]
+    radius = params[1] if fit_radius else setup.eye.radius_mm
+    rolls = params[2:] if fit_radius else params[1:]
+    instrument = setup.instrument
+    out = []
+    for f, frame in enumerate(frames):
+        points = unproject_pixels_to_sphere(setup.camera, frame.pixels, radius)
+        roll = rolls[f] if instrument.beam_count > 1 else 0.0
+        axes = beam_axes(frame.axis, instrument.beam_count, instrument.beam_tilt, roll)[frame.beam_of_point]
+        rays = points - frame.tip
+        angle = np.arctan2(np.linalg.norm(np.cross(rays, axes), axis=1), np.sum(rays * axes, axis=1))
+        out.append(np.nan_to_num(angle - edge, nan=1.0))  # a point off the sphere is a gross misfit
+    return np.concatenate(out)
+
+
+def calibrate_edge(frames: Sequence[KnownFrame], setup: Setup, *, fit_radius: bool = False) -> Calibration:
+    """Fit the edge angle (and the eye's radius) to frames at known tip positions.
+
+    Parameters
+    ----------
+    frames : sequence of KnownFrame
+    setup : Setup
+        The eye, camera and instrument; its edge angle and radius are the
+        starting values and the "before" of the residuals.
+    fit_radius : bool
+        Fit ``eye.radius_mm`` too.
+
+    Raises
+    ------
+    ValueError
+        Too few usable frames (3, or 5 with ``fit_radius``), or known tips too
+        close together to tell the radius (they must spread over 1 mm in x, y).
+    """
+    edges, skipped = [], []
+    for frame in frames:
+        result = _frame_edges(frame, setup, 3 * len(edges))
+        (skipped if isinstance(result, str) else edges).append(result)
+    needed = MIN_FRAMES_FOR_RADIUS if fit_radius else MIN_FRAMES
+    if len(edges) < needed:
+        reasons = "; ".join(skipped) if skipped else "none given"
+        raise ValueError(f"calibration needs at least {needed} usable frames, got {len(edges)} ({reasons})")
+    if fit_radius:
+        tips = np.array([e.tip for e in edges])
+        spread = float(np.max(np.ptp(tips[:, :2], axis=0)))
+        if spread < MIN_SPREAD_FOR_RADIUS_MM:
+            raise ValueError(
+                f"the known tips spread {spread:.2f} mm in x, y; fitting the radius needs at least "
+                f"{MIN_SPREAD_FOR_RADIUS_MM:g} mm (degenerate poses)"
+            )
+    start = [edge_half_angle(setup)] + ([setup.eye.radius_mm] if fit_radius else [])
+    start += [e.roll for e in edges] if setup.instrument.beam_count > 1 else []
+    args = (edges, setup, fit_radius)
+    before = _residuals(np.array(start), *args)
+    scale = max(1.4826 * float(np.median(np.abs(before - np.median(before)))), 1e-6)
+    robust = least_squares(_residuals, start, args=args, loss="soft_l1", f_scale=scale, x_scale="jac")
+    spread = max(1.4826 * float(np.median(np.abs(robust.fun))), 1e-7)
+    inliers = np.abs(robust.fun) < 3.0 * spread
+    groups = np.concatenate([e.group_of_point for e in edges])
+    jacobian = robust.jac[inliers]
+    variance = float(np.sum(robust.fun[inliers] ** 2)) / max(int(inliers.sum()) - len(start), 1)
+    covariance = variance * correlation_inflation(robust.fun[inliers], groups[inliers])
+    covariance = covariance * np.linalg.pinv(jacobian.T @ jacobian)
+    sigmas = np.sqrt(np.diag(covariance))
+    return Calibration(
+        edge_half_angle_deg=float(np.degrees(robust.x[0])),
+        edge_sigma_deg=float(np.degrees(sigmas[0])),
+        radius_mm=float(robust.x[1]) if fit_radius else setup.eye.radius_mm,
+        radius_sigma_mm=float(sigmas[1]) if fit_radius else float("nan"),
+        rms_before_deg=float(np.degrees(np.sqrt(np.mean(before[inliers] ** 2)))),
+        rms_after_deg=float(np.degrees(np.sqrt(np.mean(robust.fun[inliers] ** 2)))),
+        frames=len(edges),
+        points=int(inliers.sum()),
+        skipped=tuple(skipped),
+    )
