@@ -192,3 +192,16 @@ def test_calibrate_rejects_unusable_input(tmp_path: Path, capsys: pytest.Capture
     (tmp_path / "known.csv").write_text("image,x_mm\na.png,1\n")
     assert main(args) == 2
     assert "needs a header" in capsys.readouterr().err
+
+
+def test_localize_fit_radius_needs_the_precise_method_and_20_frames(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=384)
+    frame = tmp_path / "f.png"
+    assert main(["render", "--scene", str(scene), "--tip", "0", "0", "4", "--out", str(frame)]) == 0
+    args = ["localize", "--scene", str(scene), "--fit-radius", str(frame), "--out", str(tmp_path / "p.csv")]
+    assert main([*args, "--method", "thesis"]) == 2
+    assert "--fit-radius works with --method precise" in capsys.readouterr().err
+    assert main(args) == 2
+    assert "at least 20 frames" in capsys.readouterr().err

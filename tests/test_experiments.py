@@ -131,3 +131,16 @@ def test_reproduce_every_thesis_table(tmp_path: Path) -> None:
     rows = _without_timings(tmp_path / "serial" / "paths.csv")
     frames = 2 * 2 * 7 * 3  # paths x beam counts x powers x poses
     assert 2 * frames < len(rows) - 1 <= 3 * frames  # thesis, precise, and calibrated where the calibration worked
+
+
+def test_reproduce_calibration_experiment(tmp_path: Path) -> None:
+    # Issue 5's experiment at a small size: both parts, both beam counts, every cell filled.
+    reproduce(tmp_path, size_px=512, poses=20, workers=2, only=["calibration"], log=print)
+    report = (tmp_path / "report.md").read_text()
+    for case in ("precise + calibrate --fit-radius", "precise + self-calibration", "precise, true edge model"):
+        assert report.count(f"| {case} |") == 2, case
+    for line in report.splitlines():
+        if line.startswith("|"):
+            assert all(c.strip() for c in line.strip("|").split("|")), line
+    rows = _without_timings(tmp_path / "calibration.csv")
+    assert len(rows) - 1 == 2 * 20 * 3 + 2 * 20 * 3  # parts x beam counts x poses x variants

@@ -18,15 +18,23 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
 
 from spotnav.camera import unproject_pixels_to_sphere
 from spotnav.config import Setup
 from spotnav.detect import detect_edge_subpixel, detect_spots_otsu
 from spotnav.geometry import assign_beams, beam_axes, normalize
-from spotnav.localize import edge_half_angle
+from spotnav.localize import EdgeFrame, PoseEstimate, edge_half_angle, localize_precise, prepare_edges
 from spotnav.reconstruct import correlation_inflation
 
-__all__ = ["Calibration", "KnownFrame", "calibrate_edge"]
+__all__ = [
+    "Calibration",
+    "KnownFrame",
+    "RadiusSelfCalibration",
+    "calibrate_edge",
+    "prepare_self_calibration",
+    "self_calibrate_radius",
+]
 
 MIN_FRAMES = 3
 MIN_FRAMES_FOR_RADIUS = 5
@@ -210,3 +218,136 @@ def calibrate_edge(frames: Sequence[KnownFrame], setup: Setup, *, fit_radius: bo
         points=int(inliers.sum()),
         skipped=tuple(skipped),
     )
+
+
+MIN_FRAMES_FOR_SELF_CALIBRATION = 20
+
+
+@dataclass(frozen=True)
+class RadiusSelfCalibration:
+    """The eye's radius fitted jointly with the poses of a sequence, and those poses.
+
+    Attributes
+    ----------
+    radius_mm, radius_sigma_mm : float
+    estimates : list of PoseEstimate
+        One per frame, in order; frames the fit could not use keep their status.
+    frames : int
+        Frames in the joint fit.
+    """
+
+    radius_mm: float
+    radius_sigma_mm: float
+    estimates: list[PoseEstimate]
+    frames: int
+
+
+def _joint_residuals(params: np.ndarray, frames: list[_FrameEdges], setup: Setup, edge: float) -> np.ndarray:
+    instrument = setup.instrument
+    radius = params[0]
+    per_frame = 4 if instrument.beam_count > 1 else 3
+    out = []
+    for f, frame in enumerate(frames):
+        block = params[1 + per_frame * f : 1 + per_frame * (f + 1)]
+        tip = block[:3]
+        axis = normalize(tip - instrument.insertion_in_eye)
+        roll = block[3] if per_frame == 4 else 0.0
+        axes = beam_axes(axis, instrument.beam_count, instrument.beam_tilt, roll)[frame.beam_of_point]
+        rays = unproject_pixels_to_sphere(setup.camera, frame.pixels, radius) - tip
+        angle = np.arctan2(np.linalg.norm(np.cross(rays, axes), axis=1), np.sum(rays * axes, axis=1))
+        out.append(np.nan_to_num(angle - edge, nan=1.0))
+    return np.concatenate(out)
+
+
+def prepare_self_calibration(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, EdgeFrame | None]:
+    """One frame's share of :func:`self_calibrate_radius`: its precise pose and its edges (None if unusable)."""
+    estimate = localize_precise(image, setup)
+    prepared = prepare_edges(image, setup) if estimate.ok else None
+    return estimate, prepared if isinstance(prepared, EdgeFrame) else None
+
+
+def self_calibrate_radius(
+    frames_or_images: Sequence[np.ndarray] | Sequence[tuple[PoseEstimate, EdgeFrame | None]], setup: Setup
+) -> RadiusSelfCalibration:
+    """Fit one eye radius and every frame's pose together, without known poses.
+
+    Only the true radius puts every frame's back-projected edge on a right
+    circular cone of the edge angle with its axis through the insertion point,
+    so the radius is fitted with all poses at once (robust least squares with
+    a sparse Jacobian), starting from each frame's precise fit at the setup's
+    radius.
+
+    Parameters
+    ----------
+    frames_or_images : sequence
+        The frames, or what :func:`prepare_self_calibration` made of each
+        (so that frames can be prepared elsewhere, in parallel).
+    setup : Setup
+
+    Raises
+    ------
+    ValueError
+        With fewer than 20 usable frames.
+    """
+    shares = [f if isinstance(f, tuple) else prepare_self_calibration(f, setup) for f in frames_or_images]
+    estimates = [estimate for estimate, _ in shares]
+    frames, used = [], []
+    for index, (estimate, prepared) in enumerate(shares):
+        if prepared is None:
+            continue
+        assert estimate.tip_in_eye is not None
+        pixels = np.concatenate(prepared.edges_px)
+        beams = np.concatenate([np.full(len(e), b) for e, b in zip(prepared.edges_px, prepared.beams, strict=True)])
+        groups = np.concatenate([np.full(len(e), 3 * len(frames) + k) for k, e in enumerate(prepared.edges_px)])
+        frames.append(_FrameEdges(pixels, beams, groups, estimate.tip_in_eye, prepared.axis, prepared.roll))
+        used.append(index)
+    if len(frames) < MIN_FRAMES_FOR_SELF_CALIBRATION:
+        raise ValueError(
+            f"fitting the radius from the frames alone needs at least {MIN_FRAMES_FOR_SELF_CALIBRATION} frames "
+            f"with a pose, got {len(frames)}"
+        )
+    per_frame = 4 if setup.instrument.beam_count > 1 else 3
+    start = [setup.eye.radius_mm]
+    for frame in frames:
+        start += [*frame.tip, frame.roll][:per_frame]
+    sizes = [len(f.pixels) for f in frames]
+    sparsity = lil_matrix((sum(sizes), len(start)), dtype=int)
+    sparsity[:, 0] = 1
+    row = 0
+    for f, size in enumerate(sizes):
+        sparsity[row : row + size, 1 + per_frame * f : 1 + per_frame * (f + 1)] = 1
+        row += size
+    edge = edge_half_angle(setup)
+    args = (frames, setup, edge)
+    first = _joint_residuals(np.array(start), *args)
+    scale = max(1.4826 * float(np.median(np.abs(first - np.median(first)))), 1e-6)
+    fit = least_squares(
+        _joint_residuals, start, args=args, jac_sparsity=sparsity, loss="soft_l1", f_scale=scale, x_scale="jac"
+    )
+    spread = max(1.4826 * float(np.median(np.abs(fit.fun))), 1e-7)
+    inliers = np.abs(fit.fun) < 3.0 * spread
+    jacobian = fit.jac.tocsr()[inliers].toarray()
+    groups = np.concatenate([f.group_of_point for f in frames])
+    variance = float(np.sum(fit.fun[inliers] ** 2)) / max(int(inliers.sum()) - len(start), 1)
+    covariance = variance * correlation_inflation(fit.fun[inliers], groups[inliers])
+    covariance = covariance * np.linalg.pinv(jacobian.T @ jacobian)
+    radius = float(fit.x[0])
+    camera = setup.camera
+    ends = np.cumsum(sizes)
+    for f, index in enumerate(used):
+        block = slice(1 + per_frame * f, 1 + per_frame * f + 3)
+        tip = fit.x[block]
+        points = unproject_pixels_to_sphere(camera, frames[f].pixels, radius)
+        kept = inliers[ends[f] - sizes[f] : ends[f]]
+        scale_px = np.linalg.norm(points - tip, axis=1) * camera.focal_px / (camera.distance_mm - points[:, 2])
+        residual_px = fit.fun[ends[f] - sizes[f] : ends[f]] * scale_px
+        estimates[index] = replace(
+            estimates[index],
+            tip_in_eye=tip.copy(),
+            axis=normalize(tip - setup.instrument.insertion_in_eye),
+            sigma_mm=float(np.sqrt(np.trace(covariance[block, block]))),
+            rms_px=float(np.sqrt(np.mean(residual_px[kept] ** 2))),
+            other_axis=None,
+            detail=f"eye radius fitted over {len(frames)} frames: {radius:.3f} mm",
+        )
+    return RadiusSelfCalibration(radius, float(np.sqrt(covariance[0, 0])), estimates, len(frames))

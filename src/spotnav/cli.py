@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from spotnav import __version__
-from spotnav.calibrate import KnownFrame, calibrate_edge
+from spotnav.calibrate import KnownFrame, calibrate_edge, self_calibrate_radius
 from spotnav.config import EXAMPLE_SETUP
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.files import (
@@ -88,19 +88,43 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 def _cmd_localize(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
-    rows = []
+    if args.fit_radius and args.method != "precise":
+        raise UsageError("--fit-radius works with --method precise")
+    rows: list[list[str]] = []
     statuses: Counter[str] = Counter()
+    images: list[tuple[int, np.ndarray]] = []
+    estimates: list[PoseEstimate | None] = []  # None: waits for the joint fit of --fit-radius
+    times: list[float] = []
     for name in tqdm(args.images, desc="localize", unit="image", disable=None):
         start = time.perf_counter()
+        estimate: PoseEstimate | None
         try:
             image = read_image(name)
         except ImageReadError as error:
             estimate = PoseEstimate("unreadable", detail=str(error))
         else:
-            estimate = localize(image, setup, args.method)
-        if estimate.status in ("unreadable", "wrong_size"):
+            if args.fit_radius:
+                images.append((len(estimates), image))
+                estimate = None
+            else:
+                estimate = localize(image, setup, args.method)
+        if estimate is not None and estimate.status in ("unreadable", "wrong_size"):
             print(f"spotnav: warning: {name}: {estimate.detail}", file=sys.stderr)
-        rows.append(pose_row(name, estimate, 1000 * (time.perf_counter() - start)))
+        estimates.append(estimate)
+        times.append(1000 * (time.perf_counter() - start))
+    if args.fit_radius:
+        start = time.perf_counter()
+        fitted = self_calibrate_radius([image for _, image in images], setup)
+        share = 1000 * (time.perf_counter() - start) / max(len(images), 1)
+        for (index, _), estimate in zip(images, fitted.estimates, strict=True):
+            estimates[index] = estimate
+            times[index] += share
+        print(
+            f"eye.radius_mm = {fitted.radius_mm:.4f} +- {fitted.radius_sigma_mm:.4f} (1 sigma, {fitted.frames} frames)"
+        )
+    for name, estimate, elapsed in zip(args.images, estimates, times, strict=True):
+        assert estimate is not None
+        rows.append(pose_row(name, estimate, elapsed))
         statuses[estimate.status] += 1
     write_poses_csv(args.out, rows)
     counts = ", ".join(f"{n} {s}" for s, n in statuses.most_common())
@@ -201,6 +225,11 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--scene", required=True, help="setup TOML")
     loc.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS), help=f"default {DEFAULT_METHOD}")
     loc.add_argument("--out", required=True, help="poses.csv path")
+    loc.add_argument(
+        "--fit-radius",
+        action="store_true",
+        help="fit one eye radius with all the poses (precise method, at least 20 frames)",
+    )
     loc.add_argument("images", nargs="+", metavar="IMAGE")
     loc.set_defaults(run=_cmd_localize)
 

@@ -46,6 +46,7 @@ from spotnav.reconstruct import (
 __all__ = [
     "METHODS",
     "STATUSES",
+    "EdgeFrame",
     "PoseEstimate",
     "edge_half_angle",
     "fit_height_correction",
@@ -53,6 +54,7 @@ __all__ = [
     "localize_precise",
     "localize_thesis",
     "locate_from_spots",
+    "prepare_edges",
     "spot_candidates",
 ]
 
@@ -312,7 +314,43 @@ def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool
     return estimate
 
 
-def _fit_precise(image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool) -> PoseEstimate:
+@dataclass(frozen=True)
+class EdgeFrame:
+    """One frame's material for the precise fit: sub-pixel edges per spot, the beam of each, a start.
+
+    Attributes
+    ----------
+    edges_px : tuple of ndarray, shape (N_k, 2)
+        Each spot's sub-pixel edge points, in order around the spot.
+    beams : list of int
+        The beam that made each spot.
+    start : PoseEstimate
+        The thesis's closed form (``ok``).
+    axis : ndarray, shape (3,)
+        Starting instrument axis.
+    roll : float
+        Starting roll, radians.
+    solution : _ThesisSolution
+        The thesis's reconstruction it started from (internal).
+    """
+
+    edges_px: tuple[np.ndarray, ...]
+    beams: list[int]
+    start: PoseEstimate
+    axis: np.ndarray
+    roll: float
+    solution: _ThesisSolution
+
+
+def prepare_edges(
+    image: np.ndarray, setup: Setup, *, through_insertion: bool = True, detection: SpotDetection | None = None
+) -> EdgeFrame | PoseEstimate:
+    """The precise method up to its fit: spots, beams, starting pose and sub-pixel edges.
+
+    Returns the reason (a :class:`PoseEstimate` that is not ``ok``) when the frame cannot be used.
+    """
+    if detection is None:
+        detection = detect_spots_otsu(image, min_contrast_sigma=_PRECISE_CONTRAST_SIGMA)
     plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
     solution = _solve_thesis(detection, plain, "sphere")
     start = solution.estimate
@@ -327,13 +365,22 @@ def _fit_precise(image: np.ndarray, detection: SpotDetection, setup: Setup, thro
     if assignment is None:
         return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
     beams, roll = assignment
-    points = []
-    for spot in solution.spots:
-        edge = detect_edge_subpixel(image, spot)
-        on_sphere = unproject_pixels_to_sphere(setup.camera, edge.pixels, setup.eye.radius_mm)
-        points.append(on_sphere[np.all(np.isfinite(on_sphere), axis=1)])
-    if min(len(p) for p in points) < _MIN_EDGE_POINTS:
+    edges = tuple(detect_edge_subpixel(image, spot).pixels for spot in solution.spots)
+    if min(len(e) for e in edges) < _MIN_EDGE_POINTS:
         return PoseEstimate("unreliable", spots=start.spots, detail="too few edge points")
+    return EdgeFrame(edges, beams, start, axis, roll, solution)
+
+
+def _fit_precise(image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool) -> PoseEstimate:
+    prepared = prepare_edges(image, setup, through_insertion=through_insertion, detection=detection)
+    if isinstance(prepared, PoseEstimate):
+        return prepared
+    start, solution, beams, roll, axis = prepared.start, prepared.solution, prepared.beams, prepared.roll, prepared.axis
+    assert start.tip_in_eye is not None and start.axis is not None
+    points = []
+    for edge in prepared.edges_px:
+        on_sphere = unproject_pixels_to_sphere(setup.camera, edge, setup.eye.radius_mm)
+        points.append(on_sphere[np.all(np.isfinite(on_sphere), axis=1)])
     instrument = setup.instrument
     common = {
         "beam_count": instrument.beam_count,

@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
 
+from spotnav.experiments.calibration import run_calibration
 from spotnav.experiments.chapter6 import Experiment, Options, run_ellipse, run_paths, run_world
 from spotnav.experiments.core import THESIS_TABLE_4_1_UM, approximation_rows, run_approximation, run_volume
 from spotnav.experiments.paths import helix_tips, square_tips, working_volume_tips
@@ -38,6 +39,7 @@ EXPERIMENTS: dict[str, Callable[[Options], Experiment]] = {
     "paths": run_paths,
     "bumps": partial(run_world, "bumps"),
     "radius": partial(run_world, "radius"),
+    "calibration": run_calibration,
     "volume": run_volume,
 }
 

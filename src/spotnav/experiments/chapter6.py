@@ -168,7 +168,7 @@ def _cell(value: float, digits: int = 3) -> str:
     return "no pose" if not np.isfinite(value) else f"{value:.{digits}f}"
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
 
@@ -191,7 +191,7 @@ def _error_table(thesis_key: str, by_beams: Mapping[str, Mapping[str, list[Frame
         rows[0] += [f"{thesis[0]:.3f}", *(_value(s, lambda x: x.mean_mm) for s in summaries.values())]
         rows[1] += [f"{thesis[1]:.3f}", *(_value(s, lambda x: x.max_mm) for s in summaries.values())]
         rows[2] += ["100/100", *("-" if s is None else f"{s.ok}/{s.frames}" for s in summaries.values())]
-    return [*_table(header, rows), "", *_uncertainty_lines(by_beams)]
+    return [*markdown_table(header, rows), "", *_uncertainty_lines(by_beams)]
 
 
 def _uncertainty_lines(by_case: Mapping[str, Mapping[str, list[FrameResult]]]) -> list[str]:
@@ -221,7 +221,7 @@ def _rotation_table(path: str, by_beams: Mapping[str, Mapping[str, list[FrameRes
                 row += [_rotation_cell(summaries[m], index, k) for m in methods]
             row += [_rotation_cell(summaries[m], index, 2) for m in VARIANTS]
             rows.append(row)
-    return _table(header, rows)
+    return markdown_table(header, rows)
 
 
 def _rotation_cell(summary: ErrorSummary | None, index: int, component: int) -> str:
@@ -238,7 +238,7 @@ def _statuses(results: Sequence[FrameResult]) -> str:
     return ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
 
 
-def _write_csv(path: Path, rows: Sequence[tuple[dict[str, object], FrameResult]]) -> None:
+def write_results_csv(path: Path, rows: Sequence[tuple[dict[str, object], FrameResult]]) -> None:
     """Every pose: its labels, truth, estimate, errors per axis, rotation errors and timings."""
     columns = ["true_x", "true_y", "true_z", "true_dir_x", "true_dir_y", "true_dir_z", "status", "spots"]
     columns += ["x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z", "error_mm", "error_x", "error_y", "error_z"]
@@ -409,9 +409,9 @@ def run_ellipse(options: Options) -> Experiment:
         tips_rows.append(
             [name, thesis_tips, one_text, three_text, *(_precise_text(o["precise"], truth) for o in (one, three))]
         )
-    lines += _table(header, rows)
+    lines += markdown_table(header, rows)
     header = ["case", "thesis: candidates", "thesis method, 1 beam: candidates", "thesis method, 3 beams"]
-    lines += ["", *_table([*header, "precise, 1 beam", "precise, 3 beams"], tips_rows)]
+    lines += ["", *markdown_table([*header, "precise, 1 beam", "precise, 3 beams"], tips_rows)]
     with (options.out / "ellipse.csv").open("w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
         writer.writerow(ELLIPSE_COLUMNS)
@@ -422,7 +422,7 @@ def run_ellipse(options: Options) -> Experiment:
 # --- 6.4-6.6 and 6.9: the paths and the power sweep ----------------------------------------------------------
 
 
-def _path_poses(path: str, count: int, insertion: np.ndarray) -> list[InstrumentPose]:
+def path_poses(path: str, count: int, insertion: np.ndarray) -> list[InstrumentPose]:
     tips = square_tips(count) if path == "square" else helix_tips(count)
     return poses_through_insertion(tips, insertion)
 
@@ -444,7 +444,9 @@ def run_paths(options: Options) -> Experiment:
         "",
         "Table 6.7, the square (closed, P1-P2-P3-P4-P1):",
         "",
-        *_table(["", "x", "y", "z"], [[f"P{i + 1}", *(f"{v:g}" for v in p)] for i, p in enumerate(SQUARE_CORNERS_MM)]),
+        *markdown_table(
+            ["", "x", "y", "z"], [[f"P{i + 1}", *(f"{v:g}" for v in p)] for i, p in enumerate(SQUARE_CORNERS_MM)]
+        ),
         "",
         "The helix (the thesis gives no parameters; thesis-notes 8): "
         + ", ".join(f"{k} = {v:g}" for k, v in HELIX.items())
@@ -457,7 +459,7 @@ def run_paths(options: Options) -> Experiment:
     power_curves: dict[str, dict[str, dict[str, list[float]]]] = {"mean": {}, "max": {}}
     summary_parts = []
     for path in ("square", "helix"):
-        poses = _path_poses(path, count, insertion)
+        poses = path_poses(path, count, insertion)
         worlds = {(b, p): thesis_world(size, beams, p) for b, beams in BEAMS.items() for p in POWERS_W}
         results, factors = _run_configs(options.runner, worlds, poses, PATH_SEEDS[path], path)
         for (b, p), by_variant in results.items():
@@ -507,7 +509,7 @@ def run_paths(options: Options) -> Experiment:
         "most of that bias (compare the `thesis method` and `thesis + 5.5` columns above). The precise method "
         "needs no such factor: its edge model puts the edge where the light is half of its full value.",
     ]
-    _write_csv(out / "paths.csv", csv_rows)
+    write_results_csv(out / "paths.csv", csv_rows)
     return Experiment("paths", "\n".join(lines), "; ".join(summary_parts) + " at 1 W")
 
 
@@ -540,7 +542,7 @@ def _power_table(
         row += [f"{c.ok}/{c.frames}" if c is not None else "-" for c in counts]
         factor = factors[(beams, p)]
         rows.append([*row, "failed" if not np.isfinite(factor) else f"{factor:.4f}"])
-    return _table(header, rows)
+    return markdown_table(header, rows)
 
 
 def _plot_path(out: Path, path: str, poses: Sequence[InstrumentPose], at_1w: Mapping[str, Mapping]) -> None:
@@ -595,7 +597,7 @@ WORLD_TEXT = {
 def run_world(name: str, options: Options) -> Experiment:
     """Sections 6.7 (``bumps``) and 6.8 (``radius``): the helix in a world the localizer does not model."""
     insertion = Instrument().insertion_in_eye
-    poses = _path_poses("helix", options.count, insertion)
+    poses = path_poses("helix", options.count, insertion)
     worlds = {(b,): thesis_world(options.size_px, beams, 1.0, WORLDS[name]()) for b, beams in BEAMS.items()}
     results, factors = _run_configs(options.runner, worlds, poses, PATH_SEEDS["helix"], name)
     by_beams = {b: results[(b,)] for b in BEAMS}
@@ -620,7 +622,7 @@ def run_world(name: str, options: Options) -> Experiment:
         for label, frames in by_beams[b].items()
         for i, r in enumerate(frames)
     ]
-    _write_csv(options.out / f"{name}.csv", csv_rows)
+    write_results_csv(options.out / f"{name}.csv", csv_rows)
     return Experiment(name, "\n".join(lines), _summary_text(by_beams))
 
 

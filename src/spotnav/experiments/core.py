@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from spotnav.config import Camera, Light, Setup
-from spotnav.experiments.chapter6 import Experiment, Options, _table, _write_csv, with_true_edge
+from spotnav.experiments.chapter6 import Experiment, Options, markdown_table, with_true_edge, write_results_csv
 from spotnav.experiments.figures import plot_per_step
 from spotnav.experiments.paths import poses_through_insertion, working_volume_tips
 from spotnav.experiments.runner import FrameJob, Variant, run_frame, summarize
@@ -42,7 +42,7 @@ def run_approximation(options: Options) -> Experiment:
         "",
         "Sphere centre (3.7, 0, -6.35) mm in the cone frame, r = 12.5 mm (Table 4.2).",
         "",
-        *_table(header, [[str(b), f"{t:.2f}", f"{g:.3f}", f"{p:.3f}", f"{a:.3f}"] for b, t, g, p, a in rows]),
+        *markdown_table(header, [[str(b), f"{t:.2f}", f"{g:.3f}", f"{p:.3f}", f"{a:.3f}"] for b, t, g, p, a in rows]),
     ]
     worst = max(abs(round(g, 2) - t) for _, t, g, _, _ in rows)
     return Experiment("approximation", "\n".join(lines), f"Table 4.1: largest difference to the thesis {worst:.3f} um")
@@ -80,7 +80,7 @@ def run_volume(options: Options) -> Experiment:
                 panels[f"{label}, {variant.label}"] = {"|error|": np.array([r.error_mm for r in results])} | {
                     axis: np.array([r.error_xyz_mm[k] for r in results]) for k, axis in enumerate("xyz")
                 }
-        _write_csv(options.out / f"{name}.csv", csv_rows)
+        write_results_csv(options.out / f"{name}.csv", csv_rows)
     plot_per_step(options.out / "volume_errors.png", panels, "mm", f"Working volume, {options.size_px} px")
     lines = [
         "## Round trip over the working volume (one beam)",
@@ -90,7 +90,7 @@ def run_volume(options: Options) -> Experiment:
         "The first row is the thesis's section 6.3 pose: tip (3, 3, 5), beam straight down. Timings are medians "
         "per frame.",
         "",
-        *_table(header, rows),
+        *markdown_table(header, rows),
         "",
         "![tip error per pose](volume_errors.png)",
         "",

@@ -1,0 +1,159 @@
+"""Calibration experiments: a wrong eye radius and an unknown beam edge, before and after calibrating.
+
+Part A (section 6.8's world, true radius 13.5 mm, assumed 12.5 mm): the precise
+method as it is, after ``spotnav calibrate --fit-radius`` on 8 frames at known
+poses, and after self-calibrating the radius over the helix's own frames
+(``localize --fit-radius``). Part B (a beam whose true edge is softer than the
+setup's default model, blend 0.3): the precise method with the default edge
+model, with the true one, and after ``spotnav calibrate`` on 8 known frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from spotnav.calibrate import Calibration, KnownFrame, calibrate_edge, prepare_self_calibration, self_calibrate_radius
+from spotnav.config import Instrument, Light, Setup, World
+from spotnav.experiments.chapter6 import (
+    BEAMS,
+    PATH_SEEDS,
+    Experiment,
+    Options,
+    markdown_table,
+    path_poses,
+    thesis_world,
+    with_true_edge,
+    write_results_csv,
+)
+from spotnav.experiments.paths import poses_through_insertion, working_volume_tips
+from spotnav.experiments.runner import FrameJob, FrameResult, FrameRunner, Variant, render_frame, run_frame, summarize
+from spotnav.geometry import edge_angle_of_blend
+
+__all__ = ["run_calibration"]
+
+KNOWN_FRAMES = 8
+KNOWN_SEED = 20_000
+SOFT_BLEND = 0.3
+
+
+def _known_calibration(
+    runner: FrameRunner, world: Setup, localizer: Setup, fit_radius: bool, label: str
+) -> Calibration:
+    """``spotnav calibrate`` on 8 frames at known tips drawn over the working volume."""
+    poses = poses_through_insertion(working_volume_tips(KNOWN_FRAMES, seed=42), world.instrument.insertion_in_eye)
+    jobs = [FrameJob(world, pose, KNOWN_SEED + i, ()) for i, pose in enumerate(poses)]
+    images = runner.map(render_frame, jobs, f"{label}: known frames")
+    frames = [
+        KnownFrame(f"known {i}", image, pose.tip_in_eye)
+        for i, (image, pose) in enumerate(zip(images, poses, strict=True))
+    ]
+    return calibrate_edge(frames, localizer, fit_radius=fit_radius)
+
+
+def prepare_for_self_calibration(job: FrameJob) -> tuple:
+    """Worker: render the job's frame and prepare it for the joint radius fit of its first variant's setup."""
+    return prepare_self_calibration(render_frame(job), job.variants[0].setup)
+
+
+def _row(label: str, results: list[FrameResult], extra: str) -> list[str]:
+    s = summarize(results)
+    return [
+        label,
+        f"{s.mean_mm:.4f}",
+        f"{s.max_mm:.4f}",
+        f"{s.ok}/{s.frames}",
+        f"{100 * s.within_3_sigma:.0f} %",
+        extra,
+    ]
+
+
+def run_calibration(options: Options) -> Experiment:
+    """Parts A and B (see the module's docstring), helix, 1 W, one and three beams."""
+    runner, count = options.runner, options.count
+    header = ["case", "mean [mm]", "max [mm]", "poses", "within 3 sigma", "fitted"]
+    lines = [
+        "## Calibration: a wrong eye radius and an unknown beam edge (precise method)",
+        "",
+        f"Helix, 1 W, {options.size_px} px, {count} poses. `calibrate` uses {KNOWN_FRAMES} frames at known tips "
+        "(uniform over the working volume); the self-calibration fits one radius with all the helix's poses.",
+        "",
+        "### A: true radius 13.5 mm, assumed 12.5 mm (section 6.8)",
+        "",
+    ]
+    csv_rows: list[tuple[dict[str, object], FrameResult]] = []
+    summary = []
+    for b, beams in BEAMS.items():
+        world = thesis_world(options.size_px, beams, 1.0, World(eye_radius_mm=13.5))
+        localizer = with_true_edge(world)
+        poses = path_poses("helix", count, world.instrument.insertion_in_eye)
+        known = _known_calibration(runner, world, localizer, True, f"radius, {b}")
+        calibrated = known.apply(localizer)
+        variants = (Variant("precise", localizer, "precise"), Variant("precise + calibrate", calibrated, "precise"))
+        jobs = [FrameJob(world, pose, PATH_SEEDS["helix"] + i, variants) for i, pose in enumerate(poses)]
+        outputs = runner.map(run_frame, jobs, f"radius, {b}")
+        shares = runner.map(
+            prepare_for_self_calibration, [replace(job, variants=variants[:1]) for job in jobs], f"radius, {b}: edges"
+        )
+        fitted = self_calibrate_radius(shares, localizer)
+        self_results = [
+            FrameResult(pose, estimate, out[0].render_ms, float("nan"))
+            for pose, estimate, out in zip(poses, fitted.estimates, outputs, strict=True)
+        ]
+        cases = {
+            "precise, assumes 12.5 mm": ([o[0] for o in outputs], "-"),
+            "precise + calibrate --fit-radius": (
+                [o[1] for o in outputs],
+                f"radius {known.radius_mm:.3f} +- {known.radius_sigma_mm:.3f} mm, "
+                f"edge {known.edge_half_angle_deg:.4f} +- {known.edge_sigma_deg:.4f} deg",
+            ),
+            "precise + self-calibration": (
+                self_results,
+                f"radius {fitted.radius_mm:.3f} +- {fitted.radius_sigma_mm:.3f} mm ({fitted.frames} frames)",
+            ),
+        }
+        lines += [f"{b}:", "", *markdown_table(header, [_row(k, r, x) for k, (r, x) in cases.items()]), ""]
+        csv_rows += [
+            ({"part": "radius", "beams": beams, "variant": k, "step": i}, r)
+            for k, (results, _) in cases.items()
+            for i, r in enumerate(results)
+        ]
+        s = summarize(self_results)
+        summary.append(f"radius {b}: self-calibrated {fitted.radius_mm:.3f} mm, max {s.max_mm:.4f} mm")
+    true_edge = float(np.degrees(edge_angle_of_blend(np.radians(Instrument().beam_half_angle_deg), SOFT_BLEND)))
+    lines += [
+        f"### B: a softer beam (blend {SOFT_BLEND}, half-light angle {true_edge:.4f} deg) than the default model",
+        "",
+    ]
+    for b, beams in BEAMS.items():
+        world = replace(thesis_world(options.size_px, beams), light=Light(power_w=1.0, blend=SOFT_BLEND))
+        default = replace(world, instrument=replace(world.instrument, edge_half_angle_deg=None))
+        known = _known_calibration(runner, world, default, False, f"edge, {b}")
+        variants = (
+            Variant("precise, default edge model", default, "precise"),
+            Variant("precise, true edge model", with_true_edge(world), "precise"),
+            Variant("precise + calibrate", known.apply(default), "precise"),
+        )
+        poses = path_poses("helix", count, world.instrument.insertion_in_eye)
+        jobs = [FrameJob(world, pose, PATH_SEEDS["helix"] + i, variants) for i, pose in enumerate(poses)]
+        outputs = runner.map(run_frame, jobs, f"edge, {b}")
+        fitted = f"edge {known.edge_half_angle_deg:.4f} +- {known.edge_sigma_deg:.4f} deg"
+        rows = [_row(v.label, [o[k] for o in outputs], fitted if k == 2 else "-") for k, v in enumerate(variants)]
+        ratio = summarize([o[2] for o in outputs]).mean_mm / summarize([o[1] for o in outputs]).mean_mm
+        lines += [
+            f"{b}:",
+            "",
+            *markdown_table(header, rows),
+            "",
+            f"Mean error after / with the true edge: {ratio:.2f}.",
+            "",
+        ]
+        csv_rows += [
+            ({"part": "edge", "beams": beams, "variant": v.label, "step": i}, o[k])
+            for k, v in enumerate(variants)
+            for i, o in enumerate(outputs)
+        ]
+        summary.append(f"edge {b}: after/true {ratio:.2f}")
+    write_results_csv(options.out / "calibration.csv", csv_rows)
+    return Experiment("calibration", "\n".join(lines), "; ".join(summary))
