@@ -1,7 +1,10 @@
 """Localize the instrument tip in one camera frame.
 
-Every method returns a :class:`PoseEstimate`: a pose with status ``ok``, or a
-status that says why there is none. No method makes up a pose.
+Methods (:data:`METHODS`): ``thesis`` (the thesis's Algorithms 1 and 2),
+``precise`` (the default: sub-pixel edges and a direct cone fit with the axis
+through the insertion point) and ``precise-free`` (the axis fitted too); see
+``docs/methods.md``. Every method returns a :class:`PoseEstimate`: a pose with
+status ``ok``, or a status that says why there is none. No method makes up a pose.
 
 Statuses
 --------
@@ -10,7 +13,8 @@ Statuses
 ``no_spot``
     No spot stands out from the background.
 ``ambiguous``
-    More spots than beams.
+    More spots than beams, spots that match no beam order, or (``precise-free``,
+    one beam) a cone and its mirror image that fit alike.
 ``too_few_spots``
     Fewer whole spots than the method needs (three beams need two).
 ``clipped``
