@@ -101,7 +101,7 @@ def plot_against_power(
                 style, marker = next((v for k, v in styles.items() if k in label), ("-", "o"))
                 colour = _COLOURS.get(label.split(",")[0])
                 ax.plot(powers_w, values, linestyle=style, marker=marker, color=colour, label=label)
-            ax.set(title=name, xscale="log", xlabel="power [W]", ylabel=ylabel)
+            ax.set(title=name, xscale="log", yscale="log", xlabel="power [W]", ylabel=ylabel)
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize="small")
 
