@@ -24,7 +24,7 @@ from spotnav.camera import unproject_pixels_to_sphere
 from spotnav.config import Setup
 from spotnav.detect import detect_edge_subpixel, detect_spots_otsu
 from spotnav.geometry import assign_beams, beam_axes, normalize
-from spotnav.localize import EdgeFrame, PoseEstimate, edge_half_angle, localize_precise, prepare_edges
+from spotnav.localize import EdgeFrame, PoseEstimate, edge_half_angle, localize_precise_with_edges
 from spotnav.reconstruct import correlation_inflation
 
 __all__ = [
@@ -261,9 +261,8 @@ def _joint_residuals(params: np.ndarray, frames: list[_FrameEdges], setup: Setup
 
 def prepare_self_calibration(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, EdgeFrame | None]:
     """One frame's share of :func:`self_calibrate_radius`: its precise pose and its edges (None if unusable)."""
-    estimate = localize_precise(image, setup)
-    prepared = prepare_edges(image, setup) if estimate.ok else None
-    return estimate, prepared if isinstance(prepared, EdgeFrame) else None
+    estimate, prepared = localize_precise_with_edges(image, setup)
+    return estimate, prepared if estimate.ok else None
 
 
 def self_calibrate_radius(

@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from spotnav import __version__
-from spotnav.calibrate import KnownFrame, calibrate_edge, self_calibrate_radius
+from spotnav.calibrate import KnownFrame, calibrate_edge, prepare_self_calibration, self_calibrate_radius
 from spotnav.config import EXAMPLE_SETUP
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.files import (
@@ -92,7 +92,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
         raise UsageError("--fit-radius works with --method precise")
     rows: list[list[str]] = []
     statuses: Counter[str] = Counter()
-    images: list[tuple[int, np.ndarray]] = []
+    shares: list[tuple[int, tuple]] = []  # --fit-radius: each frame's edges, not the frame (memory)
     estimates: list[PoseEstimate | None] = []  # None: waits for the joint fit of --fit-radius
     times: list[float] = []
     for name in tqdm(args.images, desc="localize", unit="image", disable=None):
@@ -104,7 +104,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
             estimate = PoseEstimate("unreadable", detail=str(error))
         else:
             if args.fit_radius:
-                images.append((len(estimates), image))
+                shares.append((len(estimates), prepare_self_calibration(image, setup)))
                 estimate = None
             else:
                 estimate = localize(image, setup, args.method)
@@ -114,11 +114,11 @@ def _cmd_localize(args: argparse.Namespace) -> int:
         times.append(1000 * (time.perf_counter() - start))
     if args.fit_radius:
         start = time.perf_counter()
-        fitted = self_calibrate_radius([image for _, image in images], setup)
-        share = 1000 * (time.perf_counter() - start) / max(len(images), 1)
-        for (index, _), estimate in zip(images, fitted.estimates, strict=True):
+        fitted = self_calibrate_radius([share for _, share in shares], setup)
+        share_ms = 1000 * (time.perf_counter() - start) / max(len(shares), 1)
+        for (index, _), estimate in zip(shares, fitted.estimates, strict=True):
             estimates[index] = estimate
-            times[index] += share
+            times[index] += share_ms
         print(
             f"eye.radius_mm = {fitted.radius_mm:.4f} +- {fitted.radius_sigma_mm:.4f} (1 sigma, {fitted.frames} frames)"
         )

@@ -56,9 +56,9 @@ __all__ = [
     "fit_height_correction",
     "localize",
     "localize_precise",
+    "localize_precise_with_edges",
     "localize_thesis",
     "locate_from_spots",
-    "prepare_edges",
     "spot_candidates",
 ]
 
@@ -275,6 +275,13 @@ def _beam_assignment(solution: _ThesisSolution, axis: np.ndarray, setup: Setup) 
 
 
 def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PoseEstimate:
+    """spotnav's precise method (see :func:`localize_precise_with_edges`)."""
+    return localize_precise_with_edges(image, setup, through_insertion=through_insertion)[0]
+
+
+def localize_precise_with_edges(
+    image: np.ndarray, setup: Setup, *, through_insertion: bool = True
+) -> tuple[PoseEstimate, EdgeFrame | None]:
     """spotnav's precise method: sub-pixel edges and a direct fit of the cones on the sphere.
 
     The thesis's closed form (:func:`locate_from_spots`) gives the spots, which
@@ -300,22 +307,32 @@ def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool
     through_insertion : bool
         Constrain the axis through the insertion point (3 unknowns for one
         beam, 4 with the roll for three); ``False`` fits the axis too.
+
+    Returns
+    -------
+    estimate : PoseEstimate
+    edges : EdgeFrame or None
+        What the fit started from (for joint fits over frames); None when the
+        frame gave no edges to fit.
     """
     wrong = _check_size(image, setup)
     if wrong is not None:
-        return wrong
+        return wrong, None
     detection = detect_spots_otsu(image, min_contrast_sigma=_PRECISE_CONTRAST_SIGMA)
     beams = setup.instrument.beam_count
     spots = detection.spots
     if len(spots) > beams:
         if spots[beams].area_px > _MAX_CLUTTER_AREA * spots[beams - 1].area_px:
-            return PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}")
+            return PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}"), None
         detection = replace(detection, spots=spots[:beams])
-    estimate = _fit_precise(image, detection, setup, through_insertion)
+    prepared = _prepare_edges(image, detection, setup, through_insertion)
+    if isinstance(prepared, PoseEstimate):
+        return prepared, None
+    estimate = _fit_precise(prepared, setup, through_insertion)
     if estimate.ok and len(spots) > beams:
         ignored = f"{len(spots) - beams} much smaller bright regions ignored"
         estimate = replace(estimate, detail="; ".join(filter(None, [estimate.detail, ignored])))
-    return estimate
+    return estimate, prepared
 
 
 @dataclass(frozen=True)
@@ -346,15 +363,13 @@ class EdgeFrame:
     solution: _ThesisSolution
 
 
-def prepare_edges(
-    image: np.ndarray, setup: Setup, *, through_insertion: bool = True, detection: SpotDetection | None = None
+def _prepare_edges(
+    image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool
 ) -> EdgeFrame | PoseEstimate:
     """The precise method up to its fit: spots, beams, starting pose and sub-pixel edges.
 
     Returns the reason (a :class:`PoseEstimate` that is not ``ok``) when the frame cannot be used.
     """
-    if detection is None:
-        detection = detect_spots_otsu(image, min_contrast_sigma=_PRECISE_CONTRAST_SIGMA)
     plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
     solution = _solve_thesis(detection, plain, "sphere")
     start = solution.estimate
@@ -375,10 +390,7 @@ def prepare_edges(
     return EdgeFrame(edges, beams, start, axis, roll, solution)
 
 
-def _fit_precise(image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool) -> PoseEstimate:
-    prepared = prepare_edges(image, setup, through_insertion=through_insertion, detection=detection)
-    if isinstance(prepared, PoseEstimate):
-        return prepared
+def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> PoseEstimate:
     start, solution, beams, roll, axis = prepared.start, prepared.solution, prepared.beams, prepared.roll, prepared.axis
     assert start.tip_in_eye is not None and start.axis is not None
     points = []

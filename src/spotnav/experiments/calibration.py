@@ -10,6 +10,7 @@ model, with the true one, and after ``spotnav calibrate`` on 8 known frames.
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -28,7 +29,17 @@ from spotnav.experiments.chapter6 import (
     write_results_csv,
 )
 from spotnav.experiments.paths import poses_through_insertion, working_volume_tips
-from spotnav.experiments.runner import FrameJob, FrameResult, FrameRunner, Variant, render_frame, run_frame, summarize
+from spotnav.experiments.runner import (
+    FrameJob,
+    FrameResult,
+    FrameRunner,
+    Variant,
+    localize_variants,
+    render_frame,
+    render_timed,
+    run_frame,
+    summarize,
+)
 from spotnav.geometry import edge_angle_of_blend
 
 __all__ = ["run_calibration"]
@@ -52,9 +63,16 @@ def _known_calibration(
     return calibrate_edge(frames, localizer, fit_radius=fit_radius)
 
 
-def prepare_for_self_calibration(job: FrameJob) -> tuple:
-    """Worker: render the job's frame and prepare it for the joint radius fit of its first variant's setup."""
-    return prepare_self_calibration(render_frame(job), job.variants[0].setup)
+def run_frame_with_edges(job: FrameJob) -> tuple[tuple[FrameResult, ...], tuple]:
+    """Worker: :func:`run_frame`'s results from one rendering, the first variant (precise) keeping its edges.
+
+    The second item is that frame's share of the joint radius fit (:func:`prepare_self_calibration`).
+    """
+    image, render_ms = render_timed(job)
+    start = time.perf_counter()
+    share = prepare_self_calibration(image, job.variants[0].setup)
+    first = FrameResult(job.pose, share[0], render_ms, 1000 * (time.perf_counter() - start))
+    return (first, *localize_variants(image, job, render_ms, job.variants[1:])), share
 
 
 def _row(label: str, results: list[FrameResult], extra: str) -> list[str]:
@@ -92,10 +110,7 @@ def run_calibration(options: Options) -> Experiment:
         calibrated = known.apply(localizer)
         variants = (Variant("precise", localizer, "precise"), Variant("precise + calibrate", calibrated, "precise"))
         jobs = [FrameJob(world, pose, PATH_SEEDS["helix"] + i, variants) for i, pose in enumerate(poses)]
-        outputs = runner.map(run_frame, jobs, f"radius, {b}")
-        shares = runner.map(
-            prepare_for_self_calibration, [replace(job, variants=variants[:1]) for job in jobs], f"radius, {b}: edges"
-        )
+        outputs, shares = zip(*runner.map(run_frame_with_edges, jobs, f"radius, {b}"), strict=True)
         fitted = self_calibrate_radius(shares, localizer)
         self_results = [
             FrameResult(pose, estimate, out[0].render_ms, float("nan"))

@@ -27,6 +27,8 @@ __all__ = [
     "FrameResult",
     "FrameRunner",
     "Variant",
+    "localize_variants",
+    "render_timed",
     "run_frames",
     "summarize",
 ]
@@ -163,11 +165,23 @@ def summarize(results: Sequence[FrameResult]) -> ErrorSummary:
 
 def run_frame(job: FrameJob) -> tuple[FrameResult, ...]:
     """Render one job's frame and localize it with each of its variants."""
+    image, render_ms = render_timed(job)
+    return localize_variants(image, job, render_ms, job.variants)
+
+
+def render_timed(job: FrameJob) -> tuple[np.ndarray, float]:
+    """The job's frame and its rendering time, ms."""
     start = time.perf_counter()
     image = Renderer(job.world).render(job.pose, seed=job.seed)
-    render_ms = 1000 * (time.perf_counter() - start)
+    return image, 1000 * (time.perf_counter() - start)
+
+
+def localize_variants(
+    image: np.ndarray, job: FrameJob, render_ms: float, variants: Sequence[Variant]
+) -> tuple[FrameResult, ...]:
+    """Localize a rendered frame of ``job`` with each of ``variants``, timed."""
     results = []
-    for variant in job.variants:
+    for variant in variants:
         start = time.perf_counter()
         estimate = localize(image, variant.setup, variant.method)
         results.append(FrameResult(job.pose, estimate, render_ms, 1000 * (time.perf_counter() - start)))
@@ -189,7 +203,7 @@ def calibrate_height(job: FrameJob) -> float:
 
 def render_frame(job: FrameJob) -> np.ndarray:
     """Render the job's frame only."""
-    return Renderer(job.world).render(job.pose, seed=job.seed)
+    return render_timed(job)[0]
 
 
 class FrameRunner:
