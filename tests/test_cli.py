@@ -205,3 +205,74 @@ def test_localize_fit_radius_needs_the_precise_method_and_20_frames(
     assert "--fit-radius works with --method precise" in capsys.readouterr().err
     assert main(args) == 2
     assert "at least 20 frames" in capsys.readouterr().err
+
+
+def test_render_a_path_as_video_then_track_it(tmp_path: Path) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=512, blend=0.15)
+    video = tmp_path / "seq" / "helix.mkv"
+    argv = ["render", "--scene", str(scene), "--path", "helix", "--frames", "12", "--tremor", "--out", str(video)]
+    assert main(argv) == 0
+    truth = read_poses(tmp_path / "seq" / "truth.csv")
+    assert [r["frame"] for r in truth] == [str(i) for i in range(12)] and {r["image"] for r in truth} == {""}
+    assert main(["track", "--scene", str(scene), str(video), "--out", str(tmp_path / "poses.csv")]) == 0
+    poses = read_poses(tmp_path / "poses.csv")
+    assert list(poses[0])[:12] == [
+        *("image", "status", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z"),
+        *("frame", "mode", "latency_ms", "decode_ms"),
+    ]
+    assert [p["status"] for p in poses] == ["ok"] * 12
+    errors = [
+        np.linalg.norm([float(p[k]) - float(t[k]) for k in ("x_mm", "y_mm", "z_mm")])
+        for p, t in zip(poses, truth, strict=True)
+    ]
+    assert max(errors) < 0.05  # 512 px: the precise method's some 0.01 mm, on a lossless video
+
+
+def test_render_a_csv_path_to_png_frames(tmp_path: Path) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=256)
+    waypoints = tmp_path / "path.csv"
+    waypoints.write_text("x_mm,y_mm,z_mm\n0,0,4\n1,0,4\n1,1,5\n")
+    assert (
+        main(["render", "--scene", str(scene), "--path", str(waypoints), "--frames", "5", "--out", str(tmp_path / "f")])
+        == 0
+    )
+    truth = read_poses(tmp_path / "f" / "truth.csv")
+    assert [r["image"] for r in truth] == [f"frame_{i:05d}.png" for i in range(5)]
+    assert all((tmp_path / "f" / r["image"]).is_file() for r in truth)
+    assert [float(truth[0]["x_mm"]), float(truth[-1]["z_mm"])] == [0.0, 5.0]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--path", "helix", "--frames", "1"], "--frames must be at least 2"),
+        (["--path", "helix", "--tremor", "nan"], "--tremor must be in"),
+        (["--path", "helix", "--tip", "0", "0", "4"], "leave out --tip"),
+        (["--path", "missing.csv"], "missing.csv: no such file"),
+        ([], "render needs --tip"),
+    ],
+)
+def test_render_sequence_errors_are_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], message: str
+) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=256)
+    assert main(["render", "--scene", str(scene), *argv, "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err
+    assert message in error and len(error.strip().splitlines()) == 1
+
+
+def test_track_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=256)
+    (tmp_path / "empty").mkdir()
+    for source, message in [("nothing.mkv", "no such file"), (str(tmp_path / "empty"), "no images")]:
+        assert main(["track", "--scene", str(scene), source, "--out", str(tmp_path / "p.csv")]) == 2
+        error = capsys.readouterr().err
+        assert message in error and len(error.strip().splitlines()) == 1
+
+
+def test_bench_prints_every_stage_and_the_tracking_ratio(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "--sizes", "512", "--frames", "6", "--full-every", "3"]) == 0
+    out = capsys.readouterr().out
+    for stage in ("render", "thesis, full frame", "precise, full frame", "tracking (region of interest)"):
+        assert f"| 512 | {stage} |" in out
+    assert "tracking takes" in out

@@ -1,4 +1,4 @@
-"""Command line: ``spotnav scene|render|localize|calibrate|analyze|reproduce``.
+"""Command line: ``spotnav scene|render|localize|track|calibrate|analyze|reproduce``.
 
 ``main(argv)`` returns the exit code, so tests call it in-process. Unusable
 arguments or setups end with one line ``spotnav: error: ...`` and exit code 2.
@@ -20,22 +20,32 @@ from tqdm import tqdm
 
 from spotnav import __version__
 from spotnav.calibrate import KnownFrame, calibrate_edge, prepare_self_calibration, self_calibrate_radius
-from spotnav.config import EXAMPLE_SETUP
+from spotnav.config import EXAMPLE_SETUP, Setup
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
+from spotnav.experiments.bench import bench_markdown, run_bench
+from spotnav.experiments.paths import helix_tips, resample_polyline, square_tips, tremor_offsets
 from spotnav.files import (
+    TRACK_COLUMNS,
     ImageReadError,
+    SequenceWriter,
+    iter_frames,
     pose_row,
     read_image,
     read_known_poses,
+    read_path_csv,
     read_setup,
     setup_to_toml,
+    track_row,
     write_image,
     write_poses_csv,
+    write_truth_csv,
     write_truth_json,
 )
 from spotnav.geometry import InstrumentPose, beam_axes
+from spotnav.igtl import DEFAULT_PORT, DEVICE_NAME, PoseServer
 from spotnav.localize import DEFAULT_METHOD, METHODS, PoseEstimate, localize
 from spotnav.render import Renderer
+from spotnav.track import TrackedFrame, Tracker
 
 __all__ = ["main"]
 
@@ -64,12 +74,12 @@ def _cmd_render(args: argparse.Namespace) -> int:
         if not np.isfinite(args.power) or args.power < 0:
             raise UsageError(f"--power must be a finite number >= 0, got {args.power}")
         setup = replace(setup, light=replace(setup.light, power_w=args.power))
+    if args.path is not None:
+        return _render_sequence(args, setup)
+    if args.tip is None:
+        raise UsageError("render needs --tip X Y Z (one frame) or --path (a sequence)")
     tip = _finite_vector("--tip", args.tip)
-    if not setup.contains_point(tip):
-        raise UsageError(
-            f"--tip {' '.join(f'{v:g}' for v in tip)} lies outside the eye "
-            f"(sphere of radius {setup.eye.radius_mm:g} mm centred at (0, 0, {setup.eye.radius_mm:g}))"
-        )
+    _check_inside(setup, tip, "--tip")
     if args.axis is None:
         pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
     else:
@@ -83,6 +93,81 @@ def _cmd_render(args: argparse.Namespace) -> int:
     axes = beam_axes(pose.axis, setup.instrument.beam_count, setup.instrument.beam_tilt)
     write_truth_json(out.with_suffix(".json"), pose, axes, setup, seed=args.seed, image=out.name)
     print(f"wrote {out} and {out.with_suffix('.json')}", file=sys.stderr)
+    return 0
+
+
+def _check_inside(setup: Setup, tip: np.ndarray, name: str) -> None:
+    if not setup.contains_point(tip):
+        raise UsageError(
+            f"{name} {' '.join(f'{v:g}' for v in tip)} lies outside the eye "
+            f"(sphere of radius {setup.eye.radius_mm:g} mm centred at (0, 0, {setup.eye.radius_mm:g}))"
+        )
+
+
+def _path_tips(path: str, frames: int) -> np.ndarray:
+    if path == "square":
+        return square_tips(frames)
+    if path == "helix":
+        return helix_tips(frames)
+    return resample_polyline(read_path_csv(path), frames)
+
+
+def _render_sequence(args: argparse.Namespace, setup: Setup) -> int:
+    if args.tip is not None or args.axis is not None:
+        raise UsageError("--path renders a sequence: leave out --tip and --axis")
+    if args.frames < 2:
+        raise UsageError(f"--frames must be at least 2, got {args.frames}")
+    if not (np.isfinite(args.fps) and args.fps > 0):
+        raise UsageError(f"--fps must be a finite number > 0, got {args.fps}")
+    if not (np.isfinite(args.tremor) and 0 <= args.tremor <= 1):
+        raise UsageError(f"--tremor must be in [0, 1] mm, got {args.tremor}")
+    tips = _path_tips(args.path, args.frames) + tremor_offsets(args.frames, args.fps, args.tremor, args.seed)
+    for tip in tips:
+        _check_inside(setup, tip, "a path's tip")
+    renderer = Renderer(setup)
+    out = Path(args.out)
+    truth = []
+    with SequenceWriter(out, args.fps) as writer:
+        for index, tip in enumerate(tqdm(tips, desc="render", unit="frame", disable=None)):
+            pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
+            truth.append((index, writer.write(index, renderer.render(pose, seed=args.seed + index)), pose))
+    truth_path = (out.parent if writer.video else out) / "truth.csv"
+    write_truth_csv(truth_path, truth)
+    print(f"wrote {len(tips)} frames to {out} and the truth to {truth_path}", file=sys.stderr)
+    return 0
+
+
+def _cmd_track(args: argparse.Namespace) -> int:
+    setup = read_setup(args.scene)
+    tracker = Tracker(setup, through_insertion=args.method == "precise", smooth=args.smooth)
+    frames = iter_frames(args.source)
+    server = PoseServer(args.igtl, args.igtl_wait) if args.igtl is not None else None
+    if server is not None:
+        state = "connected" if server.connected else "waiting for a client"
+        print(f"OpenIGTLink: {DEVICE_NAME} on 127.0.0.1:{server.port} ({state})", file=sys.stderr)
+    rows, statuses, latencies = [], Counter[str](), []
+    try:
+        progress = tqdm(frames, desc="track", unit="frame", disable=None)
+        for frame in progress:
+            start = time.perf_counter()
+            if frame.pixels is None:
+                tracked = TrackedFrame(PoseEstimate("unreadable", detail=frame.error), "lost")
+            else:
+                tracked = tracker.update(frame.pixels)
+            latency = 1000 * (time.perf_counter() - start)
+            if server is not None:
+                server.send(tracked.estimate, frame.index)
+            rows.append(track_row(frame.index, frame.image, tracked.estimate, tracked.mode, latency, frame.decode_ms))
+            statuses[tracked.estimate.status] += 1
+            latencies.append(latency)
+            progress.set_postfix_str(f"{1000 / max(np.median(latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")
+    finally:
+        if server is not None:
+            server.close()
+    write_poses_csv(args.out, rows, TRACK_COLUMNS)
+    counts = ", ".join(f"{n} {s}" for s, n in statuses.most_common())
+    timing = f"latency median {np.median(latencies):.2f} ms, 99th percentile {np.percentile(latencies, 99):.2f} ms"
+    print(f"wrote {args.out}: {len(rows)} frames, {counts}; {timing}", file=sys.stderr)
     return 0
 
 
@@ -129,6 +214,14 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     write_poses_csv(args.out, rows)
     counts = ", ".join(f"{n} {s}" for s, n in statuses.most_common())
     print(f"wrote {args.out}: {len(rows)} images, {counts}", file=sys.stderr)
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    if any(size < 128 for size in args.sizes):
+        raise UsageError(f"--sizes must be at least 128 px, got {' '.join(map(str, args.sizes))}")
+    rows = run_bench(args.sizes, frames=args.frames, beams=args.beams, full_every=args.full_every)
+    print(bench_markdown(rows))
     return 0
 
 
@@ -204,11 +297,9 @@ def _parser() -> argparse.ArgumentParser:
     scene.add_argument("--example", action="store_true", help="the thesis's setup, commented")
     scene.set_defaults(run=_cmd_scene)
 
-    render = commands.add_parser("render", help="render one camera frame and its truth")
+    render = commands.add_parser("render", help="render a camera frame (or a moving instrument) and its truth")
     render.add_argument("--scene", required=True, help="setup TOML")
-    render.add_argument(
-        "--tip", required=True, nargs=3, type=float, metavar=("X", "Y", "Z"), help="tip in mm, eye frame"
-    )
+    render.add_argument("--tip", nargs=3, type=float, metavar=("X", "Y", "Z"), help="tip in mm, eye frame")
     render.add_argument(
         "--axis",
         nargs=3,
@@ -218,7 +309,28 @@ def _parser() -> argparse.ArgumentParser:
     )
     render.add_argument("--power", type=float, help="override light.power_w")
     render.add_argument("--seed", type=int, default=0, help="sensor noise seed (default 0)")
-    render.add_argument("--out", required=True, help="PNG path; the truth goes to the same name with .json")
+    render.add_argument(
+        "--path",
+        help="render a sequence along square, helix or FILE.csv (x_mm,y_mm,z_mm waypoints), axis through the "
+        "insertion point",
+    )
+    render.add_argument("--frames", type=int, default=300, help="frames of a --path (default 300)")
+    render.add_argument("--fps", type=float, default=100.0, help="frame rate of a --path, for tremor and video")
+    render.add_argument(
+        "--tremor",
+        type=float,
+        nargs="?",
+        const=0.05,
+        default=0.0,
+        metavar="MM",
+        help="hand tremor, 6-12 Hz, peak per axis (default off; 0.05 mm without a value)",
+    )
+    render.add_argument(
+        "--out",
+        required=True,
+        help="PNG path (the truth beside it as .json); with --path a folder of PNGs (truth.csv inside) or a "
+        ".mkv video (FFV1; truth.csv beside it)",
+    )
     render.set_defaults(run=_cmd_render)
 
     loc = commands.add_parser("localize", help="localize the tip in images, write poses.csv")
@@ -232,6 +344,35 @@ def _parser() -> argparse.ArgumentParser:
     )
     loc.add_argument("images", nargs="+", metavar="IMAGE")
     loc.set_defaults(run=_cmd_localize)
+
+    track = commands.add_parser("track", help="track a moving instrument in a video, images or a camera")
+    track.add_argument("--scene", required=True, help="setup TOML")
+    track.add_argument("source", metavar="SOURCE", help="video file, folder or glob of images, or camera index")
+    track.add_argument("--out", required=True, help="poses.csv path")
+    track.add_argument(
+        "--method",
+        default="precise",
+        choices=["precise", "precise-free"],
+        help="default precise (axis through the insertion point)",
+    )
+    track.add_argument("--smooth", action="store_true", help="smooth the tip with a constant-velocity Kalman filter")
+    track.add_argument(
+        "--igtl",
+        type=int,
+        nargs="?",
+        const=DEFAULT_PORT,
+        metavar="PORT",
+        help=f"send each pose to OpenIGTLink clients such as 3D Slicer (default port {DEFAULT_PORT})",
+    )
+    track.add_argument("--igtl-wait", type=float, default=0.0, metavar="S", help="wait for a client first (s)")
+    track.set_defaults(run=_cmd_track)
+
+    bench = commands.add_parser("bench", help="ms per frame: rendering, full-frame methods and tracking")
+    bench.add_argument("--sizes", type=int, nargs="+", default=[1024, 2048, 5000], help="image sizes, px")
+    bench.add_argument("--frames", type=int, default=100, help="consecutive helix frames per size (default 100)")
+    bench.add_argument("--beams", type=int, choices=[1, 3], default=1)
+    bench.add_argument("--full-every", type=int, default=5, help="time the full-frame methods every Nth frame")
+    bench.set_defaults(run=_cmd_bench)
 
     cal = commands.add_parser("calibrate", help="fit the edge angle (and the eye's radius) from known poses")
     cal.add_argument("--scene", required=True, help="setup TOML")

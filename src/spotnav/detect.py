@@ -12,15 +12,17 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
+from scipy.ndimage import gaussian_filter1d, median_filter
 
 __all__ = [
     "Spot",
     "SpotDetection",
     "SpotEdge",
+    "detect_edge_along_rays",
     "detect_edge_subpixel",
     "detect_spots_otsu",
     "linear_luminance",
+    "rays_through_curve",
     "to_gray8",
 ]
 
@@ -221,20 +223,15 @@ class SpotEdge:
 
 
 _STEP_PX = 0.5
+_EDGE_MEDIAN_RAYS = 9
+_COARSE_LEVEL = 0.2
 
 
 def detect_edge_subpixel(image: np.ndarray, spot: Spot) -> SpotEdge:
     """Locate a spot's edge to a fraction of a pixel, independently of the light's power.
 
-    Rays are cast from the spot's centre across its coarse (Otsu) boundary. On
-    each ray the linear luminance (of the brightest channel that does not clip)
-    is lightly smoothed; straight lines are fitted to the plateau inside the
-    edge and to the background outside it, and the edge is put where the
-    profile crosses the level halfway between them. Levels relative to the
-    local plateau and background do not move when the power changes, and the
-    lines follow the light's fall-off across the edge. The edge's width (from
-    the mean profile of all rays) sets where the lines are fitted. Rays without
-    a clear crossing give no point.
+    Rays are cast from the centre of the spot's coarse (Otsu) boundary across
+    it, one per two pixels of perimeter (64 to 1024); see :func:`detect_edge_along_rays`.
 
     Parameters
     ----------
@@ -248,22 +245,92 @@ def detect_edge_subpixel(image: np.ndarray, spot: Spot) -> SpotEdge:
     SpotEdge
     """
     contour = spot.contour_px.astype(float)
-    centre = contour.mean(axis=0)
-    offsets = contour - centre
-    contour_angles = np.arctan2(offsets[:, 1], offsets[:, 0])
-    order = np.argsort(contour_angles)
-    contour_radii = np.hypot(offsets[:, 0], offsets[:, 1])[order]
     perimeter = float(cv2.arcLength(spot.contour_px.astype(np.float32).reshape(-1, 1, 2), True))
     rays = int(np.clip(perimeter / 2.0, 64, 1024))
+    centre, ray_angles, radii = rays_through_curve(contour, rays)
+    return detect_edge_along_rays(image, centre, ray_angles, radii)
+
+
+def rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Evenly spaced rays from a closed curve's centroid, and where each meets the curve.
+
+    Parameters
+    ----------
+    curve_px : ndarray, shape (N, 2)
+        Points ``(u, v)`` on a closed curve that is star-shaped about its centroid.
+    rays : int
+
+    Returns
+    -------
+    centre : ndarray, shape (2,)
+    ray_angles : ndarray, shape (rays,)
+        Directions, radians, from -pi.
+    radii : ndarray, shape (rays,)
+        Distance from the centre to the curve along each ray, pixels.
+    """
+    centre = curve_px.mean(axis=0)
+    offsets = curve_px - centre
+    curve_angles = np.arctan2(offsets[:, 1], offsets[:, 0])
+    order = np.argsort(curve_angles)
+    curve_radii = np.hypot(offsets[:, 0], offsets[:, 1])[order]
     ray_angles = np.linspace(-np.pi, np.pi, rays, endpoint=False)
-    radii = np.interp(ray_angles, contour_angles[order], contour_radii, period=2 * np.pi)
-    half_window = 0.15 * float(np.mean(radii)) + 8.0
-    steps = np.arange(-half_window, half_window + _STEP_PX, _STEP_PX)
-    directions = np.column_stack([np.cos(ray_angles), np.sin(ray_angles)])
-    positions = centre + (radii[:, None, None] + steps[None, :, None]) * directions[:, None, :]
-    profiles, saturated = _sample_linear(image, positions)
+    radii = np.interp(ray_angles, curve_angles[order], curve_radii, period=2 * np.pi)
+    return centre, ray_angles, radii
+
+
+def detect_edge_along_rays(
+    image: np.ndarray, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, *, align: bool = False
+) -> SpotEdge:
+    """Locate an edge to a fraction of a pixel on rays that cross it near ``radii``.
+
+    On each ray the linear luminance (of the brightest channel that does not
+    clip) is lightly smoothed; straight lines are fitted to the plateau inside
+    the edge and to the background outside it, and the edge is put where the
+    profile crosses the level halfway between them. Levels relative to the
+    local plateau and background do not move when the power changes, and the
+    lines follow the light's fall-off across the edge. The edge's width (from
+    the median profile of all rays) sets where the lines are fitted. Rays
+    without a clear crossing give no point. Only the pixels near the rays are
+    read: the rays are the region of interest.
+
+    With ``align`` the edge may lie anywhere within twice that distance of
+    ``radii`` (a spot that moved since ``radii`` were predicted): each ray's
+    profile is first shifted to line up with the others, at its outermost
+    fall through the level a fifth of the way from its lowest to its highest
+    value (outside a spot there is only background, while a lit vessel stays
+    above that level), with a running median over neighbouring rays against
+    the clutter that remains.
+
+    Parameters
+    ----------
+    image : ndarray
+        The frame, sRGB-encoded (see :func:`linear_luminance`).
+    centre : ndarray, shape (2,)
+        The rays' origin ``(u, v)``, pixels.
+    ray_angles : ndarray, shape (R,)
+        Ray directions, radians.
+    radii : ndarray, shape (R,)
+        Expected distance of the edge from ``centre`` on each ray, pixels; the
+        rays are sampled within ``0.15 * mean(radii) + 8`` pixels of it.
+    align : bool
+        Find each ray's edge coarsely first (see above).
+
+    Returns
+    -------
+    SpotEdge
+    """
+    rays = len(ray_angles)
+    steps, directions, profiles, saturated = _ray_profiles(image, centre, ray_angles, radii, 2.0 if align else 1.0)
+    start = radii + steps[0]
+    if align:
+        count = (len(steps) + 1) // 2
+        offset = np.clip(_coarse_edge_index(profiles) - count // 2, 0, len(steps) - count)
+        profiles = np.take_along_axis(profiles, offset[:, None] + np.arange(count), axis=1)
+        start, steps = start + offset * _STEP_PX, steps[:count]
     finite = np.all(np.isfinite(profiles), axis=1)
-    mean_profile = np.nanmedian(profiles, axis=0)
+    if not finite.any():
+        return SpotEdge(np.empty((0, 2)), np.empty(0), float("nan"), saturated, rays)
+    mean_profile = np.median(profiles[finite], axis=0)
     mean_slope = -np.gradient(gaussian_filter1d(mean_profile, 2.0))
     width = max(_full_width_at_half_maximum(mean_slope), 3.0)  # samples
     middle = int(np.argmax(mean_slope))
@@ -283,11 +350,40 @@ def detect_edge_subpixel(image: np.ndarray, spot: Spot) -> SpotEdge:
     a, b = above[rows, first], above[rows, first + 1]
     fraction = a / np.where(a - b > 0, a - b, 1.0)
     contrast = (plateau[0] + plateau[1] * first) - (background[0] + background[1] * first)
-    noise = 1.4826 * np.median(np.abs(np.diff(profiles[finite], axis=1))) / np.sqrt(2) if finite.any() else 0.0
+    noise = 1.4826 * np.median(np.abs(np.diff(profiles[finite][::4], axis=1))) / np.sqrt(2)  # every 4th ray
     valid = finite & has_fall & (contrast > max(4.0 * noise, 1e-4))
-    edge_radii = radii + steps[0] + (first + fraction) * _STEP_PX
+    edge_radii = start + (first + fraction) * _STEP_PX
     pixels = centre + edge_radii[:, None] * directions
     return SpotEdge(pixels[valid], ray_angles[valid], width * _STEP_PX, saturated, rays)
+
+
+def _coarse_edge_index(profiles: np.ndarray) -> np.ndarray:
+    """Each row's outermost fall through a fifth of its range, as a sample index, median-filtered over rows."""
+    smooth = gaussian_filter1d(np.nan_to_num(profiles), 2.0, axis=1)
+    low, high = smooth.min(axis=1), smooth.max(axis=1)
+    above = smooth > (low + _COARSE_LEVEL * (high - low))[:, None]
+    falls = above[:, :-1] & ~above[:, 1:]
+    outermost = falls.shape[1] - 1 - np.argmax(falls[:, ::-1], axis=1)
+    found = np.where(falls.any(axis=1), outermost, profiles.shape[1] // 2)
+    return median_filter(found, size=_EDGE_MEDIAN_RAYS, mode="wrap")
+
+
+def _ray_profiles(
+    image: np.ndarray, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, widen: float = 1.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """Linear profiles along rays within ``widen * (0.15 * mean(radii) + 8)`` px of ``radii``.
+
+    Returns the steps along each ray (pixels from ``radii``), the rays' unit
+    directions (R, 2), the profiles (R, steps) and whether a channel clipped.
+    """
+    half_window = widen * (0.15 * float(np.mean(radii)) + 8.0)
+    steps = np.arange(-half_window, half_window + _STEP_PX, _STEP_PX)
+    directions = np.column_stack([np.cos(ray_angles), np.sin(ray_angles)])
+    distances = radii[:, None] + steps[None, :]
+    u = centre[0] + distances * directions[:, :1]
+    v = centre[1] + distances * directions[:, 1:]
+    profiles, saturated = _sample_linear(image, u, v)
+    return steps, directions, profiles, saturated
 
 
 def _fit_lines(profiles: np.ndarray, start: float, stop: float) -> tuple[np.ndarray, np.ndarray]:
@@ -302,38 +398,41 @@ def _fit_lines(profiles: np.ndarray, start: float, stop: float) -> tuple[np.ndar
     return y.mean(axis=1) - slope * x_mean, slope
 
 
-def _sample_linear(image: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Bilinear samples of the linear luminance at ``positions`` (..., 2); NaN off the image."""
-    height, width = image.shape[:2]
-    u0 = max(int(np.floor(np.nanmin(positions[..., 0]))) - 1, 0)
-    v0 = max(int(np.floor(np.nanmin(positions[..., 1]))) - 1, 0)
-    u1 = min(int(np.ceil(np.nanmax(positions[..., 0]))) + 2, width)
-    v1 = min(int(np.ceil(np.nanmax(positions[..., 1]))) + 2, height)
-    crop, saturated = _brightest_unsaturated_channel(image[v0:v1, u0:u1])
-    map_u = (positions[..., 0] - u0).astype(np.float32)
-    map_v = (positions[..., 1] - v0).astype(np.float32)
-    samples = cv2.remap(crop, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    outside = (map_u < 0) | (map_v < 0) | (map_u > crop.shape[1] - 1) | (map_v > crop.shape[0] - 1)
-    samples[outside] = np.nan
-    return samples, saturated
+def _sample_linear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Bilinear samples of one linear channel at pixels ``(u, v)`` (two arrays of one shape); NaN off the image.
 
-
-def _brightest_unsaturated_channel(image: np.ndarray) -> tuple[np.ndarray, bool]:
-    """The linear channel with the most signal that never reaches full scale (else the least clipped one).
-
-    A clipped channel bends the profile where it clips; another channel still
-    holds the edge's true shape. Returns the channel and whether any clipped.
+    Only the samples' bounding box is read and linearised. The channel is the
+    brightest that never clips there (else the least clipped one): a clipped
+    channel bends the profile where it clips, while another channel still
+    holds the edge's true shape. Returns the samples and whether any channel
+    clipped.
     """
+    height, width = image.shape[:2]
+    u0 = max(int(np.floor(np.nanmin(u))) - 1, 0)
+    v0 = max(int(np.floor(np.nanmin(v))) - 1, 0)
+    u1 = min(int(np.ceil(np.nanmax(u))) + 2, width)
+    v1 = min(int(np.ceil(np.nanmax(v))) + 2, height)
+    crop = image[v0:v1, u0:u1]
+    channels = [crop] if crop.ndim == 2 else cv2.split(crop)[:3]
     lut = _LINEAR_8 if image.dtype == np.uint8 else _LINEAR_16
-    linear = lut[image] if image.ndim == 3 else lut[image][..., None]
-    linear = linear[..., :3]
-    clipped = np.count_nonzero(linear >= 0.99, axis=(0, 1))
-    if np.any(clipped == 0):
-        brightest = np.where(clipped == 0, linear.max(axis=(0, 1)), -1.0)
-        channel = int(np.argmax(brightest))
-    else:
-        channel = int(np.argmin(clipped))
-    return np.ascontiguousarray(linear[..., channel]), bool(np.any(clipped))
+    # The LUT is monotonic: clipping and brightness can be judged on the codes.
+    full_scale = int(np.searchsorted(lut, 0.99))
+    brightest = np.array([cv2.minMaxLoc(c)[1] for c in channels])
+    clipped = np.array(
+        [
+            cv2.countNonZero(cv2.compare(c, full_scale, cv2.CMP_GE)) if m >= full_scale else 0
+            for c, m in zip(channels, brightest, strict=True)
+        ]
+    )
+    channel = int(np.argmax(np.where(clipped == 0, brightest, -1))) if np.any(clipped == 0) else int(np.argmin(clipped))
+    plane = channels[channel]
+    linear = cv2.LUT(plane, lut) if plane.dtype == np.uint8 else lut[plane]
+    map_u = (u - u0).astype(np.float32)
+    map_v = (v - v0).astype(np.float32)
+    samples = cv2.remap(linear, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    outside = (map_u < 0) | (map_v < 0) | (map_u > linear.shape[1] - 1) | (map_v > linear.shape[0] - 1)
+    samples[outside] = np.nan
+    return samples, bool(np.any(clipped))
 
 
 def _full_width_at_half_maximum(values: np.ndarray) -> float:

@@ -1,4 +1,4 @@
-"""Reading and writing spotnav's files: setups, images, truth, known.csv and poses.csv.
+"""Reading and writing spotnav's files: setups, images, videos, truth, paths, known.csv and poses.csv.
 
 Only this module, the experiments layer and the CLI touch the file system.
 Every failure is a :class:`ValueError` subclass with a one-line message that
@@ -8,8 +8,10 @@ names the file.
 from __future__ import annotations
 
 import csv
+import glob
 import json
-from collections.abc import Iterable, Sequence
+import time
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -21,17 +23,27 @@ from spotnav.geometry import InstrumentPose
 from spotnav.localize import PoseEstimate
 
 __all__ = [
+    "IMAGE_SUFFIXES",
     "POSES_COLUMNS",
+    "TRACK_COLUMNS",
+    "TRUTH_COLUMNS",
+    "VIDEO_SUFFIXES",
+    "Frame",
     "ImageReadError",
     "KnownPose",
+    "SequenceWriter",
+    "iter_frames",
     "pose_row",
     "read_image",
     "read_known_poses",
+    "read_path_csv",
     "read_setup",
     "setup_to_dict",
     "setup_to_toml",
+    "track_row",
     "write_image",
     "write_poses_csv",
+    "write_truth_csv",
     "write_truth_json",
 ]
 
@@ -137,7 +149,7 @@ def pose_row(image: str, estimate: PoseEstimate, time_ms: float | None = None) -
     return [image, estimate.status, *numbers, str(estimate.spots), *quality, *other, timing, estimate.detail]
 
 
-def write_poses_csv(path: str | Path, rows: Iterable[Sequence[str]]) -> None:
+def write_poses_csv(path: str | Path, rows: Iterable[Sequence[str]], columns: Sequence[str] = POSES_COLUMNS) -> None:
     """Write ``poses.csv``: the contract's columns first, then :data:`POSES_COLUMNS`' own.
 
     ``sigma_mm`` is the precise method's 1-sigma tip uncertainty, ``rms_px`` its
@@ -149,7 +161,7 @@ def write_poses_csv(path: str | Path, rows: Iterable[Sequence[str]]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
-        writer.writerow(POSES_COLUMNS)
+        writer.writerow(columns)
         writer.writerows(rows)
 
 
@@ -227,3 +239,190 @@ def _toml_value(value: object) -> str:
     if isinstance(value, list | tuple):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     raise TypeError(f"cannot write {value!r} as TOML")
+
+
+# --- sequences: tracking input and output -------------------------------------------------------------------
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+VIDEO_SUFFIXES = (".mkv", ".avi", ".mp4", ".mov")
+TRUTH_COLUMNS = ("frame", "image", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z")
+TRACK_COLUMNS = (*POSES_COLUMNS[:8], "frame", "mode", "latency_ms", "decode_ms", *POSES_COLUMNS[8:14], "detail")
+
+
+def track_row(
+    frame: int, image: str, estimate: PoseEstimate, mode: str, latency_ms: float, decode_ms: float
+) -> list[str]:
+    """One ``poses.csv`` row of ``spotnav track``, in :data:`TRACK_COLUMNS` order."""
+    row = dict(zip(POSES_COLUMNS, pose_row(image, estimate), strict=True))
+    row.update(frame=str(frame), mode=mode, latency_ms=f"{latency_ms:.2f}", decode_ms=f"{decode_ms:.2f}")
+    return [row[column] for column in TRACK_COLUMNS]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One decoded frame of a sequence.
+
+    Attributes
+    ----------
+    index : int
+        Position in the sequence, from 0.
+    image : str
+        The image file's path, or ``""`` for a video or camera frame.
+    pixels : ndarray or None
+        RGB (or grey) pixels; None when the file could not be read (see ``error``).
+    decode_ms : float
+        Time spent reading and decoding, ms.
+    error : str
+        Why ``pixels`` is None.
+    """
+
+    index: int
+    image: str
+    pixels: np.ndarray | None
+    decode_ms: float
+    error: str = ""
+
+
+def _sequence_files(source: str) -> list[str] | None:
+    """The image files a folder or glob names, sorted; None when ``source`` is neither."""
+    path = Path(source)
+    if path.is_dir():
+        return sorted(str(p) for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if any(c in source for c in "*?["):
+        return sorted(glob.glob(source))
+    return None
+
+
+def iter_frames(source: str) -> Iterator[Frame]:
+    """Decode a sequence in order: a folder or glob of images, a video file, or a camera index.
+
+    Raises
+    ------
+    ImageReadError
+        If ``source`` names nothing that can be read (an unreadable image
+        inside a folder yields a :class:`Frame` with its ``error`` instead).
+    """
+    files = _sequence_files(source)
+    if files is not None:
+        if not files:
+            raise ImageReadError(f"{source}: no images ({', '.join(IMAGE_SUFFIXES)})")
+        for index, name in enumerate(files):
+            start = time.perf_counter()
+            try:
+                pixels, error = read_image(name), ""
+            except ImageReadError as failure:
+                pixels, error = None, str(failure)
+            yield Frame(index, name, pixels, 1000 * (time.perf_counter() - start), error)
+        return
+    # One decoding thread: threads that decode ahead would compete with the localizer for the cores.
+    single_thread = [cv2.CAP_PROP_N_THREADS, 1]
+    if source.isdigit():
+        capture = cv2.VideoCapture(int(source), cv2.CAP_ANY, single_thread)
+    elif Path(source).is_file() and Path(source).suffix.lower() in VIDEO_SUFFIXES:
+        capture = cv2.VideoCapture(source, cv2.CAP_FFMPEG, single_thread)
+    elif Path(source).is_file():
+        raise ImageReadError(f"{source}: not a video ({', '.join(VIDEO_SUFFIXES)}), folder or glob of images")
+    else:
+        raise ImageReadError(f"{source}: no such file, folder or camera")
+    if not capture.isOpened():
+        raise ImageReadError(f"{source}: cannot open the video or camera")
+    try:
+        index = 0
+        while True:
+            start = time.perf_counter()
+            ok, bgr = capture.read()
+            if not ok:
+                return
+            pixels = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            yield Frame(index, "", pixels, 1000 * (time.perf_counter() - start))
+            index += 1
+    finally:
+        capture.release()
+
+
+class SequenceWriter:
+    """Write frames as numbered PNGs in a folder, or as a lossless FFV1 video (``.mkv``).
+
+    Parameters
+    ----------
+    out : str or Path
+        A folder, or a file with a suffix in :data:`VIDEO_SUFFIXES` (FFV1 in Matroska: use ``.mkv``).
+    fps : float
+        The video's frame rate.
+    """
+
+    def __init__(self, out: str | Path, fps: float) -> None:
+        self.out = Path(out)
+        self.fps = fps
+        self.video = self.out.suffix.lower() in VIDEO_SUFFIXES
+        if self.video and self.out.suffix.lower() != ".mkv":
+            raise ValueError(f"{self.out}: lossless video is written as FFV1 in Matroska: use .mkv")
+        self._writer: cv2.VideoWriter | None = None
+        (self.out.parent if self.video else self.out).mkdir(parents=True, exist_ok=True)
+
+    def write(self, index: int, rgb: np.ndarray) -> str:
+        """Write one frame; returns the PNG's file name (``""`` for a video)."""
+        if not self.video:
+            name = f"frame_{index:05d}.png"
+            write_image(self.out / name, rgb)
+            return name
+        if self._writer is None:
+            height, width = rgb.shape[:2]
+            fourcc = cv2.VideoWriter.fourcc(*"FFV1")
+            self._writer = cv2.VideoWriter(str(self.out), fourcc, self.fps, (width, height))
+            if not self._writer.isOpened():
+                raise ValueError(f"{self.out}: cannot write an FFV1 video")
+        self._writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        return ""
+
+    def close(self) -> None:
+        """Finish the video."""
+        if self._writer is not None:
+            self._writer.release()
+
+    def __enter__(self) -> SequenceWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def write_truth_csv(path: str | Path, rows: Iterable[tuple[int, str, InstrumentPose]]) -> None:
+    """Write ``truth.csv`` (:data:`TRUTH_COLUMNS`): frame, image file name and the true pose."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(TRUTH_COLUMNS)
+        for frame, image, pose in rows:
+            writer.writerow([frame, image, *(_format(v) for v in (*pose.tip_in_eye, *pose.axis))])
+
+
+def read_path_csv(path: str | Path) -> np.ndarray:
+    """Read a path's tips (columns ``x_mm,y_mm,z_mm``, more allowed), shape (N, 3), N >= 2.
+
+    Raises
+    ------
+    ValueError
+        Naming the file, the row or the missing column.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such file")
+    with path.open(newline="", encoding="utf-8") as handle:
+        reader = csv.DictReader(handle)
+        missing = [c for c in ("x_mm", "y_mm", "z_mm") if c not in (reader.fieldnames or [])]
+        if missing:
+            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
+        tips = []
+        for line, row in enumerate(reader, start=2):
+            try:
+                tip = [float(row[c]) for c in ("x_mm", "y_mm", "z_mm")]
+            except (TypeError, ValueError):
+                raise ValueError(f"{path}: row {line}: x_mm, y_mm, z_mm must be numbers") from None
+            if not np.all(np.isfinite(tip)):
+                raise ValueError(f"{path}: row {line}: x_mm, y_mm, z_mm must be finite")
+            tips.append(tip)
+    if len(tips) < 2:
+        raise ValueError(f"{path}: a path needs at least two rows")
+    return np.array(tips)

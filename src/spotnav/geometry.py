@@ -22,6 +22,7 @@ __all__ = [
     "cone_generators",
     "cone_sphere_curve",
     "edge_angle_of_blend",
+    "instrument_to_eye",
     "intersect_rays_sphere",
     "normalize",
     "orthonormal_basis",
@@ -68,15 +69,18 @@ def orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    axis : ndarray, shape (3,)
-        Unit vector.
+    axis : ndarray, shape (..., 3)
+        Unit vector(s).
+
+    Returns
+    -------
+    e1, e2 : ndarray, shape (..., 3)
     """
     axis = normalize(axis)
-    e1 = np.array([1.0, 0.0, 0.0]) - axis[0] * axis
-    if np.linalg.norm(e1) < 1e-6:
-        e1 = np.array([0.0, 1.0, 0.0]) - axis[1] * axis
-    e1 = normalize(e1)
-    e1 = normalize(e1 - (e1 @ axis) * axis)  # remove what rounding left along the axis
+    e1 = np.array([1.0, 0.0, 0.0]) - axis[..., :1] * axis
+    vanished = np.linalg.norm(e1, axis=-1, keepdims=True) < 1e-6
+    e1 = normalize(np.where(vanished, np.array([0.0, 1.0, 0.0]) - axis[..., 1:2] * axis, e1))
+    e1 = normalize(e1 - np.sum(e1 * axis, axis=-1, keepdims=True) * axis)  # remove what rounding left along the axis
     return e1, np.cross(axis, e1)
 
 
@@ -180,7 +184,7 @@ def cone_sphere_curve(
     return apex + t[:, None] * rays
 
 
-def beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float = 0.0) -> np.ndarray:
+def beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float | np.ndarray = 0.0) -> np.ndarray:
     """Beam axes of the instrument, contract's roll convention.
 
     One beam shares the instrument axis. Three beams tilt by ``tilt`` from it,
@@ -188,16 +192,28 @@ def beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float = 0.0)
     1 and 2 at +120 and +240 degrees further; turns are counter-clockwise seen
     from the tip looking along the axis. The contract's zero roll is ``roll = 0``.
 
+    Parameters
+    ----------
+    axis : ndarray, shape (..., 3)
+        Instrument axis (or axes).
+    beam_count : int
+    tilt : float
+        Radians.
+    roll : float or ndarray, shape (...)
+        Radians.
+
     Returns
     -------
-    ndarray, shape (beam_count, 3)
+    ndarray, shape (..., beam_count, 3)
     """
     axis = normalize(axis)
     if beam_count == 1:
-        return axis[None, :]
+        return axis[..., None, :]
     # Counter-clockwise seen looking along the axis is a positive turn about -axis.
-    azimuths = -(roll + 2.0 * np.pi * np.arange(beam_count) / beam_count)
-    return cone_generators(axis, tilt, azimuths)
+    azimuths = -(np.asarray(roll, dtype=float)[..., None] + 2.0 * np.pi * np.arange(beam_count) / beam_count)
+    e1, e2 = orthonormal_basis(axis)
+    radial = np.cos(azimuths)[..., None] * e1[..., None, :] + np.sin(azimuths)[..., None] * e2[..., None, :]
+    return np.cos(tilt) * axis[..., None, :] + np.sin(tilt) * radial
 
 
 def assign_beams(directions: np.ndarray, axis: np.ndarray) -> tuple[list[int], float] | None:
@@ -314,6 +330,24 @@ class InstrumentPose:
         """Pose whose axis runs from the insertion point to the tip."""
         tip = np.asarray(tip_in_eye, dtype=float)
         return cls(tip, tip - np.asarray(insertion_in_eye, dtype=float))
+
+
+def instrument_to_eye(tip_in_eye: np.ndarray, axis: np.ndarray, roll: float = 0.0) -> np.ndarray:
+    """Homogeneous transform from the instrument's frame to the eye frame, shape (4, 4), mm.
+
+    The instrument's frame has its origin at the tip, ``+z`` along the axis
+    (toward the retina) and ``+x`` toward beam 0 (``e1`` of
+    :func:`orthonormal_basis` turned by ``roll``, the contract's roll
+    convention); ``+y = z x x``.
+    """
+    axis = normalize(axis)
+    # Beam 0 leans toward the radial direction at azimuth -roll (see beam_axes).
+    e1, e2 = orthonormal_basis(axis)
+    x_axis = np.cos(roll) * e1 - np.sin(roll) * e2
+    transform = np.eye(4)
+    transform[:3, 0], transform[:3, 1], transform[:3, 2] = x_axis, np.cross(axis, x_axis), axis
+    transform[:3, 3] = tip_in_eye
+    return transform
 
 
 @dataclass(frozen=True)

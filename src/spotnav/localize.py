@@ -48,12 +48,15 @@ from spotnav.reconstruct import (
 )
 
 __all__ = [
+    "EDGE_MODEL_SIGMA",
     "METHODS",
+    "MIN_EDGE_POINTS",
     "STATUSES",
     "EdgeFrame",
     "PoseEstimate",
     "edge_half_angle",
     "fit_height_correction",
+    "judge_fit",
     "localize",
     "localize_precise",
     "localize_precise_with_edges",
@@ -63,7 +66,7 @@ __all__ = [
 ]
 
 DEFAULT_BLEND = 0.15  # Blender's default spot_blend: the edge model when the setup gives none
-_MIN_EDGE_POINTS = 20
+MIN_EDGE_POINTS = 20
 _MIN_INLIER_FRACTION = 0.5
 # A fit is poor when its edge points lie both this far in angle (some 0.015 deg on a textured retina at 1 W)
 # and this far in pixels (some 0.3 px from noise) from their cones.
@@ -73,7 +76,7 @@ _PRECISE_CONTRAST_SIGMA = 4.0
 _MAX_CLUTTER_AREA = 0.25
 _MIRROR_RESIDUAL_RATIO = 1.1
 _MIRROR_DISTANCE_MM = 0.1
-_EDGE_MODEL_SIGMA_DEG = 0.003  # uncertainty of the edge's angle on a textured retina, added to the tip's sigma
+EDGE_MODEL_SIGMA = float(np.radians(0.003))  # uncertainty of the edge's angle on a textured retina, added to sigma
 _MAX_SIGMA_MM = 0.05
 
 STATUSES = ("ok", "no_spot", "ambiguous", "too_few_spots", "clipped", "wrong_size", "unreliable", "unreadable")
@@ -103,6 +106,9 @@ class PoseEstimate:
     other_axis : ndarray, shape (3,), or None
         The precise method's cross-check: the axis fitted without the insertion
         point (or with it, when the pose was fitted without).
+    roll : float
+        Three beams: the fitted roll of beam 0 about the axis from the
+        contract's zero roll, radians (0 for one beam and the thesis method).
     """
 
     status: str
@@ -113,6 +119,7 @@ class PoseEstimate:
     sigma_mm: float = float("nan")
     rms_px: float = float("nan")
     other_axis: np.ndarray | None = None
+    roll: float = 0.0
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -385,7 +392,7 @@ def _prepare_edges(
         return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
     beams, roll = assignment
     edges = tuple(detect_edge_subpixel(image, spot).pixels for spot in solution.spots)
-    if min(len(e) for e in edges) < _MIN_EDGE_POINTS:
+    if min(len(e) for e in edges) < MIN_EDGE_POINTS:
         return PoseEstimate("unreliable", spots=start.spots, detail="too few edge points")
     return EdgeFrame(edges, beams, start, axis, roll, solution)
 
@@ -404,7 +411,7 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
         "tip_in_eye": start.tip_in_eye,
         "axis": start.axis,
         "roll": roll,
-        "edge_sigma": np.radians(_EDGE_MODEL_SIGMA_DEG),
+        "edge_sigma": EDGE_MODEL_SIGMA,
     }
     edge_angle = edge_half_angle(setup)
     constrained = fit_cones(points, beams, edge_angle, insertion_in_eye=instrument.insertion_in_eye, **common)
@@ -413,7 +420,9 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
     common.update(tip_in_eye=constrained.tip_in_eye, axis=constrained.axis, roll=constrained.roll)
     free = fit_cones(points, beams, edge_angle, **common)
     if through_insertion:
-        return _judge(constrained, free.axis, np.concatenate(points), setup, start)
+        return judge_fit(
+            constrained, np.concatenate(points), setup, spots=start.spots, detail=start.detail, other_axis=free.axis
+        )
     fits = [free]
     if instrument.beam_count == 1:
         starts = list(zip(solution.candidates[0].apexes, solution.candidates[0].cone_axes, strict=True))
@@ -434,11 +443,36 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
         if close_fit and np.linalg.norm(other.tip_in_eye - best.tip_in_eye) > _MIRROR_DISTANCE_MM:
             detail = "a cone and its mirror image fit alike: fix the axis by the insertion point (method precise)"
             return PoseEstimate("ambiguous", spots=start.spots, detail=detail)
-    return _judge(best, constrained.axis, np.concatenate(points), setup, start)
+    return judge_fit(
+        best, np.concatenate(points), setup, spots=start.spots, detail=start.detail, other_axis=constrained.axis
+    )
 
 
-def _judge(fit: ConeFit, other_axis: np.ndarray, points: np.ndarray, setup: Setup, start: PoseEstimate) -> PoseEstimate:
-    """The fit as an estimate, or ``unreliable`` when it fails a check."""
+def judge_fit(
+    fit: ConeFit,
+    points_in_eye: np.ndarray,
+    setup: Setup,
+    *,
+    spots: int,
+    detail: str = "",
+    other_axis: np.ndarray | None = None,
+) -> PoseEstimate:
+    """A cone fit as an estimate, or ``unreliable`` when it fails a consistency check.
+
+    Parameters
+    ----------
+    fit : ConeFit
+    points_in_eye : ndarray, shape (N, 3)
+        The edge points the fit used, all of them, in the fit's order, mm.
+    setup : Setup
+    spots : int
+        Spots used, for the estimate.
+    detail : str
+        A remark to carry on an ``ok`` estimate.
+    other_axis : ndarray, shape (3,), optional
+        The cross-check axis.
+    """
+    points = points_in_eye
     camera = setup.camera
     distance = np.linalg.norm(points - fit.tip_in_eye, axis=1)
     residual_px = fit.residuals * distance * camera.focal_px / (camera.distance_mm - points[:, 2])
@@ -454,11 +488,11 @@ def _judge(fit: ConeFit, other_axis: np.ndarray, points: np.ndarray, setup: Setu
         problems.append(f"tip uncertainty {sigma:.3f} mm")
     if not setup.contains_point(fit.tip_in_eye):
         problems.append("the fitted tip lies outside the eye")
-    common = {"spots": start.spots, "sigma_mm": sigma, "rms_px": rms_px}
+    common = {"spots": spots, "sigma_mm": sigma, "rms_px": rms_px}
     if problems:
         return PoseEstimate("unreliable", detail="; ".join(problems), **common)
     return PoseEstimate(
-        "ok", tip_in_eye=fit.tip_in_eye, axis=fit.axis, other_axis=other_axis, detail=start.detail, **common
+        "ok", tip_in_eye=fit.tip_in_eye, axis=fit.axis, roll=fit.roll, other_axis=other_axis, detail=detail, **common
     )
 
 

@@ -22,6 +22,7 @@ from scipy.optimize import least_squares
 from spotnav.geometry import axis_rotations, beam_axes, normalize, rotation_about_y, rotation_about_z
 
 __all__ = [
+    "SOLVERS",
     "ConeCandidates",
     "ConeFit",
     "Ellipse",
@@ -244,11 +245,14 @@ class ConeFit:
         return float(np.sqrt(np.trace(self.tip_covariance)))
 
 
-def _instrument_axis(params: np.ndarray, insertion_in_eye: np.ndarray | None) -> np.ndarray:
+def _instrument_axes(params: np.ndarray, insertion_in_eye: np.ndarray | None) -> np.ndarray:
+    """Instrument axes of parameter sets ``params`` (K, P), shape (K, 3)."""
     if insertion_in_eye is not None:
-        return normalize(params[:3] - insertion_in_eye)
-    about_y, about_z = params[3], params[4]
-    return rotation_about_z(about_z) @ rotation_about_y(about_y) @ np.array([0.0, 0.0, -1.0])
+        offsets = params[:, :3] - insertion_in_eye
+        return offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+    about_y, about_z = params[:, 3], params[:, 4]
+    # rotation_about_z(about_z) @ rotation_about_y(about_y) @ (0, 0, -1)
+    return np.column_stack([-np.sin(about_y) * np.cos(about_z), -np.sin(about_y) * np.sin(about_z), -np.cos(about_y)])
 
 
 def _cone_residuals(
@@ -260,14 +264,60 @@ def _cone_residuals(
     tilt: float,
     insertion_in_eye: np.ndarray | None,
 ) -> np.ndarray:
-    tip = params[:3]
-    axis = _instrument_axis(params, insertion_in_eye)
-    roll = params[-1] if beam_count > 1 else 0.0
-    axes = beam_axes(axis, beam_count, tilt, roll)[beam_of_point]
-    rays = points - tip
-    along = np.sum(rays * axes, axis=1)
-    across = np.linalg.norm(np.cross(rays, axes), axis=1)
+    """Angle of each point from its beam's cone, for parameter sets ``params`` (K, P): shape (K, N)."""
+    axes = _instrument_axes(params, insertion_in_eye)
+    rolls = params[:, -1] if beam_count > 1 else np.zeros(len(params))
+    beams = axes[:, None, :] if beam_count == 1 else beam_axes(axes, beam_count, tilt, rolls)
+    rays = points[None, :, :] - params[:, None, :3]
+    along = np.einsum("knj,knj->kn", rays, beams[:, beam_of_point])
+    across = np.sqrt(np.maximum(np.einsum("knj,knj->kn", rays, rays) - along**2, 0.0))
     return np.arctan2(across, along) - edge_angle
+
+
+def _residuals_and_jacobian(params: np.ndarray, *args: object) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals (N,) at ``params`` (P,) and their forward-difference Jacobian (N, P), in one batched call."""
+    steps = 1e-7 * np.maximum(np.abs(params), 1.0)
+    batch = np.vstack([params, params + np.diag(steps)])
+    residuals = _cone_residuals(batch, *args)
+    return residuals[0], ((residuals[1:] - residuals[0]) / steps[:, None]).T
+
+
+def _solve_gauss_newton(
+    params: np.ndarray, args: tuple, scale: float | None, iterations: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Newton steps from ``params``; with ``scale``, iteratively reweighted for the soft-L1 loss.
+
+    Returns the parameters, the residuals and the Jacobian at them.
+    """
+    for _ in range(iterations):
+        residuals, jacobian = _residuals_and_jacobian(params, *args)
+        weights = 1.0 if scale is None else 1.0 / np.sqrt(1.0 + (residuals / scale) ** 2)
+        weighted = jacobian * np.sqrt(weights)[:, None] if scale is not None else jacobian
+        step = np.linalg.lstsq(weighted, -(residuals * np.sqrt(weights)), rcond=None)[0]
+        params = params + step
+    residuals, jacobian = _residuals_and_jacobian(params, *args)
+    return params, residuals, jacobian
+
+
+def _solve_trust_region(
+    params: np.ndarray, args: tuple, scale: float | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """SciPy's trust-region least squares from ``params``; with ``scale``, the soft-L1 loss.
+
+    Returns the parameters, the residuals and the Jacobian at them.
+    """
+    result = least_squares(
+        lambda x: _cone_residuals(x[None, :], *args)[0],
+        params,
+        jac=lambda x: _residuals_and_jacobian(x, *args)[1],
+        loss="linear" if scale is None else "soft_l1",
+        f_scale=1.0 if scale is None else scale,
+        x_scale="jac",
+    )
+    return result.x, result.fun, result.jac
+
+
+SOLVERS = ("trust-region", "gauss-newton")
 
 
 def fit_cones(
@@ -282,6 +332,7 @@ def fit_cones(
     roll: float = 0.0,
     insertion_in_eye: np.ndarray | None = None,
     edge_sigma: float = 0.0,
+    solver: str = "trust-region",
 ) -> ConeFit:
     """Fit one instrument pose to edge points on the retina, by robust nonlinear least squares.
 
@@ -312,7 +363,13 @@ def fit_cones(
         Uncertainty of ``edge_angle`` itself, radians: a bias shared by every
         point, which no number of points averages away. Its effect on the pose
         is added to the covariance.
+    solver : str
+        ``trust-region`` (SciPy's, for any start) or ``gauss-newton`` (a few
+        fixed steps, iteratively reweighted: fast, for a start close to the
+        answer, as in tracking).
     """
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
     points = np.concatenate(points_in_eye)
     beam_of_point = np.concatenate([np.full(len(p), b) for p, b in zip(points_in_eye, beams, strict=True)])
     start = list(np.asarray(tip_in_eye, dtype=float))
@@ -321,27 +378,31 @@ def fit_cones(
     if beam_count > 1:
         start.append(roll)
     args = (points, beam_of_point, edge_angle, beam_count, tilt, insertion_in_eye)
-    first = _cone_residuals(np.array(start), *args)
+    first = _cone_residuals(np.array([start]), *args)[0]
     scale = max(1.4826 * float(np.median(np.abs(first - np.median(first)))), 1e-6)
-    robust = least_squares(_cone_residuals, start, args=args, loss="soft_l1", f_scale=scale, x_scale="jac")
-    spread = max(1.4826 * float(np.median(np.abs(robust.fun))), 1e-7)
-    inliers = np.abs(robust.fun) < 3.0 * spread
+    if solver == "trust-region":
+        robust, robust_fun, _ = _solve_trust_region(np.array(start), args, scale)
+    else:
+        robust, robust_fun, _ = _solve_gauss_newton(np.array(start), args, scale, iterations=2)
+    spread = max(1.4826 * float(np.median(np.abs(robust_fun))), 1e-7)
+    inliers = np.abs(robust_fun) < 3.0 * spread
     kept = (points[inliers], beam_of_point[inliers], *args[2:])
-    final = least_squares(_cone_residuals, robust.x, args=kept, x_scale="jac")
-    dof = max(int(inliers.sum()) - len(final.x), 1)
-    variance = float(np.sum(final.fun**2)) / dof
-    jacobian = final.jac
+    if solver == "trust-region":
+        params, fun, jacobian = _solve_trust_region(robust, kept, None)
+    else:
+        params, fun, jacobian = _solve_gauss_newton(robust, kept, None, iterations=1)
+    dof = max(int(inliers.sum()) - len(params), 1)
+    variance = float(np.sum(fun**2)) / dof
     normal_inverse = np.linalg.pinv(jacobian.T @ jacobian)
-    covariance = variance * correlation_inflation(final.fun, beam_of_point[inliers]) * normal_inverse
+    covariance = variance * correlation_inflation(fun, beam_of_point[inliers]) * normal_inverse
     # A change d of the edge angle shifts every residual by -d: the pose moves by (J^T J)^-1 J^T 1 d.
     shift = normal_inverse @ jacobian.sum(axis=0)
     covariance = covariance + edge_sigma**2 * np.outer(shift, shift)
-    params = final.x
     return ConeFit(
         tip_in_eye=params[:3].copy(),
-        axis=_instrument_axis(params, insertion_in_eye),
+        axis=_instrument_axes(params[None, :], insertion_in_eye)[0],
         roll=float(params[-1]) if beam_count > 1 else 0.0,
-        residuals=_cone_residuals(params, *args),
+        residuals=_cone_residuals(params[None, :], *args)[0],
         inliers=inliers,
         tip_covariance=covariance[:3, :3],
     )

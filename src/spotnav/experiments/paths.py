@@ -11,7 +11,9 @@ __all__ = [
     "SQUARE_CORNERS_MM",
     "helix_tips",
     "poses_through_insertion",
+    "resample_polyline",
     "square_tips",
+    "tremor_offsets",
     "working_volume_tips",
 ]
 
@@ -24,11 +26,47 @@ def square_tips(count: int) -> np.ndarray:
 
     The path is closed: the first tip is P1 and the last one stops a step short of it.
     """
-    corners = np.vstack([SQUARE_CORNERS_MM, SQUARE_CORNERS_MM[:1]])
-    lengths = np.linalg.norm(np.diff(corners, axis=0), axis=1)
+    return resample_polyline(np.vstack([SQUARE_CORNERS_MM, SQUARE_CORNERS_MM[:1]]), count, endpoint=False)
+
+
+def resample_polyline(points: np.ndarray, count: int, *, endpoint: bool = True) -> np.ndarray:
+    """``count`` points evenly spaced by arc length along a polyline, shape (count, 3).
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+        The polyline's vertices, N >= 2, not all equal.
+    count : int
+    endpoint : bool
+        Whether the last point is the last vertex (else it stops a step short).
+    """
+    points = np.asarray(points, dtype=float)
+    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
     along = np.concatenate([[0.0], np.cumsum(lengths)])
-    s = np.linspace(0.0, along[-1], count, endpoint=False)
-    return np.column_stack([np.interp(s, along, corners[:, k]) for k in range(3)])
+    if len(points) < 2 or along[-1] <= 0:
+        raise ValueError("a path needs at least two distinct points")
+    s = np.linspace(0.0, along[-1], count, endpoint=endpoint)
+    return np.column_stack([np.interp(s, along, points[:, k]) for k in range(3)])
+
+
+def tremor_offsets(count: int, fps: float, amplitude_mm: float, seed: int = 0) -> np.ndarray:
+    """Physiological hand tremor: per axis, a sine of random frequency in 6-12 Hz and phase, shape (count, 3).
+
+    Parameters
+    ----------
+    count : int
+        Frames.
+    fps : float
+        Frame rate, frames per second.
+    amplitude_mm : float
+        Peak amplitude per axis, mm (surgeons' tremor is some 0.05 mm).
+    seed : int
+    """
+    rng = np.random.default_rng(seed)
+    frequency_hz = rng.uniform(6.0, 12.0, 3)
+    phase = rng.uniform(0.0, 2.0 * np.pi, 3)
+    time_s = np.arange(count)[:, None] / fps
+    return amplitude_mm * np.sin(2.0 * np.pi * frequency_hz * time_s + phase)
 
 
 def helix_tips(

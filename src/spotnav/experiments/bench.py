@@ -1,0 +1,102 @@
+"""Speed benchmark: ms per frame of rendering, the full-frame methods and tracking, per image size."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from spotnav.config import Camera, Instrument, Light, Setup
+from spotnav.experiments.paths import helix_tips, poses_through_insertion
+from spotnav.localize import localize
+from spotnav.render import Renderer
+from spotnav.track import Tracker
+
+__all__ = ["STAGES", "BenchRow", "bench_markdown", "run_bench"]
+
+STAGES = ("render", "thesis, full frame", "precise, full frame", "tracking (region of interest)")
+HELIX_FRAMES = 300  # the helix's motion per frame: that of a 300-frame helix
+
+
+@dataclass(frozen=True)
+class BenchRow:
+    """Timing of one stage at one image size.
+
+    Attributes
+    ----------
+    size_px : int
+    stage : str
+        One of :data:`STAGES`.
+    median_ms, p99_ms : float
+        Median and 99th percentile, ms per frame.
+    frames : int
+        Frames timed.
+    """
+
+    size_px: int
+    stage: str
+    median_ms: float
+    p99_ms: float
+    frames: int
+
+
+def _ms_since(start: float) -> float:
+    return 1000 * (time.perf_counter() - start)
+
+
+def run_bench(sizes: Sequence[int], frames: int = 100, beams: int = 1, full_every: int = 5) -> list[BenchRow]:
+    """Time each stage on consecutive frames of the helix, in this process.
+
+    Every frame is rendered and tracked; every ``full_every``-th frame is also
+    localized on the whole image by the thesis's and the precise method.
+    Tracking is timed on the frames it tracked (not the acquisitions).
+    """
+    if frames < 2 or full_every < 1:
+        raise ValueError(f"frames must be >= 2 and full_every >= 1, got {frames} and {full_every}")
+    rows = []
+    for size in sizes:
+        setup = Setup(
+            camera=Camera(width_px=size, height_px=size),
+            instrument=Instrument(beam_count=beams),
+            light=Light(power_w=1.0, blend=0.15),
+        )
+        renderer, tracker = Renderer(setup), Tracker(setup)
+        renderer.render(poses_through_insertion(helix_tips(2), setup.instrument.insertion_in_eye)[0])  # warm caches
+        times: dict[str, list[float]] = {stage: [] for stage in STAGES}
+        poses = poses_through_insertion(helix_tips(HELIX_FRAMES)[:frames], setup.instrument.insertion_in_eye)
+        for index, pose in enumerate(tqdm(poses, desc=f"bench {size} px", unit="frame", disable=None)):
+            start = time.perf_counter()
+            image = renderer.render(pose, seed=index)
+            times["render"].append(_ms_since(start))
+            if index % full_every == 0:
+                for stage, method in ((STAGES[1], "thesis"), (STAGES[2], "precise")):
+                    start = time.perf_counter()
+                    localize(image, setup, method)
+                    times[stage].append(_ms_since(start))
+            start = time.perf_counter()
+            tracked = tracker.update(image)
+            if tracked.mode == "tracked":
+                times[STAGES[3]].append(_ms_since(start))
+        for stage, values in times.items():
+            if values:
+                median, p99 = float(np.median(values)), float(np.percentile(values, 99))
+                rows.append(BenchRow(size, stage, median, p99, len(values)))
+    return rows
+
+
+def bench_markdown(rows: Sequence[BenchRow]) -> str:
+    """The rows as a markdown table, with tracking's ratio to the thesis method's full frame."""
+    lines = ["| size px | stage | median ms | p99 ms | frames |", "| --- | --- | --- | --- | --- |"]
+    lines += [f"| {r.size_px} | {r.stage} | {r.median_ms:.2f} | {r.p99_ms:.2f} | {r.frames} |" for r in rows]
+    by_key = {(r.size_px, r.stage): r for r in rows}
+    for size in sorted({r.size_px for r in rows}):
+        thesis, tracking = by_key.get((size, STAGES[1])), by_key.get((size, STAGES[3]))
+        if thesis and tracking:
+            lines.append(
+                f"\n{size} px: tracking takes {tracking.median_ms / thesis.median_ms:.3f} of the thesis method's "
+                f"full-frame time ({1000 / tracking.median_ms:.0f} Hz)."
+            )
+    return "\n".join(lines)

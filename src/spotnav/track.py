@@ -1,0 +1,281 @@
+"""Track a moving instrument frame by frame: the precise method on a region of interest.
+
+The first frame, and any frame after the spot was lost, is localized on the
+whole image (:func:`spotnav.localize.localize_precise`): *acquisition*. After
+that the tracker predicts the pose (constant velocity), projects each beam's
+predicted edge curve into the image and reads the image only along rays
+across it (:func:`spotnav.detect.detect_edge_along_rays`): the rays are the
+region of interest, a few per cent of the pixels. The cone fit starts from the
+prediction, so the fit keeps the apex that continues the track. A tracked
+frame whose fit fails a check, or whose tip jumps further than
+``max_jump_mm`` from the prediction, is localized on the whole image again in
+the same call.
+
+:class:`ConstantVelocityFilter` optionally smooths the poses (a Kalman filter
+with a constant-velocity model).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from spotnav.camera import project_points, unproject_pixels_to_sphere
+from spotnav.config import Setup
+from spotnav.detect import detect_edge_along_rays, rays_through_curve
+from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
+from spotnav.localize import (
+    EDGE_MODEL_SIGMA,
+    MIN_EDGE_POINTS,
+    PoseEstimate,
+    edge_half_angle,
+    judge_fit,
+    localize_precise,
+)
+from spotnav.reconstruct import fit_cones
+
+__all__ = ["TRACK_MODES", "ConstantVelocityFilter", "TrackedFrame", "Tracker", "track_frame"]
+
+TRACK_MODES = ("tracked", "acquired", "lost")
+_CURVE_POINTS = 90
+_BORDER_PX = 2.0
+
+
+@dataclass(frozen=True)
+class TrackedFrame:
+    """One frame's answer from :class:`Tracker`.
+
+    Attributes
+    ----------
+    estimate : PoseEstimate
+        The pose (smoothed with ``smooth``), or why there is none.
+    mode : str
+        ``tracked`` (region of interest), ``acquired`` (whole image) or
+        ``lost`` (no pose; the next frame tries the whole image).
+    """
+
+    estimate: PoseEstimate
+    mode: str
+
+
+def track_frame(
+    image: np.ndarray,
+    setup: Setup,
+    predicted: PoseEstimate,
+    *,
+    through_insertion: bool = True,
+    max_rays: int = 1024,
+) -> PoseEstimate:
+    """Localize the tip near a predicted pose, reading the image only around the predicted edges.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3) or (H, W)
+        The frame, sRGB-encoded, the camera's size.
+    setup : Setup
+    predicted : PoseEstimate
+        An ``ok`` estimate near the frame's pose (tip, axis and roll are used).
+    through_insertion : bool
+        Constrain the axis through the insertion point (as method ``precise``).
+    max_rays : int
+        Most rays per spot (one per two pixels of the predicted edge, at least 64).
+
+    Returns
+    -------
+    PoseEstimate
+        ``ok``, or ``clipped`` (a predicted edge leaves the image), or
+        ``unreliable`` (too few edge points, or a check of
+        :func:`spotnav.localize.judge_fit` failed).
+    """
+    assert predicted.tip_in_eye is not None and predicted.axis is not None
+    camera, instrument = setup.camera, setup.instrument
+    if image.shape[:2] != (camera.height_px, camera.width_px):
+        return PoseEstimate("wrong_size", detail=f"image is {image.shape[1]}x{image.shape[0]} px")
+    edge_angle = edge_half_angle(setup)
+    axes = beam_axes(predicted.axis, instrument.beam_count, instrument.beam_tilt, predicted.roll)
+    points = []
+    for beam_axis in axes:
+        try:
+            curve_in_eye = cone_sphere_curve(
+                predicted.tip_in_eye, beam_axis, edge_angle, setup.eye.center_in_eye, setup.eye.radius_mm, _CURVE_POINTS
+            )
+        except ValueError:
+            return PoseEstimate("unreliable", detail="the predicted tip lies outside the eye")
+        curve_px = project_points(camera, curve_in_eye)
+        perimeter = float(np.sum(np.linalg.norm(np.diff(curve_px, axis=0, append=curve_px[:1]), axis=1)))
+        centre, ray_angles, radii = rays_through_curve(curve_px, int(np.clip(perimeter / 2.0, 64, max_rays)))
+        reach = float(np.max(radii)) + 2.0 * (0.15 * float(np.mean(radii)) + 8.0) + _BORDER_PX
+        low, high = centre - reach, centre + reach
+        if np.any(low < 0) or high[0] > camera.width_px - 1 or high[1] > camera.height_px - 1:
+            return PoseEstimate("clipped", detail="a predicted spot reaches the image's border")
+        edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True)
+        if len(edge.pixels) < MIN_EDGE_POINTS:
+            return PoseEstimate("unreliable", detail="too few edge points near the predicted spot")
+        on_sphere = unproject_pixels_to_sphere(camera, edge.pixels, setup.eye.radius_mm)
+        points.append(on_sphere[np.all(np.isfinite(on_sphere), axis=1)])
+    fit = fit_cones(
+        points,
+        list(range(instrument.beam_count)),
+        edge_angle,
+        beam_count=instrument.beam_count,
+        tilt=instrument.beam_tilt,
+        tip_in_eye=predicted.tip_in_eye,
+        axis=predicted.axis,
+        roll=predicted.roll,
+        insertion_in_eye=instrument.insertion_in_eye if through_insertion else None,
+        edge_sigma=EDGE_MODEL_SIGMA,
+        solver="gauss-newton",
+    )
+    return judge_fit(fit, np.concatenate(points), setup, spots=instrument.beam_count)
+
+
+class ConstantVelocityFilter:
+    """Kalman filter with a constant-velocity model for each coordinate of a vector.
+
+    The state is the vector and its velocity per frame; white acceleration of
+    standard deviation ``acceleration`` per frame squared drives it.
+
+    Parameters
+    ----------
+    size : int
+        Length of the filtered vector.
+    acceleration : float
+        Process noise: standard deviation of the acceleration, units per frame^2.
+    """
+
+    def __init__(self, size: int, acceleration: float) -> None:
+        if not (np.isfinite(acceleration) and acceleration > 0):
+            raise ValueError(f"acceleration must be a finite number > 0, got {acceleration}")
+        self.size = size
+        self._transition = np.array([[1.0, 1.0], [0.0, 1.0]])
+        self._process = acceleration**2 * np.array([[0.25, 0.5], [0.5, 1.0]])
+        self._state: np.ndarray | None = None  # (size, 2): value and velocity
+        self._covariance = np.zeros((size, 2, 2))
+
+    def predict(self, frames: int = 1) -> np.ndarray | None:
+        """Advance the state by ``frames`` and return the predicted vector (None before the first update)."""
+        if self._state is None:
+            return None
+        for _ in range(frames):
+            self._state = self._state @ self._transition.T
+            self._covariance = self._transition @ self._covariance @ self._transition.T + self._process
+        return self._state[:, 0].copy()
+
+    def update(self, measured: np.ndarray, variance: np.ndarray) -> np.ndarray:
+        """Fuse a measurement (shape (size,), with per-coordinate ``variance``) and return the filtered vector."""
+        measured = np.asarray(measured, dtype=float)
+        variance = np.broadcast_to(np.asarray(variance, dtype=float), measured.shape)
+        if self._state is None:
+            self._state = np.column_stack([measured, np.zeros_like(measured)])
+            self._covariance = np.zeros((self.size, 2, 2))
+            self._covariance[:, 0, 0] = variance
+            self._covariance[:, 1, 1] = 1e6 * variance + 1.0
+            return measured.copy()
+        gain = self._covariance[:, :, 0] / (self._covariance[:, 0, 0] + variance)[:, None]  # (size, 2)
+        innovation = measured - self._state[:, 0]
+        self._state = self._state + gain * innovation[:, None]
+        self._covariance = self._covariance - gain[:, :, None] * self._covariance[:, None, 0, :]
+        return self._state[:, 0].copy()
+
+    def reset(self) -> None:
+        """Forget the track."""
+        self._state = None
+
+
+@dataclass
+class Tracker:
+    """Track the instrument over consecutive frames (see the module's docstring).
+
+    Parameters
+    ----------
+    setup : Setup
+    through_insertion : bool
+        Constrain the axis through the insertion point (method ``precise``);
+        ``False`` fits it (``precise-free``).
+    smooth : bool
+        Smooth the tip with :class:`ConstantVelocityFilter` (measurement
+        variance from each estimate's ``sigma_mm``); the axis follows the tip
+        through the insertion point when constrained.
+    acceleration_mm : float
+        The filter's process noise, mm per frame^2.
+    max_jump_mm : float
+        A tracked tip further than this from the prediction is re-acquired.
+    max_rays : int
+        Most rays per spot in tracked frames.
+    """
+
+    setup: Setup
+    through_insertion: bool = True
+    smooth: bool = False
+    acceleration_mm: float = 0.02
+    max_jump_mm: float = 0.5
+    max_rays: int = 1024
+    _last: PoseEstimate | None = field(default=None, init=False, repr=False)
+    _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
+    _filter: ConstantVelocityFilter | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.max_jump_mm) and self.max_jump_mm > 0):
+            raise ValueError(f"max_jump_mm must be a finite number > 0, got {self.max_jump_mm}")
+        if self.max_rays < 64:
+            raise ValueError(f"max_rays must be at least 64, got {self.max_rays}")
+        if self.smooth:
+            self._filter = ConstantVelocityFilter(3, self.acceleration_mm)
+
+    def update(self, image: np.ndarray) -> TrackedFrame:
+        """Localize the next frame.
+
+        Parameters
+        ----------
+        image : ndarray
+            The frame, sRGB-encoded, 8 or 16 bits, the camera's size.
+        """
+        predicted = self._predict()
+        estimate, mode = None, "acquired"
+        if predicted is not None:
+            tracked = track_frame(
+                image, self.setup, predicted, through_insertion=self.through_insertion, max_rays=self.max_rays
+            )
+            assert predicted.tip_in_eye is not None
+            if tracked.ok and np.linalg.norm(tracked.tip_in_eye - predicted.tip_in_eye) <= self.max_jump_mm:
+                estimate, mode = tracked, "tracked"
+        if estimate is None:
+            estimate = localize_precise(image, self.setup, through_insertion=self.through_insertion)
+        if not estimate.ok:
+            self._forget()
+            return TrackedFrame(estimate, "lost")
+        return TrackedFrame(self._remember(estimate), mode)
+
+    def _predict(self) -> PoseEstimate | None:
+        last = self._last
+        if last is None or last.tip_in_eye is None or last.axis is None:
+            return None
+        if self._filter is not None:
+            tip_in_eye = self._filter.predict()
+            assert tip_in_eye is not None
+            return replace(last, tip_in_eye=tip_in_eye, axis=self._axis_of(tip_in_eye, last.axis))
+        if self._velocity is None:
+            return last
+        return replace(last, tip_in_eye=last.tip_in_eye + self._velocity)
+
+    def _remember(self, estimate: PoseEstimate) -> PoseEstimate:
+        assert estimate.tip_in_eye is not None and estimate.axis is not None
+        if self._filter is not None:
+            tip_in_eye = self._filter.update(estimate.tip_in_eye, estimate.sigma_mm**2 / 3)
+            estimate = replace(estimate, tip_in_eye=tip_in_eye, axis=self._axis_of(tip_in_eye, estimate.axis))
+        elif self._last is not None and self._last.tip_in_eye is not None:
+            self._velocity = estimate.tip_in_eye - self._last.tip_in_eye
+        self._last = estimate
+        return estimate
+
+    def _axis_of(self, tip_in_eye: np.ndarray, axis: np.ndarray) -> np.ndarray:
+        """The axis for a smoothed tip: through the insertion point when constrained, else ``axis``."""
+        if self.through_insertion:
+            return normalize(tip_in_eye - self.setup.instrument.insertion_in_eye)
+        return axis
+
+    def _forget(self) -> None:
+        self._last, self._velocity = None, None
+        if self._filter is not None:
+            self._filter.reset()
