@@ -10,7 +10,8 @@ import os
 import numpy as np
 import pytest
 
-from spotnav.config import Camera, Instrument, Light, Setup
+from spotnav.config import Setup
+from spotnav.experiments.chapter6 import thesis_world
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.render import Renderer
 
@@ -21,9 +22,7 @@ SIZES = [int(s) for s in os.environ.get("SPOTNAV_BENCH_SIZES", "1024,2048,5000")
 def scene(request: pytest.FixtureRequest) -> tuple[Setup, Renderer, list[np.ndarray]]:
     """A setup, its renderer and two consecutive frames of a 300-frame helix."""
     size = request.param
-    setup = Setup(
-        camera=Camera(width_px=size, height_px=size), instrument=Instrument(beam_count=1), light=Light(blend=0.15)
-    )
+    setup = thesis_world(size, beams=1)
     renderer = Renderer(setup)
     poses = poses_through_insertion(helix_tips(300)[:2], setup.instrument.insertion_in_eye)
     return setup, renderer, [renderer.render(pose, seed=i) for i, pose in enumerate(poses)]

@@ -3,7 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spotnav.config import Camera, Instrument, Light, Setup
+from spotnav.config import Setup
+from spotnav.experiments.chapter6 import thesis_world
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.localize import PoseEstimate, localize_precise
 from spotnav.render import Renderer
@@ -13,11 +14,7 @@ SIZE_PX = 1024
 
 
 def world(beams: int = 1) -> Setup:
-    return Setup(
-        camera=Camera(width_px=SIZE_PX, height_px=SIZE_PX),
-        instrument=Instrument(beam_count=beams),
-        light=Light(power_w=1.0, blend=0.15),
-    )
+    return thesis_world(SIZE_PX, beams)
 
 
 @pytest.mark.parametrize("beams", [1, 3])

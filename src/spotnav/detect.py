@@ -21,6 +21,7 @@ __all__ = [
     "detect_edge_along_rays",
     "detect_edge_subpixel",
     "detect_spots_otsu",
+    "edge_window_px",
     "linear_luminance",
     "rays_through_curve",
     "to_gray8",
@@ -168,6 +169,8 @@ def _srgb_to_linear(codes: np.ndarray) -> np.ndarray:
 
 _LINEAR_8 = _srgb_to_linear(np.arange(256) / 255.0)
 _LINEAR_16 = _srgb_to_linear(np.arange(65536) / 65535.0)
+# The LUTs are monotonic: clipping (linear >= 0.99) and brightness can be judged on the codes.
+_FULL_SCALE_8, _FULL_SCALE_16 = int(np.searchsorted(_LINEAR_8, 0.99)), int(np.searchsorted(_LINEAR_16, 0.99))
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # Rec. 709, on linear values
 
 
@@ -320,7 +323,7 @@ def detect_edge_along_rays(
     SpotEdge
     """
     rays = len(ray_angles)
-    steps, directions, profiles, saturated = _ray_profiles(image, centre, ray_angles, radii, 2.0 if align else 1.0)
+    steps, directions, profiles, saturated = _ray_profiles(image, centre, ray_angles, radii, align)
     start = radii + steps[0]
     if align:
         count = (len(steps) + 1) // 2
@@ -368,15 +371,20 @@ def _coarse_edge_index(profiles: np.ndarray) -> np.ndarray:
     return median_filter(found, size=_EDGE_MEDIAN_RAYS, mode="wrap")
 
 
+def edge_window_px(radii: np.ndarray, *, align: bool = False) -> float:
+    """How far from ``radii`` :func:`detect_edge_along_rays` reads each ray, pixels (twice as far with ``align``)."""
+    return (2.0 if align else 1.0) * (0.15 * float(np.mean(radii)) + 8.0)
+
+
 def _ray_profiles(
-    image: np.ndarray, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, widen: float = 1.0
+    image: np.ndarray, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, align: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """Linear profiles along rays within ``widen * (0.15 * mean(radii) + 8)`` px of ``radii``.
+    """Linear profiles along rays within :func:`edge_window_px` of ``radii``.
 
     Returns the steps along each ray (pixels from ``radii``), the rays' unit
     directions (R, 2), the profiles (R, steps) and whether a channel clipped.
     """
-    half_window = widen * (0.15 * float(np.mean(radii)) + 8.0)
+    half_window = edge_window_px(radii, align=align)
     steps = np.arange(-half_window, half_window + _STEP_PX, _STEP_PX)
     directions = np.column_stack([np.cos(ray_angles), np.sin(ray_angles)])
     distances = radii[:, None] + steps[None, :]
@@ -414,9 +422,7 @@ def _sample_linear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.
     v1 = min(int(np.ceil(np.nanmax(v))) + 2, height)
     crop = image[v0:v1, u0:u1]
     channels = [crop] if crop.ndim == 2 else cv2.split(crop)[:3]
-    lut = _LINEAR_8 if image.dtype == np.uint8 else _LINEAR_16
-    # The LUT is monotonic: clipping and brightness can be judged on the codes.
-    full_scale = int(np.searchsorted(lut, 0.99))
+    lut, full_scale = (_LINEAR_8, _FULL_SCALE_8) if image.dtype == np.uint8 else (_LINEAR_16, _FULL_SCALE_16)
     brightest = np.array([cv2.minMaxLoc(c)[1] for c in channels])
     clipped = np.array(
         [

@@ -54,6 +54,7 @@ __all__ = [
     "STATUSES",
     "EdgeFrame",
     "PoseEstimate",
+    "check_image_size",
     "edge_half_angle",
     "fit_height_correction",
     "judge_fit",
@@ -133,7 +134,8 @@ class PoseEstimate:
         return self.status == "ok"
 
 
-def _check_size(image: np.ndarray, setup: Setup) -> PoseEstimate | None:
+def check_image_size(image: np.ndarray, setup: Setup) -> PoseEstimate | None:
+    """``wrong_size`` when the image is not the camera's size, else None."""
     expected = (setup.camera.height_px, setup.camera.width_px)
     if image.shape[:2] != expected:
         return PoseEstimate(
@@ -154,7 +156,7 @@ def localize_thesis(image: np.ndarray, setup: Setup) -> PoseEstimate:
     setup : Setup
         Only ``eye``, ``camera`` and ``instrument`` are used.
     """
-    wrong = _check_size(image, setup)
+    wrong = check_image_size(image, setup)
     if wrong is not None:
         return wrong
     return locate_from_spots(detect_spots_otsu(image), setup)
@@ -322,7 +324,7 @@ def localize_precise_with_edges(
         What the fit started from (for joint fits over frames); None when the
         frame gave no edges to fit.
     """
-    wrong = _check_size(image, setup)
+    wrong = check_image_size(image, setup)
     if wrong is not None:
         return wrong, None
     detection = detect_spots_otsu(image, min_contrast_sigma=_PRECISE_CONTRAST_SIGMA)
@@ -507,7 +509,7 @@ def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarra
     ValueError
         When the frame shows no usable spot.
     """
-    wrong = _check_size(image, setup)
+    wrong = check_image_size(image, setup)
     if wrong is not None:
         raise ValueError(wrong.detail)
     detection = detect_spots_otsu(image)

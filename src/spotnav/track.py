@@ -23,12 +23,13 @@ import numpy as np
 
 from spotnav.camera import project_points, unproject_pixels_to_sphere
 from spotnav.config import Setup
-from spotnav.detect import detect_edge_along_rays, rays_through_curve
+from spotnav.detect import detect_edge_along_rays, edge_window_px, rays_through_curve
 from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
 from spotnav.localize import (
     EDGE_MODEL_SIGMA,
     MIN_EDGE_POINTS,
     PoseEstimate,
+    check_image_size,
     edge_half_angle,
     judge_fit,
     localize_precise,
@@ -90,8 +91,9 @@ def track_frame(
     """
     assert predicted.tip_in_eye is not None and predicted.axis is not None
     camera, instrument = setup.camera, setup.instrument
-    if image.shape[:2] != (camera.height_px, camera.width_px):
-        return PoseEstimate("wrong_size", detail=f"image is {image.shape[1]}x{image.shape[0]} px")
+    wrong = check_image_size(image, setup)
+    if wrong is not None:
+        return wrong
     edge_angle = edge_half_angle(setup)
     axes = beam_axes(predicted.axis, instrument.beam_count, instrument.beam_tilt, predicted.roll)
     points = []
@@ -105,7 +107,7 @@ def track_frame(
         curve_px = project_points(camera, curve_in_eye)
         perimeter = float(np.sum(np.linalg.norm(np.diff(curve_px, axis=0, append=curve_px[:1]), axis=1)))
         centre, ray_angles, radii = rays_through_curve(curve_px, int(np.clip(perimeter / 2.0, 64, max_rays)))
-        reach = float(np.max(radii)) + 2.0 * (0.15 * float(np.mean(radii)) + 8.0) + _BORDER_PX
+        reach = float(np.max(radii)) + edge_window_px(radii, align=True) + _BORDER_PX
         low, high = centre - reach, centre + reach
         if np.any(low < 0) or high[0] > camera.width_px - 1 or high[1] > camera.height_px - 1:
             return PoseEstimate("clipped", detail="a predicted spot reaches the image's border")

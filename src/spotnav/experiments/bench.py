@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from spotnav.config import Camera, Instrument, Light, Setup
+from spotnav.experiments.chapter6 import thesis_world
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.localize import localize
 from spotnav.render import Renderer
@@ -58,11 +58,7 @@ def run_bench(sizes: Sequence[int], frames: int = 100, beams: int = 1, full_ever
         raise ValueError(f"frames must be >= 2 and full_every >= 1, got {frames} and {full_every}")
     rows = []
     for size in sizes:
-        setup = Setup(
-            camera=Camera(width_px=size, height_px=size),
-            instrument=Instrument(beam_count=beams),
-            light=Light(power_w=1.0, blend=0.15),
-        )
+        setup = thesis_world(size, beams)
         renderer, tracker = Renderer(setup), Tracker(setup)
         renderer.render(poses_through_insertion(helix_tips(2), setup.instrument.insertion_in_eye)[0])  # warm caches
         times: dict[str, list[float]] = {stage: [] for stage in STAGES}
