@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.ndimage import gaussian_filter1d, median_filter
+from scipy.ndimage import median_filter
 
 __all__ = [
     "Spot",
@@ -226,8 +226,11 @@ class SpotEdge:
 
 
 _STEP_PX = 0.5
-_EDGE_MEDIAN_RAYS = 9
 _COARSE_LEVEL = 0.2
+_PROFILE_RAYS = 64  # the median profile is taken over about this many rays
+_COARSE_SAMPLES = 64
+_COARSE_RAY_STRIDE = 2
+_EDGE_MEDIAN_RAYS = 5  # coarse rays, about 9 rays
 
 
 def detect_edge_subpixel(image: np.ndarray, spot: Spot) -> SpotEdge:
@@ -297,12 +300,13 @@ def detect_edge_along_rays(
     read: the rays are the region of interest.
 
     With ``align`` the edge may lie anywhere within twice that distance of
-    ``radii`` (a spot that moved since ``radii`` were predicted): each ray's
-    profile is first shifted to line up with the others, at its outermost
-    fall through the level a fifth of the way from its lowest to its highest
-    value (outside a spot there is only background, while a lit vessel stays
-    above that level), with a running median over neighbouring rays against
-    the clutter that remains.
+    ``radii`` (a spot that moved since ``radii`` were predicted): a coarse
+    pass over every second ray finds each ray's outermost fall through the
+    level a fifth of the way from its lowest to its highest value (outside a
+    spot there is only background, while a lit vessel stays above that
+    level), with a running median over neighbouring rays against the clutter
+    that remains; the fine pass is then centred there. The rays must then go
+    around the spot in order.
 
     Parameters
     ----------
@@ -323,21 +327,19 @@ def detect_edge_along_rays(
     SpotEdge
     """
     rays = len(ray_angles)
-    steps, directions, profiles, saturated = _ray_profiles(image, centre, ray_angles, radii, align)
-    start = radii + steps[0]
+    crop = _linear_crop(image, centre, float(np.max(radii)) + edge_window_px(radii, align=align))
     if align:
-        count = (len(steps) + 1) // 2
-        offset = np.clip(_coarse_edge_index(profiles) - count // 2, 0, len(steps) - count)
-        profiles = np.take_along_axis(profiles, offset[:, None] + np.arange(count), axis=1)
-        start, steps = start + offset * _STEP_PX, steps[:count]
+        radii = _coarse_edge_radii(crop, centre, ray_angles, radii)
+    steps, directions, profiles = _ray_profiles(crop, centre, ray_angles, radii, edge_window_px(radii), _STEP_PX)
+    start = radii + steps[0]
     finite = np.all(np.isfinite(profiles), axis=1)
     if not finite.any():
-        return SpotEdge(np.empty((0, 2)), np.empty(0), float("nan"), saturated, rays)
-    mean_profile = np.median(profiles[finite], axis=0)
-    mean_slope = -np.gradient(gaussian_filter1d(mean_profile, 2.0))
+        return SpotEdge(np.empty((0, 2)), np.empty(0), float("nan"), crop.saturated, rays)
+    mean_profile = np.median(profiles[finite][:: 1 + int(np.sum(finite)) // _PROFILE_RAYS], axis=0)
+    mean_slope = -np.gradient(_smooth_rows(mean_profile[None, :])[0])
     width = max(_full_width_at_half_maximum(mean_slope), 3.0)  # samples
     middle = int(np.argmax(mean_slope))
-    smooth = gaussian_filter1d(np.where(finite[:, None], profiles, mean_profile), 2.0, axis=1)
+    smooth = _smooth_rows(np.where(finite[:, None], profiles, mean_profile))
     plateau = _fit_lines(smooth, middle - 2.5 * width, middle - 1.0 * width)
     background = _fit_lines(smooth, middle + 1.0 * width, middle + 2.5 * width)
     index = np.arange(len(steps), dtype=float)
@@ -357,18 +359,31 @@ def detect_edge_along_rays(
     valid = finite & has_fall & (contrast > max(4.0 * noise, 1e-4))
     edge_radii = start + (first + fraction) * _STEP_PX
     pixels = centre + edge_radii[:, None] * directions
-    return SpotEdge(pixels[valid], ray_angles[valid], width * _STEP_PX, saturated, rays)
+    return SpotEdge(pixels[valid], ray_angles[valid], width * _STEP_PX, crop.saturated, rays)
 
 
-def _coarse_edge_index(profiles: np.ndarray) -> np.ndarray:
-    """Each row's outermost fall through a fifth of its range, as a sample index, median-filtered over rows."""
-    smooth = gaussian_filter1d(np.nan_to_num(profiles), 2.0, axis=1)
+def _coarse_edge_radii(crop: _LinearCrop, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Where each ray's profile last falls through a fifth of its range, within the aligned window.
+
+    Every ``_COARSE_RAY_STRIDE``-th ray is read with ``_COARSE_SAMPLES``
+    samples across the wide window; the edges are median-filtered over
+    neighbouring rays, interpolated to all rays and kept within reach of the
+    fine window (so that no pixel beyond ``edge_window_px(radii, align=True)``
+    is read).
+    """
+    wide = edge_window_px(radii, align=True)
+    coarse_angles, coarse_radii = ray_angles[::_COARSE_RAY_STRIDE], radii[::_COARSE_RAY_STRIDE]
+    steps, _, profiles = _ray_profiles(crop, centre, coarse_angles, coarse_radii, wide, 2.0 * wide / _COARSE_SAMPLES)
+    smooth = _smooth_rows(np.nan_to_num(profiles))
     low, high = smooth.min(axis=1), smooth.max(axis=1)
     above = smooth > (low + _COARSE_LEVEL * (high - low))[:, None]
     falls = above[:, :-1] & ~above[:, 1:]
     outermost = falls.shape[1] - 1 - np.argmax(falls[:, ::-1], axis=1)
-    found = np.where(falls.any(axis=1), outermost, profiles.shape[1] // 2)
-    return median_filter(found, size=_EDGE_MEDIAN_RAYS, mode="wrap")
+    shift = np.where(falls.any(axis=1), steps[np.minimum(outermost + 1, len(steps) - 1)], 0.0)
+    shift = median_filter(shift, size=_EDGE_MEDIAN_RAYS, mode="wrap")
+    edge_radii = np.interp(ray_angles, coarse_angles, coarse_radii + shift, period=2 * np.pi)
+    reach = wide - edge_window_px(radii)
+    return np.clip(edge_radii, radii - reach, radii + reach)
 
 
 def edge_window_px(radii: np.ndarray, *, align: bool = False) -> float:
@@ -377,21 +392,28 @@ def edge_window_px(radii: np.ndarray, *, align: bool = False) -> float:
 
 
 def _ray_profiles(
-    image: np.ndarray, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, align: bool = False
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """Linear profiles along rays within :func:`edge_window_px` of ``radii``.
+    crop: _LinearCrop, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, half_window: float, step: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Linear profiles along rays, sampled every ``step`` pixels within ``half_window`` of ``radii``.
 
     Returns the steps along each ray (pixels from ``radii``), the rays' unit
-    directions (R, 2), the profiles (R, steps) and whether a channel clipped.
+    directions (R, 2) and the profiles (R, steps), NaN off the crop.
     """
-    half_window = edge_window_px(radii, align=align)
-    steps = np.arange(-half_window, half_window + _STEP_PX, _STEP_PX)
+    steps = np.arange(-half_window, half_window + step, step)
     directions = np.column_stack([np.cos(ray_angles), np.sin(ray_angles)])
     distances = radii[:, None] + steps[None, :]
-    u = centre[0] + distances * directions[:, :1]
-    v = centre[1] + distances * directions[:, 1:]
-    profiles, saturated = _sample_linear(image, u, v)
-    return steps, directions, profiles, saturated
+    map_u = (centre[0] - crop.origin[0] + distances * directions[:, :1]).astype(np.float32)
+    map_v = (centre[1] - crop.origin[1] + distances * directions[:, 1:]).astype(np.float32)
+    plane = crop.plane
+    profiles = cv2.remap(plane, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    outside = (map_u < 0) | (map_v < 0) | (map_u > plane.shape[1] - 1) | (map_v > plane.shape[0] - 1)
+    profiles[outside] = np.nan
+    return steps, directions, profiles
+
+
+def _smooth_rows(profiles: np.ndarray) -> np.ndarray:
+    """Each row of (R, S) ``profiles`` smoothed by a Gaussian of 2 samples' sigma (mirrored at the ends)."""
+    return cv2.GaussianBlur(profiles, (17, 1), 2.0, borderType=cv2.BORDER_REFLECT)
 
 
 def _fit_lines(profiles: np.ndarray, start: float, stop: float) -> tuple[np.ndarray, np.ndarray]:
@@ -406,20 +428,27 @@ def _fit_lines(profiles: np.ndarray, start: float, stop: float) -> tuple[np.ndar
     return y.mean(axis=1) - slope * x_mean, slope
 
 
-def _sample_linear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Bilinear samples of one linear channel at pixels ``(u, v)`` (two arrays of one shape); NaN off the image.
+@dataclass(frozen=True)
+class _LinearCrop:
+    """One linear channel of a square of the image: ``plane[v - origin[1], u - origin[0]]``."""
 
-    Only the samples' bounding box is read and linearised. The channel is the
-    brightest that never clips there (else the least clipped one): a clipped
-    channel bends the profile where it clips, while another channel still
-    holds the edge's true shape. Returns the samples and whether any channel
-    clipped.
+    plane: np.ndarray
+    origin: tuple[int, int]
+    saturated: bool
+
+
+def _linear_crop(image: np.ndarray, centre: np.ndarray, reach: float) -> _LinearCrop:
+    """Linearise the pixels within ``reach`` of ``centre`` (clipped to the image), in one channel.
+
+    The channel is the brightest that never clips there (else the least
+    clipped one): a clipped channel bends the profile where it clips, while
+    another channel still holds the edge's true shape. ``saturated`` tells
+    whether any channel clipped.
     """
     height, width = image.shape[:2]
-    u0 = max(int(np.floor(np.nanmin(u))) - 1, 0)
-    v0 = max(int(np.floor(np.nanmin(v))) - 1, 0)
-    u1 = min(int(np.ceil(np.nanmax(u))) + 2, width)
-    v1 = min(int(np.ceil(np.nanmax(v))) + 2, height)
+    u0, v0 = max(int(np.floor(centre[0] - reach)) - 1, 0), max(int(np.floor(centre[1] - reach)) - 1, 0)
+    u1 = min(int(np.ceil(centre[0] + reach)) + 2, width)
+    v1 = min(int(np.ceil(centre[1] + reach)) + 2, height)
     crop = image[v0:v1, u0:u1]
     channels = [crop] if crop.ndim == 2 else cv2.split(crop)[:3]
     lut, full_scale = (_LINEAR_8, _FULL_SCALE_8) if image.dtype == np.uint8 else (_LINEAR_16, _FULL_SCALE_16)
@@ -433,12 +462,7 @@ def _sample_linear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.
     channel = int(np.argmax(np.where(clipped == 0, brightest, -1))) if np.any(clipped == 0) else int(np.argmin(clipped))
     plane = channels[channel]
     linear = cv2.LUT(plane, lut) if plane.dtype == np.uint8 else lut[plane]
-    map_u = (u - u0).astype(np.float32)
-    map_v = (v - v0).astype(np.float32)
-    samples = cv2.remap(linear, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    outside = (map_u < 0) | (map_v < 0) | (map_u > linear.shape[1] - 1) | (map_v > linear.shape[0] - 1)
-    samples[outside] = np.nan
-    return samples, bool(np.any(clipped))
+    return _LinearCrop(linear, (u0, v0), bool(np.any(clipped)))
 
 
 def _full_width_at_half_maximum(values: np.ndarray) -> float:

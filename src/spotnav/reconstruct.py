@@ -291,10 +291,9 @@ def _solve_gauss_newton(
     """
     for _ in range(iterations):
         residuals, jacobian = _residuals_and_jacobian(params, *args)
-        weights = 1.0 if scale is None else 1.0 / np.sqrt(1.0 + (residuals / scale) ** 2)
-        weighted = jacobian * np.sqrt(weights)[:, None] if scale is not None else jacobian
-        step = np.linalg.lstsq(weighted, -(residuals * np.sqrt(weights)), rcond=None)[0]
-        params = params + step
+        weights = np.ones_like(residuals) if scale is None else 1.0 / np.sqrt(1.0 + (residuals / scale) ** 2)
+        weighted = jacobian.T * weights
+        params = params - np.linalg.solve(weighted @ jacobian, weighted @ residuals)
     residuals, jacobian = _residuals_and_jacobian(params, *args)
     return params, residuals, jacobian
 
@@ -418,11 +417,10 @@ def correlation_inflation(residuals: np.ndarray, groups: np.ndarray) -> float:
     groups : ndarray, shape (N,)
         Which contour each residual belongs to (neighbours are taken within one).
     """
-    products, squares = 0.0, 0.0
-    for group in np.unique(groups):
-        r = residuals[groups == group]
-        r = r - r.mean()
-        products += float(np.sum(r[1:] * r[:-1]))
-        squares += float(np.sum(r * r))
+    group_index = np.unique(groups, return_inverse=True)[1]
+    means = np.bincount(group_index, residuals) / np.bincount(group_index)
+    r = residuals - means[group_index]
+    neighbours = group_index[1:] == group_index[:-1]
+    products, squares = float(np.sum((r[1:] * r[:-1])[neighbours])), float(np.sum(r * r))
     rho = float(np.clip(products / squares, 0.0, 0.9)) if squares > 0 else 0.0
     return (1.0 + rho) / (1.0 - rho)
