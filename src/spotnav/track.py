@@ -41,6 +41,7 @@ __all__ = ["TRACK_MODES", "ConstantVelocityFilter", "TrackedFrame", "Tracker", "
 TRACK_MODES = ("tracked", "acquired", "lost")
 _CURVE_POINTS = 90
 _BORDER_PX = 2.0
+_MIN_EDGE_RAY_FRACTION = 0.5  # fewer rays with an edge: the spot is not where it was predicted
 
 
 @dataclass(frozen=True)
@@ -86,8 +87,9 @@ def track_frame(
     -------
     PoseEstimate
         ``ok``, or ``clipped`` (a predicted edge leaves the image), or
-        ``unreliable`` (too few edge points, or a check of
-        :func:`spotnav.localize.judge_fit` failed).
+        ``unreliable`` (an edge on fewer than half the rays: the spot is not
+        where predicted; or a check of :func:`spotnav.localize.judge_fit`
+        failed).
     """
     assert predicted.tip_in_eye is not None and predicted.axis is not None
     camera, instrument = setup.camera, setup.instrument
@@ -112,8 +114,9 @@ def track_frame(
         if np.any(low < 0) or high[0] > camera.width_px - 1 or high[1] > camera.height_px - 1:
             return PoseEstimate("clipped", detail="a predicted spot reaches the image's border")
         edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True)
-        if len(edge.pixels) < MIN_EDGE_POINTS:
-            return PoseEstimate("unreliable", detail="too few edge points near the predicted spot")
+        if len(edge.pixels) < max(MIN_EDGE_POINTS, _MIN_EDGE_RAY_FRACTION * edge.rays):
+            found = f"an edge on only {100 * len(edge.pixels) / edge.rays:.0f} % of the rays near the predicted spot"
+            return PoseEstimate("unreliable", detail=found)
         on_sphere = unproject_pixels_to_sphere(camera, edge.pixels, setup.eye.radius_mm)
         points.append(on_sphere[np.all(np.isfinite(on_sphere), axis=1)])
     fit = fit_cones(
