@@ -344,7 +344,7 @@ def self_calibrate_radius(
             estimates[index],
             tip_in_eye=tip.copy(),
             axis=normalize(tip - setup.instrument.insertion_in_eye),
-            sigma_mm=float(np.sqrt(np.trace(covariance[block, block]))),
+            sigma_mm=float(np.sqrt(np.trace(covariance[block, block]) / 3)),
             rms_px=float(np.sqrt(np.mean(residual_px[kept] ** 2))),
             other_axis=None,
             detail=f"eye radius fitted over {len(frames)} frames: {radius:.3f} mm",

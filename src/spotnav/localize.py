@@ -48,6 +48,7 @@ from spotnav.reconstruct import (
 )
 
 __all__ = [
+    "EDGE_CONTOUR_SIGMA",
     "EDGE_MODEL_SIGMA",
     "METHODS",
     "MIN_EDGE_POINTS",
@@ -77,8 +78,11 @@ _PRECISE_CONTRAST_SIGMA = 4.0
 _MAX_CLUTTER_AREA = 0.25
 _MIRROR_RESIDUAL_RATIO = 1.1
 _MIRROR_DISTANCE_MM = 0.1
-EDGE_MODEL_SIGMA = float(np.radians(0.003))  # uncertainty of the edge's angle on a textured retina, added to sigma
-_MAX_SIGMA_MM = 0.05
+# Added to sigma: the edge model's uncertainty (shared by all spots) and the shift of one spot's whole edge by the
+# texture and vessels under it (each spot its own; some 0.006-0.0095 deg rms over the 5000 px paths at 1-2 W).
+EDGE_MODEL_SIGMA = float(np.radians(0.003))
+EDGE_CONTOUR_SIGMA = float(np.radians(0.007))
+_MAX_SIGMA_MM = 0.03
 
 STATUSES = ("ok", "no_spot", "ambiguous", "too_few_spots", "clipped", "wrong_size", "unreliable", "unreadable")
 
@@ -100,7 +104,8 @@ class PoseEstimate:
     detail : str
         Human-readable reason for a status other than ``ok``, or a remark.
     sigma_mm : float
-        1-sigma tip uncertainty, mm (precise method; NaN otherwise).
+        1-sigma tip uncertainty per axis (the root of a third of the tip
+        covariance's trace), mm (precise method; NaN otherwise).
     rms_px : float
         RMS distance of the edge points from the fitted cones, pixels
         (approximate: the angular residual times the range over the pixel size).
@@ -414,6 +419,7 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
         "axis": start.axis,
         "roll": roll,
         "edge_sigma": EDGE_MODEL_SIGMA,
+        "contour_sigma": EDGE_CONTOUR_SIGMA,
     }
     edge_angle = edge_half_angle(setup)
     constrained = fit_cones(points, beams, edge_angle, insertion_in_eye=instrument.insertion_in_eye, **common)

@@ -241,8 +241,8 @@ class ConeFit:
 
     @property
     def tip_sigma_mm(self) -> float:
-        """1-sigma tip uncertainty: the square root of the covariance's trace, mm."""
-        return float(np.sqrt(np.trace(self.tip_covariance)))
+        """1-sigma tip uncertainty per axis: the square root of a third of the covariance's trace, mm."""
+        return float(np.sqrt(np.trace(self.tip_covariance) / 3))
 
 
 def _instrument_axes(params: np.ndarray, insertion_in_eye: np.ndarray | None) -> np.ndarray:
@@ -331,6 +331,7 @@ def fit_cones(
     roll: float = 0.0,
     insertion_in_eye: np.ndarray | None = None,
     edge_sigma: float = 0.0,
+    contour_sigma: float = 0.0,
     solver: str = "trust-region",
 ) -> ConeFit:
     """Fit one instrument pose to edge points on the retina, by robust nonlinear least squares.
@@ -362,6 +363,10 @@ def fit_cones(
         Uncertainty of ``edge_angle`` itself, radians: a bias shared by every
         point, which no number of points averages away. Its effect on the pose
         is added to the covariance.
+    contour_sigma : float
+        Uncertainty of each contour's edge as a whole, radians: a shift of one
+        spot's whole edge (texture and vessels under it) that its own points
+        cannot show, independent between spots. Added to the covariance too.
     solver : str
         ``trust-region`` (SciPy's, for any start) or ``gauss-newton`` (a few
         fixed steps, iteratively reweighted: fast, for a start close to the
@@ -395,8 +400,11 @@ def fit_cones(
     normal_inverse = np.linalg.pinv(jacobian.T @ jacobian)
     covariance = variance * correlation_inflation(fun, beam_of_point[inliers]) * normal_inverse
     # A change d of the edge angle shifts every residual by -d: the pose moves by (J^T J)^-1 J^T 1 d.
-    shift = normal_inverse @ jacobian.sum(axis=0)
-    covariance = covariance + edge_sigma**2 * np.outer(shift, shift)
+    # A shift of one contour's edge alone moves it by (J^T J)^-1 J_c^T 1 d.
+    kept_groups = beam_of_point[inliers]
+    shifts = np.stack([normal_inverse @ jacobian[kept_groups == b].sum(axis=0) for b in np.unique(kept_groups)])
+    shift = shifts.sum(axis=0)
+    covariance = covariance + edge_sigma**2 * np.outer(shift, shift) + contour_sigma**2 * shifts.T @ shifts
     return ConeFit(
         tip_in_eye=params[:3].copy(),
         axis=_instrument_axes(params[None, :], insertion_in_eye)[0],

@@ -26,6 +26,7 @@ from spotnav.config import Setup
 from spotnav.detect import detect_edge_along_rays, edge_window_px, rays_through_curve
 from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
 from spotnav.localize import (
+    EDGE_CONTOUR_SIGMA,
     EDGE_MODEL_SIGMA,
     MIN_EDGE_POINTS,
     PoseEstimate,
@@ -130,6 +131,7 @@ def track_frame(
         roll=predicted.roll,
         insertion_in_eye=instrument.insertion_in_eye if through_insertion else None,
         edge_sigma=EDGE_MODEL_SIGMA,
+        contour_sigma=EDGE_CONTOUR_SIGMA,
         solver="gauss-newton",
     )
     return judge_fit(fit, np.concatenate(points), setup, spots=instrument.beam_count)
@@ -267,7 +269,7 @@ class Tracker:
     def _remember(self, estimate: PoseEstimate) -> PoseEstimate:
         assert estimate.tip_in_eye is not None and estimate.axis is not None
         if self._filter is not None:
-            tip_in_eye = self._filter.update(estimate.tip_in_eye, estimate.sigma_mm**2 / 3)
+            tip_in_eye = self._filter.update(estimate.tip_in_eye, estimate.sigma_mm**2)
             estimate = replace(estimate, tip_in_eye=tip_in_eye, axis=self._axis_of(tip_in_eye, estimate.axis))
         elif self._last is not None and self._last.tip_in_eye is not None:
             self._velocity = estimate.tip_in_eye - self._last.tip_in_eye
