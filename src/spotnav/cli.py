@@ -1,4 +1,4 @@
-"""Command line: ``spotnav scene|render|localize|track|calibrate|analyze|reproduce``.
+"""Command line: ``spotnav scene|render|localize|track|calibrate|evaluate|analyze|reproduce|bench``.
 
 ``main(argv)`` returns the exit code, so tests call it in-process. Unusable
 arguments or setups end with one line ``spotnav: error: ...`` and exit code 2.
@@ -23,6 +23,7 @@ from spotnav.calibrate import KnownFrame, calibrate_edge, prepare_self_calibrati
 from spotnav.config import EXAMPLE_SETUP, Setup
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.experiments.bench import bench_markdown, run_bench
+from spotnav.experiments.evaluate import evaluate_poses, evaluation_text, write_evaluation
 from spotnav.experiments.paths import helix_tips, resample_polyline, square_tips, tremor_offsets
 from spotnav.files import (
     TRACK_COLUMNS,
@@ -33,6 +34,7 @@ from spotnav.files import (
     read_image,
     read_known_poses,
     read_path_csv,
+    read_poses_csv,
     read_setup,
     setup_to_toml,
     track_row,
@@ -274,6 +276,15 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    evaluation = evaluate_poses(read_poses_csv(args.poses), read_known_poses(args.truth))
+    print(evaluation_text(evaluation))
+    if args.out:
+        for path in write_evaluation(Path(args.out), evaluation):
+            print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise UsageError(f"--workers must be at least 1, got {args.workers}")
@@ -366,6 +377,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     track.add_argument("--igtl-wait", type=float, default=0.0, metavar="S", help="wait for a client first (s)")
     track.set_defaults(run=_cmd_track)
+
+    evaluate = commands.add_parser("evaluate", help="compare a poses.csv with the truth: error statistics")
+    evaluate.add_argument("poses", metavar="POSES.csv", help="poses.csv from localize or track")
+    evaluate.add_argument("truth", metavar="TRUTH.csv", help="image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z][,...]")
+    evaluate.add_argument("--out", help="folder for errors.csv (per frame) and errors.png")
+    evaluate.set_defaults(run=_cmd_evaluate)
 
     bench = commands.add_parser("bench", help="ms per frame: rendering, full-frame methods and tracking")
     bench.add_argument("--sizes", type=int, nargs="+", default=[1024, 2048, 5000], help="image sizes, px")

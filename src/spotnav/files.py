@@ -31,12 +31,14 @@ __all__ = [
     "Frame",
     "ImageReadError",
     "KnownPose",
+    "PoseRow",
     "SequenceWriter",
     "iter_frames",
     "pose_row",
     "read_image",
     "read_known_poses",
     "read_path_csv",
+    "read_poses_csv",
     "read_setup",
     "setup_to_dict",
     "setup_to_toml",
@@ -206,6 +208,52 @@ def read_known_poses(path: str | Path) -> list[KnownPose]:
         image = Path(row["image"])
         poses.append(KnownPose(image if image.is_absolute() else path.parent / image, tip, axis))
     return poses
+
+
+@dataclass(frozen=True)
+class PoseRow:
+    """One row of a ``poses.csv``: the contract's columns, parsed.
+
+    ``tip_in_eye`` and ``axis`` are None when the row has no pose.
+    """
+
+    image: str
+    status: str
+    tip_in_eye: np.ndarray | None
+    axis: np.ndarray | None
+
+
+def read_poses_csv(path: str | Path) -> list[PoseRow]:
+    """Read a ``poses.csv`` (the contract's columns ``image,status,x_mm,...,dir_z``; others are ignored).
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the line for a missing column, a bad number or an ``ok`` row without a pose.
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.DictReader(handle))
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read: {error.strerror}") from None
+    needed = POSES_COLUMNS[:8]
+    if not rows or any(name not in rows[0] for name in needed):
+        raise ValueError(f"{path}: needs a header with the columns {', '.join(needed)} and at least one row")
+    parsed = []
+    for number, row in enumerate(rows, start=2):
+        values = [row[k] for k in needed[2:]]
+        if not any(values) and row["status"] != "ok":
+            parsed.append(PoseRow(row["image"], row["status"], None, None))
+            continue
+        try:
+            numbers = np.array([float(v) for v in values])
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}, line {number}: the pose must be six numbers") from None
+        if not np.all(np.isfinite(numbers)):
+            raise ValueError(f"{path}, line {number}: the pose must be finite")
+        parsed.append(PoseRow(row["image"], row["status"], numbers[:3], numbers[3:]))
+    return parsed
 
 
 def setup_to_toml(setup: Setup, header: str = "") -> str:

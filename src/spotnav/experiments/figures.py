@@ -15,6 +15,7 @@ import numpy as np
 
 __all__ = [
     "plot_against_power",
+    "plot_errors_by_status",
     "plot_gallery",
     "plot_path_3d",
     "plot_per_step",
@@ -113,3 +114,24 @@ def plot_gallery(path: Path, images: Mapping[str, np.ndarray], title: str) -> No
             ax.imshow(image)
             ax.set_title(label, fontsize="small")
             ax.axis("off")
+
+
+def plot_errors_by_status(
+    path: Path, images: Sequence[str], errors_mm: np.ndarray, statuses: Sequence[str], title: str
+) -> None:
+    """Tip error per frame, one colour per status; frames without a pose are marked on the axis."""
+    index = np.arange(len(images))
+    with _figure(path, 1, 1, (max(6.0, 0.12 * len(images) + 3), 4), title) as axes:
+        ax = axes[0, 0]
+        for number, status in enumerate(sorted(set(statuses), key=lambda s: (s != "ok", s))):
+            chosen = np.array([s == status for s in statuses])
+            colour = "tab:green" if status == "ok" else f"C{number + 1}"
+            if status == "ok":
+                ax.bar(index[chosen], errors_mm[chosen], color=colour, label=f"ok ({chosen.sum()})")
+            else:
+                label = f"{status} ({chosen.sum()})"
+                ax.plot(index[chosen], np.zeros(chosen.sum()), "x", ms=8, color=colour, label=label)
+        ax.set(xlabel="frame (poses.csv order)", ylabel="tip error [mm]")
+        if len(images) <= 40:
+            ax.set_xticks(index, images, rotation=90, fontsize="x-small")
+        ax.legend(fontsize="small")

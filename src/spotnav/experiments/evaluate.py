@@ -1,0 +1,177 @@
+"""Evaluate a ``poses.csv`` against the truth: what ``spotnav evaluate`` prints and writes.
+
+The two files are joined on ``image``, by file name (the folders may differ).
+The tip error is the distance between the estimated and the true tip over the
+``ok`` rows; the bias is the mean of the error's components; the axis error is
+the angle between the estimated and the true axis.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spotnav.experiments.figures import plot_errors_by_status
+from spotnav.files import KnownPose, PoseRow
+
+__all__ = ["Evaluation", "FrameEvaluation", "evaluate_poses", "evaluation_text", "write_evaluation"]
+
+
+@dataclass(frozen=True)
+class FrameEvaluation:
+    """One frame's estimate against its truth.
+
+    Attributes
+    ----------
+    image : str
+        The file name both files share.
+    status : str
+    error_xyz_mm : ndarray, shape (3,)
+        Estimate minus truth, mm (NaN without a pose).
+    axis_error_deg : float
+        Angle between the axes, degrees (NaN without a pose or a true axis).
+    """
+
+    image: str
+    status: str
+    error_xyz_mm: np.ndarray
+    axis_error_deg: float
+
+    @property
+    def error_mm(self) -> float:
+        """Distance from the true tip, mm (NaN without a pose)."""
+        return float(np.linalg.norm(self.error_xyz_mm))
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """All frames' errors and their summary over the ``ok`` frames (NaN when there is none).
+
+    Attributes
+    ----------
+    frames : tuple of FrameEvaluation
+        In the order of the poses file.
+    counts : dict of str to int
+        Frames per status.
+    mean_mm, median_mm, p95_mm, max_mm : float
+        Tip error statistics, mm.
+    bias_mm : ndarray, shape (3,)
+        Mean error per axis (x, y, z), mm.
+    axis_mean_deg, axis_max_deg : float
+        Axis angle error, degrees.
+    """
+
+    frames: tuple[FrameEvaluation, ...]
+    counts: dict[str, int]
+    mean_mm: float
+    median_mm: float
+    p95_mm: float
+    max_mm: float
+    bias_mm: np.ndarray
+    axis_mean_deg: float
+    axis_max_deg: float
+
+
+def _by_name(names: Sequence[str], what: str) -> dict[str, int]:
+    index: dict[str, int] = {}
+    for position, name in enumerate(names):
+        key = Path(name).name
+        if key in index:
+            raise ValueError(f"{what}: the image {key} appears twice")
+        index[key] = position
+    return index
+
+
+def _listed(names: Sequence[str]) -> str:
+    return ", ".join(sorted(names)[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+
+
+def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Evaluation:
+    """Join estimates and truth on the image's file name and measure the errors.
+
+    Raises
+    ------
+    ValueError
+        Naming the images that only one of the two lists has, or an image listed twice.
+    """
+    estimated = _by_name([p.image for p in poses], "poses")
+    known = _by_name([str(t.image) for t in truth], "truth")
+    missing_truth = sorted(set(estimated) - set(known))
+    missing_pose = sorted(set(known) - set(estimated))
+    if missing_truth:
+        raise ValueError(f"no truth for {len(missing_truth)} image(s): {_listed(missing_truth)}")
+    if missing_pose:
+        raise ValueError(f"no pose row for {len(missing_pose)} image(s): {_listed(missing_pose)}")
+    frames = []
+    for name, position in estimated.items():
+        row, true = poses[position], truth[known[name]]
+        error = np.full(3, np.nan)
+        angle = float("nan")
+        if row.status == "ok" and row.tip_in_eye is not None and row.axis is not None:
+            error = row.tip_in_eye - true.tip_in_eye
+            if true.axis is not None:
+                cosine = row.axis @ true.axis / (np.linalg.norm(row.axis) * np.linalg.norm(true.axis))
+                angle = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+        frames.append(FrameEvaluation(name, row.status, error, angle))
+    ok = [f for f in frames if f.status == "ok"]
+    errors = np.array([f.error_mm for f in ok])
+    angles = np.array([f.axis_error_deg for f in ok if np.isfinite(f.axis_error_deg)])
+
+    def stat(values: np.ndarray, pick: str) -> float:
+        if len(values) == 0:
+            return float("nan")
+        return float(np.percentile(values, 95)) if pick == "p95" else float(getattr(np, pick)(values))
+
+    return Evaluation(
+        frames=tuple(frames),
+        counts=dict(Counter(f.status for f in frames).most_common()),
+        mean_mm=stat(errors, "mean"),
+        median_mm=stat(errors, "median"),
+        p95_mm=stat(errors, "p95"),
+        max_mm=stat(errors, "max"),
+        bias_mm=np.mean([f.error_xyz_mm for f in ok], axis=0) if ok else np.full(3, np.nan),
+        axis_mean_deg=stat(angles, "mean"),
+        axis_max_deg=stat(angles, "max"),
+    )
+
+
+def evaluation_text(evaluation: Evaluation) -> str:
+    """The summary as ``spotnav evaluate`` prints it."""
+    counts = ", ".join(f"{n} {status}" for status, n in evaluation.counts.items())
+    ok = evaluation.counts.get("ok", 0)
+    bias = " / ".join(f"{v:+.4f}" for v in evaluation.bias_mm)
+    return "\n".join(
+        [
+            f"frames: {len(evaluation.frames)} ({counts})",
+            f"tip error over the {ok} ok frames [mm]: mean {evaluation.mean_mm:.4f}, "
+            f"median {evaluation.median_mm:.4f}, 95th percentile {evaluation.p95_mm:.4f}, max {evaluation.max_mm:.4f}",
+            f"bias (mean error x / y / z) [mm]: {bias}",
+            f"axis error [deg]: mean {evaluation.axis_mean_deg:.3f}, max {evaluation.axis_max_deg:.3f}",
+        ]
+    )
+
+
+def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:
+    """Write ``errors.csv`` (one row per frame) and ``errors.png`` (error per frame by status) into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    table = out / "errors.csv"
+    with table.open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["image", "status", "error_mm", "error_x_mm", "error_y_mm", "error_z_mm", "axis_error_deg"])
+        for f in evaluation.frames:
+            values = [f.error_mm, *f.error_xyz_mm, f.axis_error_deg]
+            writer.writerow([f.image, f.status, *("" if not np.isfinite(v) else f"{v:.6f}" for v in values)])
+    figure = out / "errors.png"
+    plot_errors_by_status(
+        figure,
+        [f.image for f in evaluation.frames],
+        np.array([f.error_mm for f in evaluation.frames]),
+        [f.status for f in evaluation.frames],
+        f"tip error per frame: mean {evaluation.mean_mm:.4f} mm, max {evaluation.max_mm:.4f} mm over ok frames",
+    )
+    return [table, figure]
