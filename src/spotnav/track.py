@@ -68,7 +68,7 @@ def track_frame(
     predicted: PoseEstimate,
     *,
     through_insertion: bool = True,
-    max_rays: int = 1024,
+    max_rays: int = 256,
 ) -> PoseEstimate:
     """Localize the tip near a predicted pose, reading the image only around the predicted edges.
 
@@ -82,7 +82,10 @@ def track_frame(
     through_insertion : bool
         Constrain the axis through the insertion point (as method ``precise``).
     max_rays : int
-        Most rays per spot (one per two pixels of the predicted edge, at least 64).
+        Most rays per spot (one per two pixels of the predicted edge, at least
+        64). More rays do not help beyond some 250: the error left is each
+        spot's whole-edge shift, which no number of rays averages away (at
+        5000 px, 256 rays track a helix as well as 1024).
 
     Returns
     -------
@@ -217,7 +220,7 @@ class Tracker:
     smooth: bool = False
     acceleration_mm: float = 0.02
     max_jump_mm: float = 0.5
-    max_rays: int = 1024
+    max_rays: int = 256
     _last: PoseEstimate | None = field(default=None, init=False, repr=False)
     _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
     _filter: ConstantVelocityFilter | None = field(default=None, init=False, repr=False)
