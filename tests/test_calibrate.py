@@ -60,7 +60,7 @@ def test_calibration_refuses_too_few_or_degenerate_frames() -> None:
 
 
 def test_calibration_apply_keeps_the_rest() -> None:
-    result = Calibration(8.5, 0.01, 12.7, 0.02, 0.3, 0.05, 5, 900)
+    result = Calibration(8.5, 0.01, 12.7, 0.02, 0.03, 0.001, 0.3, 0.05, 5, 900)
     setup = small_setup(256)
     calibrated = result.apply(setup)
     assert calibrated.camera == setup.camera and calibrated.light == setup.light

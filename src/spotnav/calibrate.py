@@ -1,4 +1,4 @@
-"""Calibration from frames at known tip positions: the beam's edge angle and, optionally, the eye's radius.
+"""Calibration from frames at known tip positions: the beam's edge angle and, optionally, two radii.
 
 The precise method puts each spot's edge where the light is half of its full
 value, at ``instrument.edge_half_angle_deg`` from the beam's axis. A real beam's
@@ -8,7 +8,10 @@ from its beam's axis is a measurement of it. All frames' points are fitted at
 once by robust least squares, together with each three-beam frame's roll and,
 with ``fit_radius``, the retina's radius (the points are back-projected onto a
 sphere of that radius, so only the true radius puts them all on cones of one
-angle).
+angle) and, with ``fit_light_radius``, the radius of the light's emitting face
+(a light of finite size widens the edge by a distance, so by an angle that
+grows as the tip nears the retina: only the true radius puts frames at all
+heights on cones of one angle).
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from scipy.sparse import lil_matrix
 from spotnav.camera import unproject_pixels_to_sphere
 from spotnav.config import Setup
 from spotnav.detect import detect_edge_subpixel, detect_spots_otsu
-from spotnav.geometry import assign_beams, beam_axes, normalize
+from spotnav.geometry import angles_from_cone_axes, assign_beams, beam_axes, normalize
 from spotnav.localize import EdgeFrame, PoseEstimate, edge_half_angle, localize_precise_with_edges
 from spotnav.reconstruct import correlation_inflation
 
@@ -39,6 +42,7 @@ __all__ = [
 MIN_FRAMES = 3
 MIN_FRAMES_FOR_RADIUS = 5
 MIN_SPREAD_FOR_RADIUS_MM = 1.0
+MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS = 1.5
 _CONTRAST_SIGMA = 4.0
 
 
@@ -75,6 +79,8 @@ class Calibration:
         Fitted radius, or the setup's when it was not fitted.
     radius_sigma_mm : float
         NaN when the radius was not fitted.
+    light_radius_mm, light_radius_sigma_mm : float
+        Fitted light radius (or the setup's) and its uncertainty (NaN when not fitted).
     rms_before_deg, rms_after_deg : float
         RMS angle of the inlying edge points from their cones with the setup's
         values and with the fitted ones.
@@ -90,6 +96,8 @@ class Calibration:
     edge_sigma_deg: float
     radius_mm: float
     radius_sigma_mm: float
+    light_radius_mm: float
+    light_radius_sigma_mm: float
     rms_before_deg: float
     rms_after_deg: float
     frames: int
@@ -97,8 +105,10 @@ class Calibration:
     skipped: tuple[str, ...] = ()
 
     def apply(self, setup: Setup) -> Setup:
-        """The setup with the fitted edge angle (and radius) in place."""
-        instrument = replace(setup.instrument, edge_half_angle_deg=self.edge_half_angle_deg)
+        """The setup with the fitted edge angle (and radii) in place."""
+        instrument = replace(
+            setup.instrument, edge_half_angle_deg=self.edge_half_angle_deg, light_radius_mm=self.light_radius_mm
+        )
         eye = replace(setup.eye, radius_mm=self.radius_mm)
         return replace(setup, eye=eye, instrument=instrument)
 
@@ -143,23 +153,28 @@ def _frame_edges(frame: KnownFrame, setup: Setup, group: int) -> _FrameEdges | s
     )
 
 
-def _residuals(params: np.ndarray, frames: list[_FrameEdges], setup: Setup, fit_radius: bool) -> np.ndarray:
+def _residuals(
+    params: np.ndarray, frames: list[_FrameEdges], setup: Setup, fit_radius: bool, fit_light_radius: bool
+) -> np.ndarray:
+    """Edge points' angles from their cones; ``params``: edge, [radius], [light radius], rolls."""
     edge = params[0]
     radius = params[1] if fit_radius else setup.eye.radius_mm
-    rolls = params[2:] if fit_radius else params[1:]
+    light_radius = params[1 + fit_radius] if fit_light_radius else setup.instrument.light_radius_mm
+    rolls = params[1 + fit_radius + fit_light_radius :]
     instrument = setup.instrument
     out = []
     for f, frame in enumerate(frames):
         points = unproject_pixels_to_sphere(setup.camera, frame.pixels, radius)
         roll = rolls[f] if instrument.beam_count > 1 else 0.0
         axes = beam_axes(frame.axis, instrument.beam_count, instrument.beam_tilt, roll)[frame.beam_of_point]
-        rays = points - frame.tip
-        angle = np.arctan2(np.linalg.norm(np.cross(rays, axes), axis=1), np.sum(rays * axes, axis=1))
+        angle = angles_from_cone_axes(points - frame.tip, axes, light_radius)
         out.append(np.nan_to_num(angle - edge, nan=1.0))  # a point off the sphere is a gross misfit
     return np.concatenate(out)
 
 
-def calibrate_edge(frames: Sequence[KnownFrame], setup: Setup, *, fit_radius: bool = False) -> Calibration:
+def calibrate_edge(
+    frames: Sequence[KnownFrame], setup: Setup, *, fit_radius: bool = False, fit_light_radius: bool = False
+) -> Calibration:
     """Fit the edge angle (and the eye's radius) to frames at known tip positions.
 
     Parameters
@@ -170,6 +185,10 @@ def calibrate_edge(frames: Sequence[KnownFrame], setup: Setup, *, fit_radius: bo
         starting values and the "before" of the residuals.
     fit_radius : bool
         Fit ``eye.radius_mm`` too.
+    fit_light_radius : bool
+        Fit ``instrument.light_radius_mm`` too (a light of finite size widens
+        the edge more, in angle, the closer the tip; the known tips must lie at
+        distances from the retina that differ by a factor of 1.5 or more).
 
     Raises
     ------
@@ -193,9 +212,17 @@ def calibrate_edge(frames: Sequence[KnownFrame], setup: Setup, *, fit_radius: bo
                 f"the known tips spread {spread:.2f} mm in x, y; fitting the radius needs at least "
                 f"{MIN_SPREAD_FOR_RADIUS_MM:g} mm (degenerate poses)"
             )
+    if fit_light_radius:
+        heights = np.array([e.tip[2] for e in edges])
+        if np.max(heights) < MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS * max(float(np.min(heights)), 1e-9):
+            raise ValueError(
+                f"the known tips lie {np.min(heights):.2f}-{np.max(heights):.2f} mm above the pole; "
+                f"fitting the light's radius needs a ratio of {MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS:g} or more"
+            )
     start = [edge_half_angle(setup)] + ([setup.eye.radius_mm] if fit_radius else [])
+    start += [setup.instrument.light_radius_mm] if fit_light_radius else []
     start += [e.roll for e in edges] if setup.instrument.beam_count > 1 else []
-    args = (edges, setup, fit_radius)
+    args = (edges, setup, fit_radius, fit_light_radius)
     before = _residuals(np.array(start), *args)
     scale = max(1.4826 * float(np.median(np.abs(before - np.median(before)))), 1e-6)
     robust = least_squares(_residuals, start, args=args, loss="soft_l1", f_scale=scale, x_scale="jac")
@@ -212,6 +239,8 @@ def calibrate_edge(frames: Sequence[KnownFrame], setup: Setup, *, fit_radius: bo
         edge_sigma_deg=float(np.degrees(sigmas[0])),
         radius_mm=float(robust.x[1]) if fit_radius else setup.eye.radius_mm,
         radius_sigma_mm=float(sigmas[1]) if fit_radius else float("nan"),
+        light_radius_mm=float(robust.x[1 + fit_radius]) if fit_light_radius else setup.instrument.light_radius_mm,
+        light_radius_sigma_mm=float(sigmas[1 + fit_radius]) if fit_light_radius else float("nan"),
         rms_before_deg=float(np.degrees(np.sqrt(np.mean(before[inliers] ** 2)))),
         rms_after_deg=float(np.degrees(np.sqrt(np.mean(robust.fun[inliers] ** 2)))),
         frames=len(edges),
@@ -254,7 +283,7 @@ def _joint_residuals(params: np.ndarray, frames: list[_FrameEdges], setup: Setup
         roll = block[3] if per_frame == 4 else 0.0
         axes = beam_axes(axis, instrument.beam_count, instrument.beam_tilt, roll)[frame.beam_of_point]
         rays = unproject_pixels_to_sphere(setup.camera, frame.pixels, radius) - tip
-        angle = np.arctan2(np.linalg.norm(np.cross(rays, axes), axis=1), np.sum(rays * axes, axis=1))
+        angle = angles_from_cone_axes(rays, axes, instrument.light_radius_mm)
         out.append(np.nan_to_num(angle - edge, nan=1.0))
     return np.concatenate(out)
 

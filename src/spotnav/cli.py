@@ -244,7 +244,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
             print(f"spotnav: warning: {error}; left out", file=sys.stderr)
             continue
         frames.append(KnownFrame(str(pose.image), image, pose.tip_in_eye, pose.axis))
-    result = calibrate_edge(frames, setup, fit_radius=args.fit_radius)
+    result = calibrate_edge(frames, setup, fit_radius=args.fit_radius, fit_light_radius=args.fit_light_radius)
     for reason in result.skipped:
         print(f"spotnav: warning: {reason}; left out", file=sys.stderr)
     lines = [
@@ -253,6 +253,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     ]
     if args.fit_radius:
         lines.append(f"eye.radius_mm = {result.radius_mm:.4f} +- {result.radius_sigma_mm:.4f} (1 sigma)")
+    if args.fit_light_radius:
+        sigma = result.light_radius_sigma_mm
+        lines.append(f"instrument.light_radius_mm = {result.light_radius_mm:.4f} +- {sigma:.4f} (1 sigma)")
     lines.append(
         f"RMS angle of the edge points from their cones: {result.rms_before_deg:.4f} deg before, "
         f"{result.rms_after_deg:.4f} deg after"
@@ -395,6 +398,11 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument("--scene", required=True, help="setup TOML")
     cal.add_argument("--poses", required=True, help="known.csv: image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z]")
     cal.add_argument("--fit-radius", action="store_true", help="fit eye.radius_mm too")
+    cal.add_argument(
+        "--fit-light-radius",
+        action="store_true",
+        help="fit instrument.light_radius_mm too (known tips at heights differing by 1.5x or more)",
+    )
     cal.add_argument("--out", required=True, help="the calibrated setup TOML to write")
     cal.add_argument("images", nargs="*", metavar="IMAGE", help="images to use (default: all in known.csv)")
     cal.set_defaults(run=_cmd_calibrate)

@@ -169,6 +169,11 @@ class Instrument:
         which the detected edge (the level halfway between the spot's plateau
         and the background) sits, in (0, 45) degrees. ``None``: that of a
         Cycles spot of ``beam_half_angle_deg`` with Blender's default blend 0.15.
+    light_radius_mm : float
+        The precise method's edge model: radius of the light's emitting face
+        (a fibre's core), in [0, 1) mm. The edge is the cone of
+        ``edge_half_angle_deg`` widened by this much: its apex lies
+        ``light_radius_mm / tan(edge)`` behind the tip. 0: a point source.
     """
 
     insertion_point_mm: tuple[float, float, float] = (0.0, 6.0, 20.0)
@@ -177,6 +182,7 @@ class Instrument:
     beam_tilt_deg: float = 15.0
     height_correction: float = 1.0
     edge_half_angle_deg: float | None = None
+    light_radius_mm: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -196,6 +202,8 @@ class Instrument:
         if self.edge_half_angle_deg is not None:
             key = "instrument.edge_half_angle_deg"
             _in_range(key, _number(key, self.edge_half_angle_deg), 0.0, 45.0, low_open=True, high_open=True)
+        key = "instrument.light_radius_mm"
+        _in_range(key, _number(key, self.light_radius_mm), 0.0, 1.0, high_open=True)
 
     @property
     def beam_half_angle(self) -> float:
@@ -479,6 +487,7 @@ beam_count = 1                # 1 or 3
 beam_tilt_deg = 15.0          # tilt of each beam from the axis when beam_count = 3
 height_correction = 1.0       # thesis method only: section 5.5 height factor, 1 = none
 # edge_half_angle_deg = 8.656 # precise method's edge model (default: beta with Blender's blend 0.15)
+# light_radius_mm = 0.0       # precise method's edge model: the light's emitting radius (0 = a point)
 
 [light]                       # simulator only, Blender's conventions
 power_w = 1.0                 # radiant intensity power_w / (4 pi) W/sr on the axis

@@ -420,6 +420,7 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
         "roll": roll,
         "edge_sigma": EDGE_MODEL_SIGMA,
         "contour_sigma": EDGE_CONTOUR_SIGMA,
+        "light_radius": instrument.light_radius_mm,
     }
     edge_angle = edge_half_angle(setup)
     constrained = fit_cones(points, beams, edge_angle, insertion_in_eye=instrument.insertion_in_eye, **common)

@@ -263,15 +263,20 @@ def _cone_residuals(
     beam_count: int,
     tilt: float,
     insertion_in_eye: np.ndarray | None,
+    light_radius: float,
 ) -> np.ndarray:
-    """Angle of each point from its beam's cone, for parameter sets ``params`` (K, P): shape (K, N)."""
+    """Angle of each point from its beam's cone, for parameter sets ``params`` (K, P): shape (K, N).
+
+    The cone is widened by ``light_radius`` (mm): a point's distance from the
+    beam's axis less that radius, against its distance along the axis.
+    """
     axes = _instrument_axes(params, insertion_in_eye)
     rolls = params[:, -1] if beam_count > 1 else np.zeros(len(params))
     beams = axes[:, None, :] if beam_count == 1 else beam_axes(axes, beam_count, tilt, rolls)
     rays = points[None, :, :] - params[:, None, :3]
     along = np.einsum("knj,knj->kn", rays, beams[:, beam_of_point])
     across = np.sqrt(np.maximum(np.einsum("knj,knj->kn", rays, rays) - along**2, 0.0))
-    return np.arctan2(across, along) - edge_angle
+    return np.arctan2(across - light_radius, along) - edge_angle
 
 
 def _residuals_and_jacobian(params: np.ndarray, *args: object) -> tuple[np.ndarray, np.ndarray]:
@@ -332,6 +337,7 @@ def fit_cones(
     insertion_in_eye: np.ndarray | None = None,
     edge_sigma: float = 0.0,
     contour_sigma: float = 0.0,
+    light_radius: float = 0.0,
     solver: str = "trust-region",
 ) -> ConeFit:
     """Fit one instrument pose to edge points on the retina, by robust nonlinear least squares.
@@ -367,6 +373,9 @@ def fit_cones(
         Uncertainty of each contour's edge as a whole, radians: a shift of one
         spot's whole edge (texture and vessels under it) that its own points
         cannot show, independent between spots. Added to the covariance too.
+    light_radius : float
+        Radius of the light's emitting face, mm: each cone is widened by it
+        (``instrument.light_radius_mm``).
     solver : str
         ``trust-region`` (SciPy's, for any start) or ``gauss-newton`` (a few
         fixed steps, iteratively reweighted: fast, for a start close to the
@@ -381,7 +390,7 @@ def fit_cones(
         start += list(axis_rotations(axis))
     if beam_count > 1:
         start.append(roll)
-    args = (points, beam_of_point, edge_angle, beam_count, tilt, insertion_in_eye)
+    args = (points, beam_of_point, edge_angle, beam_count, tilt, insertion_in_eye, light_radius)
     first = _cone_residuals(np.array([start]), *args)[0]
     scale = max(1.4826 * float(np.median(np.abs(first - np.median(first)))), 1e-6)
     if solver == "trust-region":

@@ -105,8 +105,9 @@ def track_frame(
     points = []
     for beam_axis in axes:
         try:
+            apex_in_eye = predicted.tip_in_eye - beam_axis * instrument.light_radius_mm / np.tan(edge_angle)
             curve_in_eye = cone_sphere_curve(
-                predicted.tip_in_eye, beam_axis, edge_angle, setup.eye.center_in_eye, setup.eye.radius_mm, _CURVE_POINTS
+                apex_in_eye, beam_axis, edge_angle, setup.eye.center_in_eye, setup.eye.radius_mm, _CURVE_POINTS
             )
         except ValueError:
             return PoseEstimate("unreliable", detail="the predicted tip lies outside the eye")
@@ -135,6 +136,7 @@ def track_frame(
         insertion_in_eye=instrument.insertion_in_eye if through_insertion else None,
         edge_sigma=EDGE_MODEL_SIGMA,
         contour_sigma=EDGE_CONTOUR_SIGMA,
+        light_radius=instrument.light_radius_mm,
         solver="gauss-newton",
     )
     return judge_fit(fit, np.concatenate(points), setup, spots=instrument.beam_count)
