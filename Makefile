@@ -4,7 +4,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 
-.PHONY: run test bench lint clean
+.PHONY: run test bench validation lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +27,23 @@ test: $(TEST_STAMP)
 bench: $(TEST_STAMP)
 	$(BIN)/python -m pytest benchmarks --benchmark-columns=median,iqr,rounds --benchmark-sort=name
 	$(BIN)/spotnav bench
+
+CYCLES_DEV ?= ../shared/cycles-dev
+VALIDATION := results/validation
+
+validation: $(STAMP)
+	@test -d $(CYCLES_DEV) || { echo "no Cycles frames at $(CYCLES_DEV) (make validation CYCLES_DEV=...)"; exit 2; }
+	@for set in b1 b3; do \
+	  d=$(CYCLES_DEV)/$$set; o=$(VALIDATION)/$$set; mkdir -p $$o; \
+	  $(BIN)/spotnav calibrate --scene $$d/setup.toml --poses $$d/known.csv --fit-light-radius --height-correction \
+	    --out $$o/calibrated.toml > $$o/calibrate.txt || exit 1; \
+	  for run in "precise calibrated" "thesis calibrated" "thesis setup"; do \
+	    set -- $$run; scene=$$o/calibrated.toml; [ $$2 = setup ] && scene=$$d/setup.toml; \
+	    $(BIN)/spotnav localize --scene $$scene --method $$1 $$d/test_*.png --out $$o/poses_$$1_$$2.csv 2>/dev/null || exit 1; \
+	    echo "== $$set, $$1, $$2:"; \
+	    $(BIN)/spotnav evaluate $$o/poses_$$1_$$2.csv $$d/truth.csv --out $$o/$$1_$$2 2>/dev/null || exit 1; \
+	  done; \
+	done
 
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check src tests benchmarks

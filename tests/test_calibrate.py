@@ -34,6 +34,17 @@ def test_calibration_round_trip_edge_angle() -> None:
     assert calibrated.instrument.edge_half_angle_deg == result.edge_half_angle_deg
 
 
+def test_a_point_light_calibrates_to_no_light_radius() -> None:
+    # spotnav's renderer has a point light: fitting the light's radius must not invent one (it widens
+    # the edge by 0.02 mm in the Cycles frames, a tenth of a degree at 5 mm).
+    setup = small_setup(1024, blend=0.3)
+    result = calibrate_edge(known_frames(setup), setup, fit_light_radius=True)
+    assert abs(result.light_radius_mm) < max(4 * result.light_radius_sigma_mm, 0.003)
+    truth = np.degrees(edge_angle_of_blend(setup.instrument.beam_half_angle, 0.3))
+    assert result.edge_half_angle_deg == pytest.approx(truth, abs=0.05)
+    assert result.apply(setup).instrument.light_radius_mm == result.light_radius_mm
+
+
 def test_calibration_round_trip_radius_three_beams() -> None:
     # The true eye is 13.5 mm, the setup says 12.5: the joint fit finds the radius within 0.1 mm.
     base = small_setup(1024, blend=0.15)
@@ -54,6 +65,8 @@ def test_calibration_refuses_too_few_or_degenerate_frames() -> None:
     repeated = [KnownFrame(f"f{i}", renderer.render(same, seed=i), same.tip_in_eye) for i in range(5)]
     with pytest.raises(ValueError, match="degenerate"):
         calibrate_edge(repeated, setup, fit_radius=True)
+    with pytest.raises(ValueError, match=r"4\.00-4\.00 mm above the pole"):
+        calibrate_edge(repeated, setup, fit_light_radius=True)
     dark = [KnownFrame("dark", renderer.render(same, power_w=0.0), same.tip_in_eye), *frames]
     with pytest.raises(ValueError, match="dark: 0 whole spots"):
         calibrate_edge(dark, setup)

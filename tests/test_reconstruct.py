@@ -126,13 +126,18 @@ def test_height_correction_scales_the_triangle_about_the_ellipse_centre() -> Non
     z=st.floats(3, 6),
     roll=st.floats(-np.pi, np.pi),
     beams=st.sampled_from([1, 3]),
+    light=st.sampled_from([0.0, 0.02, 0.1]),
 )
-def test_fit_cones_recovers_the_pose_from_exact_curves(x: float, y: float, z: float, roll: float, beams: int) -> None:
-    # Points on the exact cone-sphere curves, a start 0.1 mm off: the fit lands on the truth.
+def test_fit_cones_recovers_the_pose_from_exact_curves(
+    x: float, y: float, z: float, roll: float, beams: int, light: float
+) -> None:
+    # Points on the exact cone-sphere curves (each cone widened by a light of radius `light`: its apex
+    # lies light / tan(beta) behind the tip), a start 0.1 mm off: the fit lands on the truth.
     tilt = np.radians(15.0)
     pose = InstrumentPose.through_insertion([x, y, z], INSERTION)
     axes = beam_axes(pose.axis, beams, tilt, roll if beams == 3 else 0.0)
-    curves = [cone_sphere_curve(pose.tip_in_eye, a, BETA, CENTER, 12.5, count=200) for a in axes]
+    behind = light / np.tan(BETA)
+    curves = [cone_sphere_curve(pose.tip_in_eye - behind * a, a, BETA, CENTER, 12.5, count=200) for a in axes]
     fit = fit_cones(
         curves,
         list(range(beams)),
@@ -143,6 +148,7 @@ def test_fit_cones_recovers_the_pose_from_exact_curves(x: float, y: float, z: fl
         axis=pose.axis,
         roll=(roll + 0.05) if beams == 3 else 0.0,
         insertion_in_eye=INSERTION,
+        light_radius=light,
     )
     np.testing.assert_allclose(fit.tip_in_eye, pose.tip_in_eye, atol=1e-6)
     np.testing.assert_allclose(fit.axis, pose.axis, atol=1e-6)

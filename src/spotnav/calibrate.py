@@ -27,14 +27,22 @@ from spotnav.camera import unproject_pixels_to_sphere
 from spotnav.config import Setup
 from spotnav.detect import detect_edge_subpixel, detect_spots_otsu
 from spotnav.geometry import angles_from_cone_axes, assign_beams, beam_axes, normalize
-from spotnav.localize import EdgeFrame, PoseEstimate, edge_half_angle, localize_precise_with_edges
+from spotnav.localize import (
+    EdgeFrame,
+    PoseEstimate,
+    edge_half_angle,
+    fit_height_correction,
+    localize_precise_with_edges,
+)
 from spotnav.reconstruct import correlation_inflation
 
 __all__ = [
     "Calibration",
+    "HeightCorrection",
     "KnownFrame",
     "RadiusSelfCalibration",
     "calibrate_edge",
+    "calibrate_height_correction",
     "prepare_self_calibration",
     "self_calibrate_radius",
 ]
@@ -42,7 +50,7 @@ __all__ = [
 MIN_FRAMES = 3
 MIN_FRAMES_FOR_RADIUS = 5
 MIN_SPREAD_FOR_RADIUS_MM = 1.0
-MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS = 1.5
+MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS = 1.2
 _CONTRAST_SIGMA = 4.0
 
 
@@ -234,12 +242,15 @@ def calibrate_edge(
     covariance = variance * correlation_inflation(robust.fun[inliers], groups[inliers])
     covariance = covariance * np.linalg.pinv(jacobian.T @ jacobian)
     sigmas = np.sqrt(np.diag(covariance))
+    light_radius = setup.instrument.light_radius_mm
+    if fit_light_radius:  # a light smaller than the fit can tell may come out a little below zero: a point
+        light_radius = max(float(robust.x[1 + fit_radius]), 0.0)
     return Calibration(
         edge_half_angle_deg=float(np.degrees(robust.x[0])),
         edge_sigma_deg=float(np.degrees(sigmas[0])),
         radius_mm=float(robust.x[1]) if fit_radius else setup.eye.radius_mm,
         radius_sigma_mm=float(sigmas[1]) if fit_radius else float("nan"),
-        light_radius_mm=float(robust.x[1 + fit_radius]) if fit_light_radius else setup.instrument.light_radius_mm,
+        light_radius_mm=light_radius,
         light_radius_sigma_mm=float(sigmas[1 + fit_radius]) if fit_light_radius else float("nan"),
         rms_before_deg=float(np.degrees(np.sqrt(np.mean(before[inliers] ** 2)))),
         rms_after_deg=float(np.degrees(np.sqrt(np.mean(robust.fun[inliers] ** 2)))),
@@ -247,6 +258,47 @@ def calibrate_edge(
         points=int(inliers.sum()),
         skipped=tuple(skipped),
     )
+
+
+@dataclass(frozen=True)
+class HeightCorrection:
+    """The thesis method's height correction (section 5.5) from frames at known tips.
+
+    Attributes
+    ----------
+    factor : float
+        Mean of the frames' factors (``instrument.height_correction``).
+    spread : float
+        Their standard deviation.
+    frames : int
+        Frames used.
+    skipped : tuple of str
+        Frames left out, with the reason.
+    """
+
+    factor: float
+    spread: float
+    frames: int
+    skipped: tuple[str, ...] = ()
+
+
+def calibrate_height_correction(frames: Sequence[KnownFrame], setup: Setup) -> HeightCorrection:
+    """Section 5.5's factor averaged over frames at known tips (:func:`spotnav.localize.fit_height_correction`).
+
+    Raises
+    ------
+    ValueError
+        When no frame gives a factor.
+    """
+    factors, skipped = [], []
+    for frame in frames:
+        try:
+            factors.append(fit_height_correction(frame.image, setup, frame.tip_in_eye))
+        except ValueError as error:
+            skipped.append(f"{frame.name}: {error}")
+    if not factors:
+        raise ValueError(f"no frame gives a height correction ({'; '.join(skipped)})")
+    return HeightCorrection(float(np.mean(factors)), float(np.std(factors)), len(factors), tuple(skipped))
 
 
 MIN_FRAMES_FOR_SELF_CALIBRATION = 20

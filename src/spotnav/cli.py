@@ -19,7 +19,13 @@ import numpy as np
 from tqdm import tqdm
 
 from spotnav import __version__
-from spotnav.calibrate import KnownFrame, calibrate_edge, prepare_self_calibration, self_calibrate_radius
+from spotnav.calibrate import (
+    KnownFrame,
+    calibrate_edge,
+    calibrate_height_correction,
+    prepare_self_calibration,
+    self_calibrate_radius,
+)
 from spotnav.config import EXAMPLE_SETUP, Setup
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.experiments.bench import bench_markdown, run_bench
@@ -260,11 +266,21 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         f"RMS angle of the edge points from their cones: {result.rms_before_deg:.4f} deg before, "
         f"{result.rms_after_deg:.4f} deg after"
     )
+    calibrated = result.apply(setup)
+    if args.height_correction:
+        height = calibrate_height_correction(frames, setup)
+        for reason in height.skipped:
+            print(f"spotnav: warning: {reason}; left out of the height correction", file=sys.stderr)
+        lines.append(
+            f"instrument.height_correction = {height.factor:.4f} (spread {height.spread:.4f}, "
+            f"{height.frames} frames; the thesis method's section 5.5)"
+        )
+        calibrated = replace(calibrated, instrument=replace(calibrated.instrument, height_correction=height.factor))
     print("\n".join(lines))
     header = f"written by spotnav calibrate from {args.scene} and {args.poses}\n" + "\n".join(lines)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(setup_to_toml(result.apply(setup), header), encoding="utf-8")
+    out.write_text(setup_to_toml(calibrated, header), encoding="utf-8")
     print(f"wrote {out}", file=sys.stderr)
     return 0
 
@@ -399,9 +415,14 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument("--poses", required=True, help="known.csv: image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z]")
     cal.add_argument("--fit-radius", action="store_true", help="fit eye.radius_mm too")
     cal.add_argument(
+        "--height-correction",
+        action="store_true",
+        help="also fit the thesis method's instrument.height_correction (section 5.5)",
+    )
+    cal.add_argument(
         "--fit-light-radius",
         action="store_true",
-        help="fit instrument.light_radius_mm too (known tips at heights differing by 1.5x or more)",
+        help="fit instrument.light_radius_mm too (known tips at heights differing by 1.2x or more)",
     )
     cal.add_argument("--out", required=True, help="the calibrated setup TOML to write")
     cal.add_argument("images", nargs="*", metavar="IMAGE", help="images to use (default: all in known.csv)")
