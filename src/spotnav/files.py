@@ -167,6 +167,18 @@ def write_poses_csv(path: str | Path, rows: Iterable[Sequence[str]], columns: Se
         writer.writerows(rows)
 
 
+def _read_csv_rows(path: Path, needed: Sequence[str]) -> list[dict[str, str]]:
+    """A CSV file's rows as dicts; ValueError naming the file when it cannot be read or lacks a column."""
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.DictReader(handle))
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read: {error.strerror}") from None
+    if not rows or any(name not in rows[0] for name in needed):
+        raise ValueError(f"{path}: needs a header with the columns {', '.join(needed)} and at least one row")
+    return rows
+
+
 @dataclass(frozen=True)
 class KnownPose:
     """One row of ``known.csv``: an image at a known tip position (and, optionally, axis)."""
@@ -187,14 +199,7 @@ def read_known_poses(path: str | Path) -> list[KnownPose]:
         Naming the file and the row for a missing column or a bad number.
     """
     path = Path(path)
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = list(csv.DictReader(handle))
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read: {error.strerror}") from None
-    needed = ["image", "x_mm", "y_mm", "z_mm"]
-    if not rows or any(name not in rows[0] for name in needed):
-        raise ValueError(f"{path}: needs a header with the columns {', '.join(needed)} and at least one row")
+    rows = _read_csv_rows(path, ("image", "x_mm", "y_mm", "z_mm"))
     has_axis = all(f"dir_{k}" in rows[0] for k in "xyz")
     poses = []
     for number, row in enumerate(rows, start=2):
@@ -232,14 +237,8 @@ def read_poses_csv(path: str | Path) -> list[PoseRow]:
         Naming the file and the line for a missing column, a bad number or an ``ok`` row without a pose.
     """
     path = Path(path)
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = list(csv.DictReader(handle))
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read: {error.strerror}") from None
     needed = POSES_COLUMNS[:8]
-    if not rows or any(name not in rows[0] for name in needed):
-        raise ValueError(f"{path}: needs a header with the columns {', '.join(needed)} and at least one row")
+    rows = _read_csv_rows(path, needed)
     parsed = []
     for number, row in enumerate(rows, start=2):
         values = [row[k] for k in needed[2:]]
