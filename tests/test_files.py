@@ -11,6 +11,8 @@ from spotnav.config import Bump, Instrument, Setup, SetupError, World, setup_fro
 from spotnav.files import (
     POSES_COLUMNS,
     ImageReadError,
+    SequenceWriter,
+    iter_frames,
     pose_row,
     read_image,
     read_known_poses,
@@ -104,3 +106,18 @@ def test_read_known_poses(tmp_path: Path) -> None:
         read_known_poses(tmp_path / "bad.csv")
     with pytest.raises(ValueError, match="cannot read"):
         read_known_poses(tmp_path / "missing.csv")
+
+
+@pytest.mark.parametrize("ring", [0, 2])
+def test_video_frames_decode_exactly_and_a_ring_reuses_its_buffers(tmp_path: Path, ring: int) -> None:
+    rng = np.random.default_rng(3)
+    frames = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(4)]
+    with SequenceWriter(tmp_path / "clip.mkv", fps=30.0) as writer:
+        for index, rgb in enumerate(frames):
+            writer.write(index, rgb)
+    decoded = []
+    for frame in iter_frames(str(tmp_path / "clip.mkv"), ring=ring):
+        np.testing.assert_array_equal(frame.pixels, frames[frame.index])  # lossless, as handed over
+        decoded.append(frame.pixels)
+    assert len(decoded) == 4
+    assert (decoded[0] is decoded[2]) == (ring == 2) and decoded[0] is not decoded[1]

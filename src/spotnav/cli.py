@@ -148,7 +148,7 @@ def _render_sequence(args: argparse.Namespace, setup: Setup) -> int:
 def _cmd_track(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
     tracker = Tracker(setup, through_insertion=args.method == "precise", smooth=args.smooth)
-    frames = iter_frames(args.source)
+    frames = iter_frames(args.source, ring=2)  # the tracker keeps no image
     server = PoseServer(args.igtl, args.igtl_wait) if args.igtl is not None else None
     if server is not None:
         state = "connected" if server.connected else "waiting for a client"

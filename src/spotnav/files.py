@@ -340,8 +340,18 @@ def _sequence_files(source: str) -> list[str] | None:
     return None
 
 
-def iter_frames(source: str) -> Iterator[Frame]:
+def iter_frames(source: str, *, ring: int = 0) -> Iterator[Frame]:
     """Decode a sequence in order: a folder or glob of images, a video file, or a camera index.
+
+    Parameters
+    ----------
+    source : str
+    ring : int
+        Decode video and camera frames into a ring of this many buffers, as a
+        camera driver does: a frame's pixels are then overwritten ``ring``
+        frames later (copy them to keep them). Fresh buffers for every frame
+        (0, the default) cost a large allocation each, whose zeroing evicts
+        the caches the localizer runs from.
 
     Raises
     ------
@@ -373,14 +383,20 @@ def iter_frames(source: str) -> Iterator[Frame]:
         raise ImageReadError(f"{source}: no such file, folder or camera")
     if not capture.isOpened():
         raise ImageReadError(f"{source}: cannot open the video or camera")
+    if ring < 0:
+        raise ValueError(f"ring must be at least 0, got {ring}")
+    buffers: list[np.ndarray | None] = [None] * max(ring, 1)
+    decoded: np.ndarray | None = None
     try:
         index = 0
         while True:
             start = time.perf_counter()
-            ok, bgr = capture.read()
+            ok, decoded = capture.read(decoded if ring else None)
             if not ok:
                 return
-            pixels = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            slot = index % len(buffers)
+            pixels = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=buffers[slot] if ring else None)
+            buffers[slot] = pixels
             yield Frame(index, "", pixels, 1000 * (time.perf_counter() - start))
             index += 1
     finally:
