@@ -121,3 +121,8 @@ def test_video_frames_decode_exactly_and_a_ring_reuses_its_buffers(tmp_path: Pat
         decoded.append(frame.pixels)
     assert len(decoded) == 4
     assert (decoded[0] is decoded[2]) == (ring == 2) and decoded[0] is not decoded[1]
+
+
+def test_a_negative_ring_is_refused_for_any_source(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="ring must be at least 0, got -1"):
+        next(iter_frames(str(tmp_path), ring=-1))

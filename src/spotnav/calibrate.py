@@ -195,8 +195,9 @@ def calibrate_edge(
         Fit ``eye.radius_mm`` too.
     fit_light_radius : bool
         Fit ``instrument.light_radius_mm`` too (a light of finite size widens
-        the edge more, in angle, the closer the tip; the known tips must lie at
-        distances from the retina that differ by a factor of 1.5 or more).
+        the edge more, in angle, the closer the tip; the known tips' heights
+        above the pole must differ by a factor of
+        ``MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS`` or more).
 
     Raises
     ------

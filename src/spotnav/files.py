@@ -359,6 +359,8 @@ def iter_frames(source: str, *, ring: int = 0) -> Iterator[Frame]:
         If ``source`` names nothing that can be read (an unreadable image
         inside a folder yields a :class:`Frame` with its ``error`` instead).
     """
+    if ring < 0:
+        raise ValueError(f"ring must be at least 0, got {ring}")
     files = _sequence_files(source)
     if files is not None:
         if not files:
@@ -383,8 +385,6 @@ def iter_frames(source: str, *, ring: int = 0) -> Iterator[Frame]:
         raise ImageReadError(f"{source}: no such file, folder or camera")
     if not capture.isOpened():
         raise ImageReadError(f"{source}: cannot open the video or camera")
-    if ring < 0:
-        raise ValueError(f"ring must be at least 0, got {ring}")
     buffers: list[np.ndarray | None] = [None] * max(ring, 1)
     decoded: np.ndarray | None = None
     try:
@@ -395,8 +395,9 @@ def iter_frames(source: str, *, ring: int = 0) -> Iterator[Frame]:
             if not ok:
                 return
             slot = index % len(buffers)
-            pixels = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=buffers[slot] if ring else None)
-            buffers[slot] = pixels
+            pixels = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=buffers[slot])
+            if ring:
+                buffers[slot] = pixels
             yield Frame(index, "", pixels, 1000 * (time.perf_counter() - start))
             index += 1
     finally:

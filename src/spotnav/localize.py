@@ -48,8 +48,6 @@ from spotnav.reconstruct import (
 )
 
 __all__ = [
-    "EDGE_CONTOUR_SIGMA",
-    "EDGE_MODEL_SIGMA",
     "METHODS",
     "MIN_EDGE_POINTS",
     "STATUSES",
@@ -57,6 +55,7 @@ __all__ = [
     "PoseEstimate",
     "check_image_size",
     "edge_half_angle",
+    "edge_model_options",
     "fit_height_correction",
     "judge_fit",
     "localize",
@@ -280,6 +279,15 @@ def edge_half_angle(setup: Setup) -> float:
     return edge_angle_of_blend(instrument.beam_half_angle, DEFAULT_BLEND)
 
 
+def edge_model_options(setup: Setup) -> dict[str, float]:
+    """The edge model's keywords for :func:`spotnav.reconstruct.fit_cones`: its uncertainties and the light's radius."""
+    return {
+        "edge_sigma": EDGE_MODEL_SIGMA,
+        "contour_sigma": EDGE_CONTOUR_SIGMA,
+        "light_radius": setup.instrument.light_radius_mm,
+    }
+
+
 def _beam_assignment(solution: _ThesisSolution, axis: np.ndarray, setup: Setup) -> tuple[list[int], float] | None:
     """Which beam made each spot, and the starting roll, from the candidates' cone axes (None if unclear)."""
     if setup.instrument.beam_count == 1:
@@ -418,9 +426,7 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
         "tip_in_eye": start.tip_in_eye,
         "axis": start.axis,
         "roll": roll,
-        "edge_sigma": EDGE_MODEL_SIGMA,
-        "contour_sigma": EDGE_CONTOUR_SIGMA,
-        "light_radius": instrument.light_radius_mm,
+        **edge_model_options(setup),
     }
     edge_angle = edge_half_angle(setup)
     constrained = fit_cones(points, beams, edge_angle, insertion_in_eye=instrument.insertion_in_eye, **common)

@@ -26,12 +26,11 @@ from spotnav.config import Setup
 from spotnav.detect import detect_edge_along_rays, edge_window_px, rays_through_curve
 from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
 from spotnav.localize import (
-    EDGE_CONTOUR_SIGMA,
-    EDGE_MODEL_SIGMA,
     MIN_EDGE_POINTS,
     PoseEstimate,
     check_image_size,
     edge_half_angle,
+    edge_model_options,
     judge_fit,
     localize_precise,
 )
@@ -134,10 +133,8 @@ def track_frame(
         axis=predicted.axis,
         roll=predicted.roll,
         insertion_in_eye=instrument.insertion_in_eye if through_insertion else None,
-        edge_sigma=EDGE_MODEL_SIGMA,
-        contour_sigma=EDGE_CONTOUR_SIGMA,
-        light_radius=instrument.light_radius_mm,
         solver="gauss-newton",
+        **edge_model_options(setup),
     )
     return judge_fit(fit, np.concatenate(points), setup, spots=instrument.beam_count)
 
