@@ -275,4 +275,6 @@ def test_bench_prints_every_stage_and_the_tracking_ratio(capsys: pytest.CaptureF
     out = capsys.readouterr().out
     for stage in ("render", "thesis, full frame", "precise, full frame", "tracking (region of interest)"):
         assert f"| 512 | {stage} |" in out
+    memory_row = next(line for line in out.splitlines() if line.startswith("| 512 | tracking, frames from memory |"))
+    assert memory_row.endswith("| 5 |")  # the 6 frames tracked again from memory, the first one acquired
     assert "tracking takes" in out

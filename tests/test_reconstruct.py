@@ -81,12 +81,13 @@ def test_exact_on_a_plane(x: float, y: float, z: float, tilt: float, azimuth: fl
 @given(x=st.floats(-2.5, 2.5), y=st.floats(-2.5, 2.5), z=st.floats(3, 6))
 def test_sphere_curve_within_the_planar_approximation(x: float, y: float, z: float) -> None:
     # On the sphere the thesis's tangent-plane ellipse is an approximation: over the
-    # working volume it costs at most 0.025 mm even on an exact contour.
+    # working volume it costs at most 0.026 mm even on an exact contour (0.0259 mm at its
+    # worst, the corner (0, 2.5, 6) highest above the retina and nearest the insertion point).
     pose = InstrumentPose.through_insertion([x, y, z], INSERTION)
     points = cone_sphere_curve(pose.tip_in_eye, pose.axis, BETA, CENTER, 12.5, count=1000)
     candidates = apex_candidates(points, sphere_normal(points, CENTER), BETA)
     index, misalignment = choose_by_insertion(candidates, INSERTION)
-    assert np.linalg.norm(candidates.apexes[index] - pose.tip_in_eye) < 0.025
+    assert np.linalg.norm(candidates.apexes[index] - pose.tip_in_eye) < 0.026
     assert misalignment < np.radians(1.0)
 
 

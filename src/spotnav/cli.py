@@ -228,7 +228,9 @@ def _cmd_localize(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     if any(size < 128 for size in args.sizes):
         raise UsageError(f"--sizes must be at least 128 px, got {' '.join(map(str, args.sizes))}")
-    rows = run_bench(args.sizes, frames=args.frames, beams=args.beams, full_every=args.full_every)
+    rows = run_bench(
+        args.sizes, frames=args.frames, beams=args.beams, full_every=args.full_every, memory_mb=args.memory_mb
+    )
     print(bench_markdown(rows))
     return 0
 
@@ -408,6 +410,12 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--frames", type=int, default=100, help="consecutive helix frames per size (default 100)")
     bench.add_argument("--beams", type=int, choices=[1, 3], default=1)
     bench.add_argument("--full-every", type=int, default=5, help="time the full-frame methods every Nth frame")
+    bench.add_argument(
+        "--memory-mb",
+        type=float,
+        default=4096.0,
+        help="keep this much of the rendered frames to track again from memory, as from a camera (default 4096)",
+    )
     bench.set_defaults(run=_cmd_bench)
 
     cal = commands.add_parser("calibrate", help="fit the edge angle (and the eye's radius) from known poses")

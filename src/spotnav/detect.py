@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.ndimage import median_filter
+from numpy.lib.stride_tricks import sliding_window_view
 
 __all__ = [
     "Spot",
@@ -335,18 +335,23 @@ def detect_edge_along_rays(
     finite = np.all(np.isfinite(profiles), axis=1)
     if not finite.any():
         return SpotEdge(np.empty((0, 2)), np.empty(0), float("nan"), crop.saturated, rays)
-    mean_profile = np.median(profiles[finite][:: 1 + int(np.sum(finite)) // _PROFILE_RAYS], axis=0)
+    stride = 1 + int(np.sum(finite)) // _PROFILE_RAYS
+    mean_profile = np.median(profiles[::stride][finite[::stride]], axis=0)
     mean_slope = -np.gradient(_smooth_rows(mean_profile[None, :])[0])
     width = max(_full_width_at_half_maximum(mean_slope), 3.0)  # samples
     middle = int(np.argmax(mean_slope))
     smooth = _smooth_rows(np.where(finite[:, None], profiles, mean_profile))
-    plateau = _fit_lines(smooth, middle - 2.5 * width, middle - 1.0 * width)
-    background = _fit_lines(smooth, middle + 1.0 * width, middle + 2.5 * width)
-    index = np.arange(len(steps), dtype=float)
-    level = 0.5 * (plateau[0][:, None] + plateau[1][:, None] * index + background[0][:, None])
-    level += 0.5 * background[1][:, None] * index
-    above = smooth - level
-    lo, hi = max(int(middle - width), 0), min(int(middle + width) + 1, len(steps) - 1)
+    count = len(steps)
+    lines = smooth @ np.hstack(
+        [
+            _line_weights(count, middle - 2.5 * width, middle - 1.0 * width),
+            _line_weights(count, middle + 1.0 * width, middle + 2.5 * width),
+        ]
+    )
+    plateau_a, plateau_b, background_a, background_b = lines.T
+    index = np.arange(count, dtype=float)
+    above = smooth - 0.5 * ((plateau_a + background_a)[:, None] + (plateau_b + background_b)[:, None] * index)
+    lo, hi = max(int(middle - width), 0), min(int(middle + width) + 1, count - 1)
     # The first fall from above the level to below it, searching outward within the edge.
     falls = (above[:, lo:hi] > 0) & (above[:, lo + 1 : hi + 1] <= 0)
     has_fall = falls.any(axis=1)
@@ -354,8 +359,8 @@ def detect_edge_along_rays(
     rows = np.arange(rays)
     a, b = above[rows, first], above[rows, first + 1]
     fraction = a / np.where(a - b > 0, a - b, 1.0)
-    contrast = (plateau[0] + plateau[1] * first) - (background[0] + background[1] * first)
-    noise = 1.4826 * np.median(np.abs(np.diff(profiles[finite][::4], axis=1))) / np.sqrt(2)  # every 4th ray
+    contrast = (plateau_a - background_a) + (plateau_b - background_b) * first
+    noise = 1.4826 * np.median(np.abs(np.diff(profiles[::4][finite[::4]], axis=1))) / np.sqrt(2)  # every 4th ray
     valid = finite & has_fall & (contrast > max(4.0 * noise, 1e-4))
     edge_radii = start + (first + fraction) * _STEP_PX
     pixels = centre + edge_radii[:, None] * directions
@@ -380,7 +385,9 @@ def _coarse_edge_radii(crop: _LinearCrop, centre: np.ndarray, ray_angles: np.nda
     falls = above[:, :-1] & ~above[:, 1:]
     outermost = falls.shape[1] - 1 - np.argmax(falls[:, ::-1], axis=1)
     shift = np.where(falls.any(axis=1), steps[np.minimum(outermost + 1, len(steps) - 1)], 0.0)
-    shift = median_filter(shift, size=_EDGE_MEDIAN_RAYS, mode="wrap")
+    half = _EDGE_MEDIAN_RAYS // 2
+    windows = sliding_window_view(np.concatenate([shift[-half:], shift, shift[:half]]), _EDGE_MEDIAN_RAYS)
+    shift = np.partition(windows, half, axis=1)[:, half]  # running median, around the spot
     edge_radii = np.interp(ray_angles, coarse_angles, coarse_radii + shift, period=2 * np.pi)
     reach = wide - edge_window_px(radii)
     return np.clip(edge_radii, radii - reach, radii + reach)
@@ -416,16 +423,19 @@ def _smooth_rows(profiles: np.ndarray) -> np.ndarray:
     return cv2.GaussianBlur(profiles, (17, 1), 2.0, borderType=cv2.BORDER_REFLECT)
 
 
-def _fit_lines(profiles: np.ndarray, start: float, stop: float) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares line ``a + b * index`` through each row's samples with index in [start, stop]."""
-    count = profiles.shape[1]
+def _line_weights(count: int, start: float, stop: float) -> np.ndarray:
+    """Weights (count, 2) whose product with a row gives the least-squares line ``a + b * index`` through it.
+
+    Only the row's samples with index in [start, stop] count (at least two).
+    """
     first, last = int(np.clip(np.ceil(start), 0, count - 2)), int(np.clip(np.floor(stop), 1, count - 1))
     last = max(last, first + 1)
     x = np.arange(first, last + 1, dtype=float)
-    y = profiles[:, first : last + 1]
-    x_mean = x.mean()
-    slope = ((y - y.mean(axis=1, keepdims=True)) @ (x - x_mean)) / np.sum((x - x_mean) ** 2)
-    return y.mean(axis=1) - slope * x_mean, slope
+    centred = x - x.mean()
+    weights = np.zeros((count, 2))
+    weights[first : last + 1, 1] = centred / np.sum(centred**2)  # slope
+    weights[first : last + 1, 0] = 1.0 / len(x) - x.mean() * weights[first : last + 1, 1]  # intercept
+    return weights
 
 
 @dataclass(frozen=True)

@@ -287,20 +287,13 @@ def _residuals_and_jacobian(params: np.ndarray, *args: object) -> tuple[np.ndarr
     return residuals[0], ((residuals[1:] - residuals[0]) / steps[:, None]).T
 
 
-def _solve_gauss_newton(
-    params: np.ndarray, args: tuple, scale: float | None, iterations: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gauss-Newton steps from ``params``; with ``scale``, iteratively reweighted for the soft-L1 loss.
-
-    Returns the parameters, the residuals and the Jacobian at them.
-    """
-    for _ in range(iterations):
-        residuals, jacobian = _residuals_and_jacobian(params, *args)
-        weights = np.ones_like(residuals) if scale is None else 1.0 / np.sqrt(1.0 + (residuals / scale) ** 2)
-        weighted = jacobian.T * weights
-        params = params - np.linalg.solve(weighted @ jacobian, weighted @ residuals)
-    residuals, jacobian = _residuals_and_jacobian(params, *args)
-    return params, residuals, jacobian
+def _gauss_newton_step(
+    params: np.ndarray, residuals: np.ndarray, jacobian: np.ndarray, scale: float | None
+) -> np.ndarray:
+    """One Gauss-Newton step from ``params``; with ``scale``, reweighted for the soft-L1 loss."""
+    weights = np.ones_like(residuals) if scale is None else 1.0 / np.sqrt(1.0 + (residuals / scale) ** 2)
+    weighted = jacobian.T * weights
+    return params - np.linalg.solve(weighted @ jacobian, weighted @ residuals)
 
 
 def _solve_trust_region(
@@ -391,19 +384,24 @@ def fit_cones(
     if beam_count > 1:
         start.append(roll)
     args = (points, beam_of_point, edge_angle, beam_count, tilt, insertion_in_eye, light_radius)
-    first = _cone_residuals(np.array([start]), *args)[0]
-    scale = max(1.4826 * float(np.median(np.abs(first - np.median(first)))), 1e-6)
+    params = np.array(start)
+    residuals, jacobian = _residuals_and_jacobian(params, *args)
+    scale = max(1.4826 * float(np.median(np.abs(residuals - np.median(residuals)))), 1e-6)
     if solver == "trust-region":
-        robust, robust_fun, _ = _solve_trust_region(np.array(start), args, scale)
+        params, residuals, _ = _solve_trust_region(params, args, scale)
     else:
-        robust, robust_fun, _ = _solve_gauss_newton(np.array(start), args, scale, iterations=2)
-    spread = max(1.4826 * float(np.median(np.abs(robust_fun))), 1e-7)
-    inliers = np.abs(robust_fun) < 3.0 * spread
-    kept = (points[inliers], beam_of_point[inliers], *args[2:])
+        for _ in range(2):
+            params = _gauss_newton_step(params, residuals, jacobian, scale)
+            residuals, jacobian = _residuals_and_jacobian(params, *args)
+    spread = max(1.4826 * float(np.median(np.abs(residuals))), 1e-7)
+    inliers = np.abs(residuals) < 3.0 * spread
     if solver == "trust-region":
-        params, fun, jacobian = _solve_trust_region(robust, kept, None)
+        params, fun, jacobian = _solve_trust_region(params, (points[inliers], beam_of_point[inliers], *args[2:]), None)
+        residuals = _cone_residuals(params[None, :], *args)[0]
     else:
-        params, fun, jacobian = _solve_gauss_newton(robust, kept, None, iterations=1)
+        params = _gauss_newton_step(params, residuals[inliers], jacobian[inliers], None)
+        residuals, jacobian = _residuals_and_jacobian(params, *args)
+        fun, jacobian = residuals[inliers], jacobian[inliers]
     dof = max(int(inliers.sum()) - len(params), 1)
     variance = float(np.sum(fun**2)) / dof
     normal_inverse = np.linalg.pinv(jacobian.T @ jacobian)
@@ -418,7 +416,7 @@ def fit_cones(
         tip_in_eye=params[:3].copy(),
         axis=_instrument_axes(params[None, :], insertion_in_eye)[0],
         roll=float(params[-1]) if beam_count > 1 else 0.0,
-        residuals=_cone_residuals(params[None, :], *args)[0],
+        residuals=residuals,
         inliers=inliers,
         tip_covariance=covariance[:3, :3],
     )

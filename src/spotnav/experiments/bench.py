@@ -17,7 +17,13 @@ from spotnav.track import Tracker
 
 __all__ = ["STAGES", "BenchRow", "bench_markdown", "run_bench"]
 
-STAGES = ("render", "thesis, full frame", "precise, full frame", "tracking (region of interest)")
+STAGES = (
+    "render",
+    "thesis, full frame",
+    "precise, full frame",
+    "tracking (region of interest)",
+    "tracking, frames from memory",
+)
 HELIX_FRAMES = 300  # the helix's motion per frame: that of a 300-frame helix
 
 
@@ -47,15 +53,31 @@ def _ms_since(start: float) -> float:
     return 1000 * (time.perf_counter() - start)
 
 
-def run_bench(sizes: Sequence[int], frames: int = 100, beams: int = 1, full_every: int = 5) -> list[BenchRow]:
+def _time_tracking(tracker: Tracker, image: np.ndarray, times: list[float]) -> None:
+    """Track ``image``, adding its time to ``times`` if it was tracked (not an acquisition)."""
+    start = time.perf_counter()
+    tracked = tracker.update(image)
+    if tracked.mode == "tracked":
+        times.append(_ms_since(start))
+
+
+def run_bench(
+    sizes: Sequence[int], frames: int = 100, beams: int = 1, full_every: int = 5, memory_mb: float = 4096.0
+) -> list[BenchRow]:
     """Time each stage on consecutive frames of the helix, in this process.
 
     Every frame is rendered and tracked; every ``full_every``-th frame is also
     localized on the whole image by the thesis's and the precise method.
-    Tracking is timed on the frames it tracked (not the acquisitions).
+    Tracking is timed on the frames it tracked (not the acquisitions), twice:
+    right after each frame's rendering, which leaves the caches cold (as
+    decoding a video does), and then once more over the same frames kept in
+    memory, back to back, as a camera hands them over (the first frames that
+    fit in ``memory_mb``).
     """
-    if frames < 2 or full_every < 1:
-        raise ValueError(f"frames must be >= 2 and full_every >= 1, got {frames} and {full_every}")
+    if frames < 2 or full_every < 1 or memory_mb < 0:
+        raise ValueError(
+            f"frames must be >= 2, full_every >= 1 and memory_mb >= 0, got {frames}, {full_every} and {memory_mb}"
+        )
     rows = []
     for size in sizes:
         setup = thesis_world(size, beams)
@@ -63,6 +85,7 @@ def run_bench(sizes: Sequence[int], frames: int = 100, beams: int = 1, full_ever
         renderer.render(poses_through_insertion(helix_tips(2), setup.instrument.insertion_in_eye)[0])  # warm caches
         times: dict[str, list[float]] = {stage: [] for stage in STAGES}
         poses = poses_through_insertion(helix_tips(HELIX_FRAMES)[:frames], setup.instrument.insertion_in_eye)
+        kept: list[np.ndarray] = []
         for index, pose in enumerate(tqdm(poses, desc=f"bench {size} px", unit="frame", disable=None)):
             start = time.perf_counter()
             image = renderer.render(pose, seed=index)
@@ -72,10 +95,12 @@ def run_bench(sizes: Sequence[int], frames: int = 100, beams: int = 1, full_ever
                     start = time.perf_counter()
                     localize(image, setup, method)
                     times[stage].append(_ms_since(start))
-            start = time.perf_counter()
-            tracked = tracker.update(image)
-            if tracked.mode == "tracked":
-                times[STAGES[3]].append(_ms_since(start))
+            _time_tracking(tracker, image, times[STAGES[3]])
+            if (len(kept) + 1) * image.nbytes <= memory_mb * 2**20:
+                kept.append(image)
+        tracker = Tracker(setup)
+        for image in kept:
+            _time_tracking(tracker, image, times[STAGES[4]])
         for stage, values in times.items():
             if values:
                 median, p99 = float(np.median(values)), float(np.percentile(values, 99))
