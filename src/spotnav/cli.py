@@ -1,4 +1,4 @@
-"""Command line: ``spotnav scene|render|localize|track|calibrate|evaluate|analyze|reproduce|bench``.
+"""Command line: ``spotnav scene|render|localize|track|calibrate|evaluate|analyze|reproduce|bench|sweep|sweep-report``.
 
 ``main(argv)`` returns the exit code, so tests call it in-process. Unusable
 arguments or setups end with one line ``spotnav: error: ...`` and exit code 2.
@@ -31,6 +31,8 @@ from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.experiments.bench import bench_markdown, run_bench
 from spotnav.experiments.evaluate import evaluate_poses, evaluation_text, write_evaluation
 from spotnav.experiments.paths import helix_tips, resample_polyline, square_tips, tremor_offsets
+from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
+from spotnav.experiments.sweep_report import write_sweep_report
 from spotnav.files import (
     TRACK_COLUMNS,
     ImageReadError,
@@ -320,6 +322,38 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    if args.example:
+        sys.stdout.write(EXAMPLE_SWEEP)
+        return 0
+    if args.file is None or args.out is None:
+        raise UsageError("sweep needs FILE and --out DIR (or --example)")
+    if args.scheduler is not None and args.workers is not None:
+        raise UsageError("--workers sizes the local cluster; it cannot be used with --scheduler")
+    path = Path(args.file)
+    run = run_sweep(
+        path.read_text(encoding="utf-8"),
+        args.out,
+        base_dir=path.parent,
+        scheduler=args.scheduler,
+        workers=args.workers,
+        resume=args.resume,
+    )
+    where = "in this process" if run.workers == 0 else f"on {run.workers} Dask workers"
+    resumed = f" ({run.chunks_resumed} chunks done before)" if run.chunks_resumed else ""
+    print(
+        f"wrote {run.table}: {run.frames} frames{resumed}; {run.frames_run} frames in {run.wall_s:.1f} s {where} "
+        f"({run.frames_run / run.wall_s:.1f} frames/s)"
+    )
+    return 0
+
+
+def _cmd_sweep_report(args: argparse.Namespace) -> int:
+    print(write_sweep_report(args.directory))
+    print(f"wrote {Path(args.directory) / 'summary.md'}, summary.csv and two plots", file=sys.stderr)
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="spotnav", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"spotnav {__version__}")
@@ -450,6 +484,21 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--poses", type=int, help="poses per path (default 25 quick, 100 full)")
     rep.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: all cores)")
     rep.set_defaults(run=_cmd_reproduce)
+
+    sweep = commands.add_parser("sweep", help="design sweep over setups, on a Dask cluster: frames.parquet")
+    sweep.add_argument("file", nargs="?", metavar="FILE", help="sweep TOML (see --example)")
+    sweep.add_argument("--example", action="store_true", help="print a small, commented sweep file")
+    sweep.add_argument("--out", help="output folder")
+    sweep.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask cluster")
+    sweep.add_argument(
+        "--workers", type=int, help="local cluster's worker processes (default: one per core; 0: no Dask)"
+    )
+    sweep.add_argument("--resume", action="store_true", help="finish an interrupted sweep in --out")
+    sweep.set_defaults(run=_cmd_sweep)
+
+    report = commands.add_parser("sweep-report", help="summary tables and plots of a sweep's results")
+    report.add_argument("directory", metavar="DIR", help="a sweep's --out folder")
+    report.set_defaults(run=_cmd_sweep_report)
     return parser
 
 

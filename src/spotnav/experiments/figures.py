@@ -15,6 +15,7 @@ import numpy as np
 
 __all__ = [
     "plot_against_power",
+    "plot_error_against",
     "plot_errors_by_status",
     "plot_gallery",
     "plot_path_3d",
@@ -135,3 +136,24 @@ def plot_errors_by_status(
         if len(images) <= 40:
             ax.set_xticks(index, images, rotation=90, fontsize="x-small")
         ax.legend(fontsize="small")
+
+
+def plot_error_against(
+    path: Path, curves: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]], xlabel: str, title: str, *, log_x: bool
+) -> None:
+    """Mean (solid) and max (dotted) tip error against one parameter, one colour per curve.
+
+    Parameters
+    ----------
+    curves : mapping of label to (x, mean_mm, max_mm), each shape (N,)
+    log_x : bool
+        Logarithmic x axis (for power).
+    """
+    with _figure(path, 1, 1, (9.5, 4.5), title) as axes:
+        ax = axes[0, 0]
+        for number, (label, (x, mean, worst)) in enumerate(curves.items()):
+            ax.plot(x, mean, "o-", color=f"C{number}", label=f"{label}, mean")
+            ax.plot(x, worst, "v:", color=f"C{number}", label=f"{label}, max")
+        ax.set(xlabel=xlabel, ylabel="tip error [mm]", yscale="log", xscale="log" if log_x else "linear")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))

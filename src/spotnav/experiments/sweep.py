@@ -1,0 +1,603 @@
+"""Design sweeps: render and localize thousands of frames over a grid or a sample of setups, on Dask.
+
+A sweep file (TOML, :data:`EXAMPLE_SWEEP`) names the base setup, the
+parameters to vary (:data:`SWEEP_PARAMETERS`: a grid of values, and/or
+uniform random ranges), the paths, frames per path, the methods and a seed.
+The frames are cut into chunks; each chunk is one task that renders and
+localizes its frames where it runs (no image leaves the worker) and returns
+one row per frame and method. Each finished chunk is written at once as a
+Parquet file under ``DIR/chunks``, so an interrupted sweep resumes without
+redoing them; at the end the chunks are joined, in plan order, into
+``DIR/frames.parquet``. Every frame's noise seed derives from the sweep's
+seed and the frame's place in the plan, so the results (all but the timing
+columns) do not depend on the number of workers, nor on which worker ran a
+chunk.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import math
+import os
+import time
+import tomllib
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from tqdm import tqdm
+
+from spotnav.config import Setup, setup_from_toml
+from spotnav.experiments.chapter6 import with_true_edge
+from spotnav.experiments.paths import helix_tips, poses_through_insertion, square_tips
+from spotnav.files import read_path_csv
+from spotnav.geometry import InstrumentPose, angles_between
+from spotnav.localize import METHODS, localize
+from spotnav.render import Renderer
+
+__all__ = [
+    "EXAMPLE_SWEEP",
+    "SWEEP_PARAMETERS",
+    "TIMING_COLUMNS",
+    "Chunk",
+    "Sweep",
+    "SweepError",
+    "apply_parameters",
+    "design_points",
+    "plan_chunks",
+    "read_sweep_table",
+    "run_chunk",
+    "run_sweep",
+    "sweep_from_toml",
+]
+
+# The parameters a sweep may vary: ``section.key`` of the setup, and ``size_px`` (the camera's width and height).
+SWEEP_PARAMETERS: dict[str, type] = {
+    "size_px": int,
+    "instrument.beam_half_angle_deg": float,
+    "instrument.beam_count": int,
+    "instrument.beam_tilt_deg": float,
+    "light.power_w": float,
+    "light.blend": float,
+    "render.full_well_e": float,
+    "render.read_noise_e": float,
+    "render.exposure_stops": float,
+    "eye.radius_mm": float,
+    "world.eye_radius_mm": float,
+}
+PATHS = ("square", "helix")
+TIMING_COLUMNS = ("render_ms", "localize_ms")
+_CHUNKS, _TABLE, _FILE = "chunks", "frames.parquet", "sweep.toml"
+# The local cluster's workers: one thread each, and none for the numeric libraries. Dask's default
+# also sets MALLOC_TRIM_THRESHOLD_, which turns off glibc's adaptive mmap threshold: every frame-sized
+# array is then mapped and faulted in afresh, and rendering ran 3x slower on each worker.
+_WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
+
+
+class SweepError(ValueError):
+    """A sweep file's value is missing, of the wrong type or out of range, or a sweep cannot run."""
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A validated sweep (see :func:`sweep_from_toml`).
+
+    Attributes
+    ----------
+    base : Setup
+        The setup every design point starts from.
+    grid : tuple of (name, values)
+        Every combination of these values is a design point.
+    random : tuple of (name, (low, high))
+        Each grid point is repeated ``samples`` times, with these parameters
+        drawn uniformly (integers inclusive of both ends).
+    samples : int
+        Design points per grid point (with different noise even without random parameters).
+    paths : tuple of str
+        ``square``, ``helix`` or CSV files of tips (through the insertion point).
+    frames : int
+        Frames per path and design point.
+    methods : tuple of str
+    chunk_frames : int
+        Frames per task.
+    seed : int
+    """
+
+    base: Setup
+    grid: tuple[tuple[str, tuple[float | int, ...]], ...]
+    random: tuple[tuple[str, tuple[float, float]], ...]
+    samples: int
+    paths: tuple[str, ...]
+    frames: int
+    methods: tuple[str, ...]
+    chunk_frames: int
+    seed: int
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """One task: frames ``[start, stop)`` of path ``path`` at design point ``point``."""
+
+    index: int
+    point: int
+    path: str
+    start: int
+    stop: int
+
+    @property
+    def name(self) -> str:
+        """The chunk's file name under ``DIR/chunks``."""
+        return f"chunk-{self.index:06d}.parquet"
+
+
+def _value(key: str, value: Any, kind: type) -> float | int:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise SweepError(f"{key} must hold finite numbers, got {value!r}")
+    if kind is int and not float(value).is_integer():
+        raise SweepError(f"{key} must hold integers, got {value!r}")
+    return kind(value)
+
+
+def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"light": {"power_w": v}}`` -> ``{"light.power_w": v}`` (TOML's dotted keys are nested tables)."""
+    flat = {}
+    for key, value in table.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat |= _flatten(value, f"{name}.")
+        else:
+            flat[name] = value
+    return flat
+
+
+def _parameter(section: str, name: str) -> type:
+    if name not in SWEEP_PARAMETERS:
+        raise SweepError(f"{section}.{name} is not a sweep parameter, allowed: {', '.join(SWEEP_PARAMETERS)}")
+    return SWEEP_PARAMETERS[name]
+
+
+def _integer(key: str, value: Any, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise SweepError(f"{key} must be an integer >= {low}, got {value!r}")
+    return value
+
+
+def _read_grid(table: Any) -> tuple[tuple[str, tuple[float | int, ...]], ...]:
+    if not isinstance(table, Mapping):
+        raise SweepError("[grid] must be a table of parameter = [values]")
+    grid = []
+    for name, values in _flatten(table).items():
+        kind = _parameter("grid", name)
+        if not isinstance(values, list) or not values:
+            raise SweepError(f"grid.{name} must be a non-empty list of values, got {values!r}")
+        grid.append((name, tuple(_value(f"grid.{name}", v, kind) for v in values)))
+    return tuple(grid)
+
+
+def _read_random(table: Any, grid_names: Iterable[str]) -> tuple[int, tuple[tuple[str, tuple[float, float]], ...]]:
+    if not isinstance(table, Mapping):
+        raise SweepError("[random] must be a table with samples = N and parameter = [low, high]")
+    table = _flatten(table)
+    samples = _integer("random.samples", table.pop("samples", 1), 1)
+    random = []
+    for name, bounds in table.items():
+        kind = _parameter("random", name)
+        if not isinstance(bounds, list) or len(bounds) != 2:
+            raise SweepError(f"random.{name} must be [low, high], got {bounds!r}")
+        low, high = (_value(f"random.{name}", v, kind) for v in bounds)
+        if not low <= high:
+            raise SweepError(f"random.{name} must have low <= high, got {bounds!r}")
+        if name in grid_names:
+            raise SweepError(f"{name} is both in [grid] and in [random]")
+        random.append((name, (float(low), float(high))))
+    return samples, tuple(random)
+
+
+def _read_frames(table: Any, base_dir: Path) -> dict[str, Any]:
+    """The ``[frames]`` table as :class:`Sweep`'s keywords ``paths``, ``frames``, ``methods``, ``chunk_frames``."""
+    if not isinstance(table, Mapping):
+        raise SweepError("[frames] must be a table")
+    allowed = {"paths", "count", "methods", "chunk"}
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise SweepError(f"frames.{unknown[0]} is not a known key, allowed: {', '.join(sorted(allowed))}")
+    paths = table.get("paths", ["helix"])
+    if not isinstance(paths, list) or not paths or not all(isinstance(p, str) for p in paths):
+        raise SweepError(f"frames.paths must be a non-empty list of square, helix or CSV files, got {paths!r}")
+    paths = [p if p in PATHS else str(base_dir / p) for p in paths]
+    for path in paths:
+        if path not in PATHS:
+            try:
+                read_path_csv(path)
+            except (OSError, ValueError) as error:
+                raise SweepError(f"frames.paths: {path}: {error}") from None
+    methods = table.get("methods", ["thesis", "precise"])
+    if not isinstance(methods, list) or not methods or not all(isinstance(m, str) and m in METHODS for m in methods):
+        raise SweepError(f"frames.methods must be a non-empty list from {', '.join(METHODS)}, got {methods!r}")
+    return {
+        "paths": tuple(paths),
+        "frames": _integer("frames.count", table.get("count", 20), 1),
+        "methods": tuple(dict.fromkeys(methods)),
+        "chunk_frames": _integer("frames.chunk", table.get("chunk", 10), 1),
+    }
+
+
+def sweep_from_toml(text: str, base_dir: Path | str = ".") -> Sweep:
+    """Parse and validate a sweep file (see :data:`EXAMPLE_SWEEP`).
+
+    Every design point is built and validated here, so a bad combination
+    fails before any frame is rendered.
+
+    Parameters
+    ----------
+    text : str
+        The sweep file's TOML.
+    base_dir : path
+        Where the file's relative paths (``setup``, path CSVs) start.
+
+    Raises
+    ------
+    SweepError
+        Naming the first offending key (a ``SetupError`` for the setup's own keys).
+    """
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise SweepError(f"not valid TOML: {error}") from None
+    known = {"seed", "setup", "grid", "random", "frames"}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise SweepError(f"{unknown[0]} is not a known key, allowed: {', '.join(sorted(known))}")
+    base_dir = Path(base_dir)
+    base = Setup()
+    if "setup" in data:
+        if not isinstance(data["setup"], str):
+            raise SweepError(f"setup must be the path of a setup file, got {data['setup']!r}")
+        setup_path = base_dir / data["setup"]
+        try:
+            base = setup_from_toml(setup_path.read_text())
+        except OSError as error:
+            raise SweepError(f"setup: cannot read {setup_path}: {error.strerror}") from None
+    grid = _read_grid(data.get("grid", {}))
+    samples, random = _read_random(data.get("random", {}), [name for name, _ in grid])
+    sweep = Sweep(
+        base=base,
+        grid=grid,
+        random=random,
+        samples=samples,
+        seed=_integer("seed", data.get("seed", 0), 0),
+        **_read_frames(data.get("frames", {}), base_dir),
+    )
+    for point in design_points(sweep):
+        apply_parameters(sweep.base, point)
+    return sweep
+
+
+def design_points(sweep: Sweep) -> list[dict[str, float | int]]:
+    """The sweep's design points in plan order: each grid combination ``samples`` times, with its random draws.
+
+    The draws come from ``sweep.seed`` alone, so the plan is the same on every run.
+    """
+    names = [name for name, _ in sweep.grid]
+    rng = np.random.default_rng(sweep.seed)
+    points = []
+    for values in itertools.product(*(values for _, values in sweep.grid)):
+        for _ in range(sweep.samples):
+            point: dict[str, float | int] = dict(zip(names, values, strict=True))
+            for name, (low, high) in sweep.random:
+                if SWEEP_PARAMETERS[name] is int:
+                    point[name] = int(rng.integers(int(low), int(high), endpoint=True))
+                else:
+                    point[name] = float(rng.uniform(low, high))
+            points.append(point)
+    return points
+
+
+def apply_parameters(base: Setup, point: Mapping[str, float | int]) -> Setup:
+    """``base`` with a design point's parameters set (see :data:`SWEEP_PARAMETERS`).
+
+    Raises
+    ------
+    SetupError
+        If a value is out of the setup's range (naming the key).
+    """
+    setup = base
+    for name, value in point.items():
+        if name == "size_px":
+            setup = replace(setup, camera=replace(setup.camera, width_px=int(value), height_px=int(value)))
+        else:
+            section, key = name.split(".")
+            setup = replace(setup, **{section: replace(getattr(setup, section), **{key: value})})
+    return setup
+
+
+def _parameter_values(setup: Setup) -> dict[str, float]:
+    """Every sweep parameter's value in ``setup`` (the true eye radius is the assumed one unless set)."""
+    values = {}
+    for name in SWEEP_PARAMETERS:
+        if name == "size_px":
+            values[name] = float(setup.camera.width_px)
+        elif name == "world.eye_radius_mm":
+            values[name] = float(setup.world.eye_radius_mm or setup.eye.radius_mm)
+        else:
+            section, key = name.split(".")
+            values[name] = float(getattr(getattr(setup, section), key))
+    return values
+
+
+def plan_chunks(sweep: Sweep) -> list[Chunk]:
+    """Every design point's paths cut into chunks of ``sweep.chunk_frames`` frames, in plan order."""
+    chunks = []
+    for point, path in itertools.product(range(len(design_points(sweep))), sweep.paths):
+        for start in range(0, sweep.frames, sweep.chunk_frames):
+            stop = min(start + sweep.chunk_frames, sweep.frames)
+            chunks.append(Chunk(len(chunks), point, path, start, stop))
+    return chunks
+
+
+def _path_poses(path: str, frames: int, setup: Setup) -> list[InstrumentPose]:
+    if path == "square":
+        tips = square_tips(frames)
+    elif path == "helix":
+        tips = helix_tips(frames)
+    else:
+        tips = read_path_csv(path)[:frames]
+        if len(tips) < frames:
+            raise SweepError(f"{path} has {len(tips)} tips, the sweep asks for {frames} frames")
+    return poses_through_insertion(tips, setup.instrument.insertion_in_eye)
+
+
+def _frame_seed(sweep: Sweep, chunk: Chunk, frame: int) -> int:
+    """The frame's noise seed: from the sweep's seed and the frame's place in the plan only."""
+    key = f"{sweep.seed}/{chunk.point}/{sweep.paths.index(chunk.path)}/{frame}".encode()
+    return int.from_bytes(hashlib.blake2b(key, digest_size=4).digest(), "little")
+
+
+def _pose_columns(prefix: str, tip: np.ndarray, axis: np.ndarray) -> dict[str, float]:
+    """A tip and axis as the contract's columns ``x_mm .. dir_z``, each name led by ``prefix``."""
+    names = ("x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z")
+    return {prefix + name: float(value) for name, value in zip(names, [*tip, *axis], strict=True)}
+
+
+def run_chunk(sweep: Sweep, chunk: Chunk) -> list[dict[str, Any]]:
+    """Render and localize one chunk's frames with every method: one row per frame and method.
+
+    The precise methods assume the edge that the simulated light makes (as if
+    calibrated, :func:`spotnav.experiments.chapter6.with_true_edge`) unless
+    the base setup names an edge angle.
+    """
+    point = design_points(sweep)[chunk.point]
+    world = apply_parameters(sweep.base, point)
+    assumed = world if world.instrument.edge_half_angle_deg is not None else with_true_edge(world)
+    renderer = Renderer(world)
+    poses = _path_poses(chunk.path, sweep.frames, world)
+    parameters = _parameter_values(world)
+    rows = []
+    for frame in range(chunk.start, chunk.stop):
+        truth = poses[frame]
+        start = time.perf_counter()
+        image = renderer.render(truth, seed=_frame_seed(sweep, chunk, frame))
+        render_ms = 1000 * (time.perf_counter() - start)
+        for method in sweep.methods:
+            start = time.perf_counter()
+            estimate = localize(image, assumed if method.startswith("precise") else world, method)
+            localize_ms = 1000 * (time.perf_counter() - start)
+            tip = estimate.tip_in_eye if estimate.tip_in_eye is not None else np.full(3, np.nan)
+            axis = estimate.axis if estimate.axis is not None else np.full(3, np.nan)
+            rows.append(
+                {"chunk": chunk.index, "point": chunk.point, **parameters, "path": chunk.path, "frame": frame}
+                | {"method": method, "status": estimate.status}
+                | _pose_columns("", truth.tip_in_eye, truth.axis)
+                | _pose_columns("est_", tip, axis)
+                | {
+                    "error_mm": float(np.linalg.norm(tip - truth.tip_in_eye)),
+                    "axis_error_deg": float(np.degrees(angles_between(axis, truth.axis))) if estimate.ok else math.nan,
+                    "sigma_mm": float(estimate.sigma_mm),
+                    "render_ms": render_ms,
+                    "localize_ms": localize_ms,
+                }
+            )
+    return rows
+
+
+def _write_chunk(directory: Path, chunk: Chunk, rows: list[dict[str, Any]]) -> None:
+    """Write one chunk's rows atomically (a partly written file never looks finished)."""
+    partial = directory / f".{chunk.name}.partial"
+    pq.write_table(pa.Table.from_pylist(rows), partial)
+    os.replace(partial, directory / chunk.name)
+
+
+def read_sweep_table(directory: Path | str) -> pa.Table:
+    """A sweep's rows: ``frames.parquet``, or the chunks written so far if the sweep did not finish.
+
+    Raises
+    ------
+    SweepError
+        If ``directory`` holds no sweep results.
+    """
+    directory = Path(directory)
+    if (directory / _TABLE).is_file():
+        return pq.read_table(directory / _TABLE)
+    files = sorted((directory / _CHUNKS).glob("chunk-*.parquet"))
+    if not files:
+        raise SweepError(f"{directory} holds no sweep results ({_TABLE} or {_CHUNKS}/)")
+    return pa.concat_tables([pq.read_table(f) for f in files])
+
+
+@dataclass(frozen=True)
+class SweepRun:
+    """What :func:`run_sweep` did.
+
+    Attributes
+    ----------
+    frames : int
+        Rendered frames in the whole sweep (each localized by every method).
+    frames_run : int
+        Of them, those rendered in this run.
+    chunks_run, chunks_resumed : int
+        Chunks computed in this run, and finished chunks found from an earlier run.
+    wall_s : float
+        Wall time of this run, seconds.
+    workers : int
+        Dask workers (0 in this process).
+    table : Path
+    """
+
+    frames: int
+    frames_run: int
+    chunks_run: int
+    chunks_resumed: int
+    wall_s: float
+    workers: int
+    table: Path
+
+
+def _prepare(directory: Path, text: str, resume: bool) -> set[str]:
+    """Create the output folder, or check a resumed one; return the names of its finished chunks."""
+    chunks = directory / _CHUNKS
+    if (directory / _FILE).exists():
+        if not resume:
+            raise SweepError(f"{directory} already holds a sweep: pass --resume to finish it, or choose another --out")
+        if (directory / _FILE).read_text() != text:
+            raise SweepError(f"{directory} holds a different sweep ({_FILE} differs): cannot resume it")
+    chunks.mkdir(parents=True, exist_ok=True)
+    (directory / _FILE).write_text(text)
+    return {f.name for f in chunks.glob("chunk-*.parquet")}
+
+
+def run_sweep(
+    text: str,
+    directory: Path | str,
+    *,
+    base_dir: Path | str = ".",
+    scheduler: str | None = None,
+    workers: int | None = None,
+    resume: bool = False,
+    on_chunk: Callable[[Chunk], None] | None = None,
+) -> SweepRun:
+    """Run a sweep file's frames and write ``directory/frames.parquet``.
+
+    Parameters
+    ----------
+    text : str
+        The sweep file's TOML (kept as ``directory/sweep.toml``).
+    directory : path
+    base_dir : path
+        Where the sweep file's relative paths start.
+    scheduler : str, optional
+        A Dask scheduler's address (``tcp://HOST:PORT``); by default a
+        ``distributed.LocalCluster`` of ``workers`` single-threaded processes.
+    workers : int, optional
+        The local cluster's workers (default: one per core); 0 runs the chunks
+        in this process, without Dask.
+    resume : bool
+        Finish a sweep that ``directory`` already holds, skipping its finished chunks.
+    on_chunk : callable, optional
+        Called with each chunk once its file is written.
+    """
+    if workers is not None and workers < 0:
+        raise SweepError(f"workers must be >= 0, got {workers}")
+    sweep = sweep_from_toml(text, base_dir)
+    directory = Path(directory)
+    finished = _prepare(directory, text, resume)
+    chunks = plan_chunks(sweep)
+    todo = [c for c in chunks if c.name not in finished]
+    start = time.perf_counter()
+    bar = tqdm(total=len(chunks), initial=len(chunks) - len(todo), desc="sweep", unit="chunk", disable=None)
+
+    def done(chunk: Chunk, rows: list[dict[str, Any]]) -> None:
+        _write_chunk(directory / _CHUNKS, chunk, rows)
+        bar.update()
+        if on_chunk is not None:
+            on_chunk(chunk)
+
+    try:
+        if workers == 0 and scheduler is None:
+            for chunk in todo:
+                done(chunk, run_chunk(sweep, chunk))
+            used = 0
+        else:
+            used = _run_on_dask(sweep, todo, done, scheduler, workers)
+    finally:
+        bar.close()
+    table = pa.concat_tables([pq.read_table(directory / _CHUNKS / c.name) for c in chunks])
+    pq.write_table(table, directory / _TABLE)
+    frames = len(design_points(sweep)) * len(sweep.paths) * sweep.frames
+    wall_s = time.perf_counter() - start
+    frames_run = sum(c.stop - c.start for c in todo)
+    return SweepRun(frames, frames_run, len(todo), len(chunks) - len(todo), wall_s, used, directory / _TABLE)
+
+
+def _run_on_dask(
+    sweep: Sweep,
+    chunks: Iterable[Chunk],
+    done: Callable[[Chunk, list[dict[str, Any]]], None],
+    scheduler: str | None,
+    workers: int | None,
+) -> int:
+    """Run the chunks as Dask tasks, handing each result to ``done`` as it arrives; return the worker count."""
+    import dask.config
+    from distributed import Client, LocalCluster, WorkerPlugin, as_completed
+
+    class OneThreadPerWorker(WorkerPlugin):
+        """OpenCV's own thread pool off: each worker is one thread, on its own core."""
+
+        def setup(self, worker: Any) -> None:
+            import cv2
+
+            cv2.setNumThreads(1)
+
+    if scheduler is not None:
+        client, cluster = Client(scheduler), None
+    else:
+        count = workers or os.cpu_count() or 1
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": _WORKER_ENVIRONMENT}):
+            cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, dashboard_address=None)
+        client = Client(cluster)
+    try:
+        client.register_plugin(OneThreadPerWorker())
+        token = hashlib.blake2b(repr(sweep).encode(), digest_size=8).hexdigest()
+        futures = {client.submit(run_chunk, sweep, c, key=f"spotnav-sweep-{token}-{c.index}"): c for c in chunks}
+        for future in as_completed(futures):
+            done(futures[future], future.result())
+            future.release()
+        return len(client.scheduler_info()["workers"])
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+EXAMPLE_SWEEP = """\
+# spotnav sweep: which cone angle and how many beams, at two powers, at 512 px.
+# 3 x 2 x 2 = 12 design points x 1 path x 20 frames = 240 frames, each localized
+# by both methods (about a minute on two cores). Run it with
+#   spotnav sweep sweep.toml --out results/sweep
+# and summarise it with
+#   spotnav sweep-report results/sweep
+
+seed = 0                      # every frame's noise derives from it: results do not depend on the workers
+# setup = "scene.toml"        # base setup (default: the thesis's simulation, Table 6.8)
+
+[grid]                        # every combination of these values
+size_px = [512]               # camera width and height
+instrument.beam_half_angle_deg = [6.0, 9.0, 12.0]
+instrument.beam_count = [1, 3]
+light.power_w = [0.1, 1.0]
+
+[random]                      # optional: each grid point repeated `samples` times with uniform draws
+samples = 1
+# world.eye_radius_mm = [12.0, 13.0]   # true radius (rendered); eye.radius_mm is the one assumed
+
+[frames]
+paths = ["helix"]             # square, helix, or CSV files of tips x_mm,y_mm,z_mm
+count = 20                    # frames per path and design point
+methods = ["thesis", "precise"]
+chunk = 10                    # frames per Dask task
+"""
+"""Example sweep file (:func:`sweep_from_toml` parses it)."""
