@@ -5,7 +5,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from spotnav.camera import pixel_rays, project_points, unproject_pixels_to_plane, unproject_pixels_to_sphere
+from spotnav.camera import (
+    pixel_rays,
+    pixels_behind_segment,
+    project_points,
+    unproject_pixels_to_plane,
+    unproject_pixels_to_sphere,
+)
 from spotnav.config import Camera
 
 CAMERA = Camera()  # the thesis's: 5000 px, 36 mm sensor, 300 mm lens, 110 mm
@@ -74,3 +80,30 @@ def test_unproject_to_plane_inverts_project(x: float, y: float, height: float) -
 def test_plane_above_the_camera_is_rejected() -> None:
     with pytest.raises(ValueError, match="below the camera"):
         unproject_pixels_to_plane(Camera(), np.zeros(2), 200.0)
+
+
+@given(
+    start=st.tuples(st.floats(-4, 4), st.floats(-4, 4), st.floats(1, 8)),
+    end=st.tuples(st.floats(-8, 8), st.floats(-8, 8), st.floats(1, 24)),
+    pixel=st.tuples(st.floats(1500, 3500), st.floats(1500, 3500)),
+    radius=st.floats(0.05, 1.0),
+)
+def test_pixels_behind_segment_agree_with_a_sampled_distance(
+    start: tuple[float, float, float], end: tuple[float, float, float], pixel: tuple[float, float], radius: float
+) -> None:
+    # Distance from the pixel's ray to 4001 points along the segment: the closest one decides.
+    ray = pixel_rays(CAMERA, np.array(pixel))
+    samples = np.linspace(start, end, 4001)
+    offsets = samples - CAMERA.center_in_eye
+    distances = np.sqrt(np.maximum(np.sum(offsets**2, axis=1) - (offsets @ ray) ** 2, 0.0))
+    spacing = np.linalg.norm(np.subtract(end, start)) / 4000
+    if abs(distances.min() - radius) > spacing + 1e-6:  # not within sampling of the cylinder's surface
+        assert pixels_behind_segment(CAMERA, np.array(pixel), start, end, radius) == (distances.min() < radius)
+
+
+def test_a_segment_hides_the_pixels_of_its_own_points() -> None:
+    start, end = np.array([1.0, -0.5, 4.0]), np.array([0.0, 6.0, 20.0])
+    on_it = project_points(CAMERA, np.linspace(start, end, 7))
+    assert pixels_behind_segment(CAMERA, on_it, start, end, 0.3).all()
+    beside = project_points(CAMERA, np.linspace(start, end, 7) + np.array([1.0, 0.0, 0.0]))
+    assert not pixels_behind_segment(CAMERA, beside, start, end, 0.3).any()

@@ -63,6 +63,15 @@ def test_bumps_are_parsed() -> None:
         ("[instrument]\nlight_radius_mm = -0.01", "instrument.light_radius_mm"),
         ("[instrument]\nlight_radius_mm = 1.0", "instrument.light_radius_mm"),
         ("[instrument]\nlight_radius_mm = nan", "instrument.light_radius_mm"),
+        ("[faults]\nshaft = 1", "faults.shaft"),
+        ("[instrument]\nshaft_diameter_mm = -0.1", "instrument.shaft_diameter_mm"),
+        ("[faults]\nglints = -1", "faults.glints"),
+        ("[faults]\nglints = 2.5", "faults.glints"),
+        ("[faults]\nvessels = 101", "faults.vessels"),
+        ("[faults]\nvessel_contrast = 1.5", "faults.vessel_contrast"),
+        ("[faults]\nstray_light = nan", "faults.stray_light"),
+        ("[faults]\nmotion_blur_px = -3.0", "faults.motion_blur_px"),
+        ("[faults]\nsmoke = 1", "faults.smoke"),
         ("[tip]\nx = 1", "[tip]"),
         ("eye = 3", "[eye]"),
         ("[eye\nradius_mm = 1", "not valid TOML"),
@@ -110,7 +119,7 @@ values = st.one_of(
 
 
 @given(
-    section=st.sampled_from(["eye", "camera", "instrument", "light", "world", "render"]),
+    section=st.sampled_from(["eye", "camera", "instrument", "light", "world", "render", "faults"]),
     key=st.sampled_from(
         [
             "radius_mm",
@@ -127,6 +136,9 @@ values = st.one_of(
             "surface",
             "height_correction",
             "edge_half_angle_deg",
+            "shaft",
+            "glints",
+            "stray_light",
             "bogus",
         ]
     ),

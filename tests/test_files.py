@@ -6,6 +6,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from spotnav.config import Bump, Instrument, Setup, SetupError, World, setup_from_toml
 from spotnav.files import (
@@ -126,3 +128,16 @@ def test_video_frames_decode_exactly_and_a_ring_reuses_its_buffers(tmp_path: Pat
 def test_a_negative_ring_is_refused_for_any_source(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="ring must be at least 0, got -1"):
         next(iter_frames(str(tmp_path), ring=-1))
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.binary(max_size=400), prefix=st.sampled_from([b"", b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff"]))
+def test_random_bytes_read_as_an_image_or_a_one_line_error(tmp_path: Path, data: bytes, prefix: bytes) -> None:
+    path = tmp_path / "random.png"
+    path.write_bytes(prefix + data)
+    try:
+        image = read_image(path)
+    except ImageReadError as error:
+        assert "random.png" in str(error) and "\n" not in str(error)
+    else:
+        assert image.dtype in (np.uint8, np.uint16) and image.ndim in (2, 3)

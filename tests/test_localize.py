@@ -2,12 +2,14 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 from conftest import small_setup
 
 from spotnav.config import Light, Setup
 from spotnav.experiments import helix_tips, working_volume_tips
+from spotnav.experiments.chapter6 import with_true_edge
 from spotnav.geometry import InstrumentPose, angles_between
 from spotnav.localize import STATUSES, PoseEstimate, edge_half_angle, fit_height_correction, localize
 from spotnav.render import Renderer
@@ -214,3 +216,19 @@ def test_edge_half_angle_default_and_override() -> None:
     assert np.degrees(edge_half_angle(setup)) == pytest.approx(8.6553, abs=1e-4)  # blend 0.15 on 9 deg
     sharp = replace(setup, instrument=replace(setup.instrument, edge_half_angle_deg=9.0))
     assert edge_half_angle(sharp) == pytest.approx(np.radians(9.0))
+
+
+@pytest.mark.parametrize("form", ["16-bit", "grey", "rgba"])
+def test_16_bit_grey_and_rgba_frames_localize_like_8_bit_rgb(renderer_512: Renderer, form: str) -> None:
+    setup = with_true_edge(renderer_512.setup)  # a sharp edge
+    pose = InstrumentPose.through_insertion([0.5, -0.5, 4.0], setup.instrument.insertion_in_eye)
+    rgb = renderer_512.render(pose, seed=1)
+    image = {
+        "16-bit": rgb.astype(np.uint16) * 257,
+        "grey": cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY),
+        "rgba": np.dstack([rgb, np.full(rgb.shape[:2], 255, np.uint8)]),
+    }[form]
+    reference, estimate = localize(rgb, setup, "precise"), localize(image, setup, "precise")
+    assert reference.ok and estimate.ok, estimate.detail
+    assert np.linalg.norm(reference.tip_in_eye - pose.tip_in_eye) < 0.02
+    assert np.linalg.norm(estimate.tip_in_eye - reference.tip_in_eye) < 0.02

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.camera import project_points
-from spotnav.config import Bump, World
+from spotnav.camera import pixels_behind_segment, project_points
+from spotnav.config import Bump, Setup, World
 from spotnav.geometry import InstrumentPose, cone_sphere_curve
 from spotnav.render import Renderer, bump_height, exposure_gain
 
@@ -107,3 +107,47 @@ def test_noise_is_seeded_white_and_scaled() -> None:
     assert np.mean(difference != 0) > 0.5
     right = np.corrcoef(difference[:, 1:].ravel(), difference[:, :-1].ravel())[0, 1]
     assert abs(right) < 0.05  # white: neighbours uncorrelated
+
+
+STEEP = InstrumentPose.through_insertion([0.5, 0.5, 4.0], np.array([0.0, 1.0, 24.0]))  # the shaft crosses the spot
+
+
+def _with_faults(setup: Setup, **faults: object) -> Renderer:
+    return Renderer(replace(setup, faults=replace(setup.faults, **faults)))
+
+
+def test_faults_are_off_by_default_and_change_only_what_they_name(renderer_512: Renderer) -> None:
+    setup = renderer_512.setup
+    plain = renderer_512.render(STEEP, seed=5).astype(int)
+    steel = _with_faults(setup, shaft=True).render(STEEP, seed=5).astype(int)
+    u, v = np.meshgrid(np.arange(512.0), np.arange(512.0))
+    hidden = pixels_behind_segment(setup.camera, np.stack([u, v], axis=-1), STEEP.tip_in_eye, [0.0, 6.0, 20.0], 0.3)
+    assert 200 < hidden.sum() < 20000
+    np.testing.assert_array_equal(steel[~hidden], plain[~hidden])  # the same noise elsewhere
+    assert np.sum(plain[hidden][:, 0] > 150) > 100  # the shaft crosses the spot ...
+    assert np.all(steel[hidden].mean(axis=-1) < 60)  # ... and hides it: dark steel only
+    glints = _with_faults(setup, glints=10).render(STEEP, seed=5)
+    assert np.sum(glints == 255) > np.sum(plain == 255) + 10
+    assert not np.array_equal(glints, _with_faults(setup, glints=10).render(STEEP, seed=6))  # placed by the seed
+
+
+def test_vessels_blur_and_a_second_source_change_the_spot_as_named(renderer_512: Renderer) -> None:
+    setup = renderer_512.setup
+    spot = lambda image: image[..., 0].astype(float) > 60  # noqa: E731
+    plain = renderer_512.render(STEEP, seed=2)
+    vessels = _with_faults(setup, vessels=6, vessel_contrast=1.0).render(STEEP, seed=2)
+    assert vessels[spot(plain)].mean() < 0.9 * plain[spot(plain)].mean()
+    blurred = _with_faults(setup, motion_blur_px=20.0).render(STEEP, seed=2)
+    assert spot(blurred).sum() > 1.1 * spot(plain).sum()  # smeared wider
+    assert abs(blurred.astype(float).sum() - plain.astype(float).sum()) < 0.05 * plain.astype(float).sum()
+    second = _with_faults(setup, stray_light=2.0).render(STEEP, seed=2)
+    far = ~spot(plain) & (second[..., 1] > 200)
+    assert far.sum() > 100  # a bright region away from the spot
+
+
+def test_a_spot_that_grazes_the_border_renders() -> None:
+    # Its lit box is one pixel wide once clipped to the image (this pose once raised in np.gradient).
+    setup = small_setup(1024)
+    pose = InstrumentPose.through_insertion([6.0, 0.0, 4.5], setup.instrument.insertion_in_eye)
+    image = Renderer(setup).render(pose, seed=0)
+    assert image.shape == (1024, 1024, 3) and image.dtype == np.uint8

@@ -12,7 +12,13 @@ import numpy as np
 from spotnav.config import Camera
 from spotnav.geometry import intersect_rays_sphere
 
-__all__ = ["pixel_rays", "project_points", "unproject_pixels_to_plane", "unproject_pixels_to_sphere"]
+__all__ = [
+    "pixel_rays",
+    "pixels_behind_segment",
+    "project_points",
+    "unproject_pixels_to_plane",
+    "unproject_pixels_to_sphere",
+]
 
 
 def _check_last_axis(name: str, array: np.ndarray, size: int) -> np.ndarray:
@@ -112,3 +118,39 @@ def unproject_pixels_to_plane(camera: Camera, pixels: np.ndarray, height_mm: flo
     rays = pixel_rays(camera, pixels)
     t = (camera.distance_mm - height_mm) / -rays[..., 2]
     return camera.center_in_eye + t[..., None] * rays
+
+
+def pixels_behind_segment(
+    camera: Camera, pixels: np.ndarray, start_in_eye: np.ndarray, end_in_eye: np.ndarray, radius_mm: float
+) -> np.ndarray:
+    """Whether each pixel's ray passes within ``radius_mm`` of a segment: the pixels a cylinder hides.
+
+    The instrument's shaft is such a cylinder, from the tip to the insertion
+    point; it lies between the camera and the retina, so every pixel whose
+    ray comes that close sees the shaft.
+
+    Parameters
+    ----------
+    camera : Camera
+    pixels : ndarray, shape (..., 2)
+        ``(u, v)``.
+    start_in_eye, end_in_eye : ndarray, shape (3,)
+        The segment's ends, mm.
+    radius_mm : float
+
+    Returns
+    -------
+    ndarray of bool, shape (...)
+    """
+    rays = pixel_rays(camera, pixels)
+    start, end = np.asarray(start_in_eye, dtype=float), np.asarray(end_in_eye, dtype=float)
+    along = end - start
+    offset = camera.center_in_eye - start
+    # Closest points of the ray's line and the segment's line, the segment's clamped to its ends.
+    b, c = rays @ along, float(along @ along)
+    d, e = rays @ offset, float(along @ offset)
+    denominator = np.maximum(c - b * b, 1e-12)
+    t = np.clip((e - b * d) / denominator, 0.0, 1.0)
+    s = t[..., None] * along - offset  # from the camera to the segment's point
+    distance2 = np.sum(s * s, axis=-1) - np.sum(s * rays, axis=-1) ** 2
+    return distance2 < radius_mm**2

@@ -25,6 +25,7 @@ __all__ = [
     "Bump",
     "Camera",
     "Eye",
+    "Faults",
     "Instrument",
     "Light",
     "Render",
@@ -174,6 +175,10 @@ class Instrument:
         (a fibre's core), in [0, 1) mm. The edge is the cone of
         ``edge_half_angle_deg`` widened by this much: its apex lies
         ``light_radius_mm / tan(edge)`` behind the tip. 0: a point source.
+    shaft_diameter_mm : float
+        Diameter of the instrument's shaft, in [0, 5] mm: the precise method
+        ignores the edge that the shaft, from the tip toward the insertion
+        point, would hide (0: no shaft).
     """
 
     insertion_point_mm: tuple[float, float, float] = (0.0, 6.0, 20.0)
@@ -183,6 +188,7 @@ class Instrument:
     height_correction: float = 1.0
     edge_half_angle_deg: float | None = None
     light_radius_mm: float = 0.0
+    shaft_diameter_mm: float = 0.6
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -204,6 +210,9 @@ class Instrument:
             _in_range(key, _number(key, self.edge_half_angle_deg), 0.0, 45.0, low_open=True, high_open=True)
         key = "instrument.light_radius_mm"
         _in_range(key, _number(key, self.light_radius_mm), 0.0, 1.0, high_open=True)
+        _in_range(
+            "instrument.shaft_diameter_mm", _number("instrument.shaft_diameter_mm", self.shaft_diameter_mm), 0.0, 5.0
+        )
 
     @property
     def beam_half_angle(self) -> float:
@@ -342,6 +351,48 @@ class Render:
 
 
 @dataclass(frozen=True)
+class Faults:
+    """Disturbances the built-in renderer adds to every frame (simulator only; all off by default).
+
+    Each frame's random placements derive from its noise seed.
+
+    Attributes
+    ----------
+    shaft : bool
+        Draw the instrument's shaft: an opaque cylinder of
+        ``instrument.shaft_diameter_mm`` from the tip to the insertion point,
+        which hides the retina (and part of the spot) behind it.
+    glints : int
+        Specular glints (tiny saturated highlights) on the retina in and around the spot.
+    vessels : int
+        Dark vessels drawn across the spot.
+    vessel_contrast : float
+        How much of the light a vessel absorbs, in [0, 1].
+    stray_light : float
+        Peak of a second bright source (the endo-illuminator's reflection) beside
+        the spot, in full scales (above 1 it saturates); 0 = none.
+    motion_blur_px : float
+        Length of a linear motion blur of the spot, pixels, in a random direction.
+    """
+
+    shaft: bool = False
+    glints: int = 0
+    vessels: int = 0
+    vessel_contrast: float = 0.8
+    stray_light: float = 0.0
+    motion_blur_px: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.shaft, bool):
+            raise SetupError(f"faults.shaft must be true or false, got {self.shaft!r}")
+        for name in ("glints", "vessels"):
+            _in_range(f"faults.{name}", _integer(f"faults.{name}", getattr(self, name)), 0, 100)
+        _in_range("faults.vessel_contrast", _number("faults.vessel_contrast", self.vessel_contrast), 0.0, 1.0)
+        _in_range("faults.stray_light", _number("faults.stray_light", self.stray_light), 0.0, 100.0)
+        _in_range("faults.motion_blur_px", _number("faults.motion_blur_px", self.motion_blur_px), 0.0, 500.0)
+
+
+@dataclass(frozen=True)
 class Setup:
     """A whole setup: the contract's sections plus the simulator's own.
 
@@ -355,6 +406,7 @@ class Setup:
     light: Light = field(default_factory=Light)
     world: World = field(default_factory=World)
     render: Render = field(default_factory=Render)
+    faults: Faults = field(default_factory=Faults)
 
     def __post_init__(self) -> None:
         radius = self.eye.radius_mm
@@ -402,6 +454,7 @@ _SECTIONS: dict[str, type] = {
     "light": Light,
     "world": World,
     "render": Render,
+    "faults": Faults,
 }
 
 
@@ -488,6 +541,7 @@ beam_tilt_deg = 15.0          # tilt of each beam from the axis when beam_count 
 height_correction = 1.0       # thesis method only: section 5.5 height factor, 1 = none
 # edge_half_angle_deg = 8.656 # precise method's edge model (default: beta with Blender's blend 0.15)
 # light_radius_mm = 0.0       # precise method's edge model: the light's emitting radius (0 = a point)
+shaft_diameter_mm = 0.6       # precise method: ignore the edge the shaft hides (0 = no shaft)
 
 [light]                       # simulator only, Blender's conventions
 power_w = 1.0                 # radiant intensity power_w / (4 pi) W/sr on the axis
@@ -506,4 +560,12 @@ read_noise_e = 8.0            # Gaussian read noise, electrons
 supersampling = 4             # sub-samples per pixel side along the cone's edge
 texture = "retina"            # "retina" (procedural fundus) or "flat"
 texture_seed = 0
+
+[faults]                      # simulator only: disturbances, all off by default
+shaft = false                 # draw the shaft (instrument.shaft_diameter_mm) from the tip to the insertion point
+glints = 0                    # specular glints in and around the spot
+vessels = 0                   # dark vessels drawn across the spot ...
+vessel_contrast = 0.8         # ... absorbing this fraction of the light
+stray_light = 0.0             # a second bright source beside the spot: peak in full scales (0 = none)
+motion_blur_px = 0.0          # linear motion blur of the spot, pixels
 """

@@ -8,7 +8,7 @@ edge to a fraction of a pixel along rays (:func:`detect_edge_subpixel`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -23,6 +23,7 @@ __all__ = [
     "detect_spots_otsu",
     "edge_window_px",
     "linear_luminance",
+    "outer_boundary",
     "rays_through_curve",
     "to_gray8",
 ]
@@ -162,6 +163,33 @@ def detect_spots_otsu(image: np.ndarray, blur_px: int = 5, min_contrast_sigma: f
     return SpotDetection(spots, float(threshold), contrast)
 
 
+def outer_boundary(spot: Spot, tolerance_px: float = 1.5) -> Spot:
+    """The spot with only the convex part of its contour: the boundary that no occluder carved.
+
+    A cone's spot is convex; where something opaque in front of it (the
+    instrument's shaft, a dark vessel) cuts into it, its contour turns inward.
+    The contour points within ``tolerance_px`` of the contour's convex hull
+    are kept (all of them for a convex spot), in order.
+
+    Parameters
+    ----------
+    spot : Spot
+    tolerance_px : float
+
+    Returns
+    -------
+    Spot
+        With ``contour_px`` reduced (at least 5 points, else the spot unchanged).
+    """
+    contour = spot.contour_px.astype(np.float32).reshape(-1, 1, 2)
+    hull = cv2.convexHull(contour)
+    distance = np.array([cv2.pointPolygonTest(hull, (float(u), float(v)), True) for u, v in spot.contour_px])
+    outer = spot.contour_px[distance <= tolerance_px]
+    if len(outer) < _MIN_CONTOUR_POINTS:
+        return spot
+    return replace(spot, contour_px=outer)
+
+
 def _srgb_to_linear(codes: np.ndarray) -> np.ndarray:
     values = codes.astype(np.float64)
     return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4).astype(np.float32)
@@ -170,7 +198,9 @@ def _srgb_to_linear(codes: np.ndarray) -> np.ndarray:
 _LINEAR_8 = _srgb_to_linear(np.arange(256) / 255.0)
 _LINEAR_16 = _srgb_to_linear(np.arange(65536) / 65535.0)
 # The LUTs are monotonic: clipping (linear >= 0.99) and brightness can be judged on the codes.
-_FULL_SCALE_8, _FULL_SCALE_16 = int(np.searchsorted(_LINEAR_8, 0.99)), int(np.searchsorted(_LINEAR_16, 0.99))
+_FULL_SCALE_LINEAR = 0.99
+_FULL_SCALE_8 = int(np.searchsorted(_LINEAR_8, _FULL_SCALE_LINEAR))
+_FULL_SCALE_16 = int(np.searchsorted(_LINEAR_16, _FULL_SCALE_LINEAR))
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # Rec. 709, on linear values
 
 
@@ -216,6 +246,13 @@ class SpotEdge:
         Whether the spot reaches full scale somewhere.
     rays : int
         Rays cast; ``len(pixels)`` of them gave an edge.
+    contrast_to_noise : float
+        Median step across the edge over the pixel noise, on the rays with an
+        edge (NaN without any): below some 20 the noise biases the edge's level.
+    clipped_fraction : float
+        Fraction of the samples inside the edge, where the plateau's line is
+        fitted, at full scale in the channel read: a clipped plateau lowers the
+        halfway level and moves the edge outward.
     """
 
     pixels: np.ndarray
@@ -223,6 +260,8 @@ class SpotEdge:
     width_px: float
     saturated: bool
     rays: int
+    contrast_to_noise: float = float("nan")
+    clipped_fraction: float = 0.0
 
 
 _STEP_PX = 0.5
@@ -364,7 +403,10 @@ def detect_edge_along_rays(
     valid = finite & has_fall & (contrast > max(4.0 * noise, 1e-4))
     edge_radii = start + (first + fraction) * _STEP_PX
     pixels = centre + edge_radii[:, None] * directions
-    return SpotEdge(pixels[valid], ray_angles[valid], width * _STEP_PX, crop.saturated, rays)
+    ratio = float(np.median(contrast[valid]) / max(noise, 1e-6)) if valid.any() else float("nan")
+    inside = profiles[finite][:, max(int(middle - 2.5 * width), 0) : max(int(middle - width), 1)]
+    clipped = float(np.mean(inside >= _FULL_SCALE_LINEAR))
+    return SpotEdge(pixels[valid], ray_angles[valid], width * _STEP_PX, crop.saturated, rays, ratio, clipped)
 
 
 def _coarse_edge_radii(crop: _LinearCrop, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray) -> np.ndarray:

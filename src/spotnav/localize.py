@@ -28,15 +28,15 @@ Statuses
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
 
-from spotnav.camera import unproject_pixels_to_plane, unproject_pixels_to_sphere
+from spotnav.camera import pixels_behind_segment, unproject_pixels_to_plane, unproject_pixels_to_sphere
 from spotnav.config import Setup
-from spotnav.detect import Spot, SpotDetection, detect_edge_subpixel, detect_spots_otsu
+from spotnav.detect import Spot, SpotDetection, SpotEdge, detect_edge_subpixel, detect_spots_otsu, outer_boundary
 from spotnav.geometry import assign_beams, edge_angle_of_blend, normalize
 from spotnav.reconstruct import (
     ConeCandidates,
@@ -56,25 +56,34 @@ __all__ = [
     "check_image_size",
     "edge_half_angle",
     "edge_model_options",
+    "edge_problem",
     "fit_height_correction",
+    "hidden_by_shaft",
     "judge_fit",
     "localize",
     "localize_precise",
     "localize_precise_with_edges",
     "localize_thesis",
     "locate_from_spots",
+    "smallest_spot_area_px",
     "spot_candidates",
+    "visible_edge_points",
 ]
 
 DEFAULT_BLEND = 0.15  # Blender's default spot_blend: the edge model when the setup gives none
 MIN_EDGE_POINTS = 20
 _MIN_INLIER_FRACTION = 0.5
 # A fit is poor when its edge points lie both this far in angle (some 0.015 deg on a textured retina at 1 W)
-# and this far in pixels (some 0.3 px from noise) from their cones.
+# and this far in pixels (some 0.3 px from noise; at most 0.75 px on the frames the fault study accepts at
+# 1024 px, 1.4 px for a pose off the insertion line forced through it) from their cones.
 _MAX_RMS_DEG = 0.1
-_MAX_RMS_PX = 2.0
+_MAX_RMS_PX = 1.0
 _PRECISE_CONTRAST_SIGMA = 4.0
 _MAX_CLUTTER_AREA = 0.25
+_MIN_TIP_HEIGHT_MM = 1.0  # the lowest tip considered: its spot is the smallest
+_MIN_CONTRAST_TO_NOISE = 20.0  # measured: 60-500 on good frames, 5-10 where heavy noise biased the edge by 0.1 mm
+_EDGE_WIDTH_SLACK_PX = 4.0  # measured: widths at most 0.86 of band + 4 px unblurred, 1.1-2 with a 1.5 % motion blur
+_MAX_CLIPPED_FRACTION = 0.5  # measured: 0.9-1.0 at +4 stops (edge 0.08-0.1 mm off), mostly under 0.1 at +2 stops
 _MIRROR_RESIDUAL_RATIO = 1.1
 _MIRROR_DISTANCE_MM = 0.1
 # Added to sigma: the edge model's uncertainty (shared by all spots) and the shift of one spot's whole edge by the
@@ -82,8 +91,21 @@ _MIRROR_DISTANCE_MM = 0.1
 EDGE_MODEL_SIGMA = float(np.radians(0.003))
 EDGE_CONTOUR_SIGMA = float(np.radians(0.007))
 _MAX_SIGMA_MM = 0.03
+_SHAFT_MARGINS_MM = (0.05, 0.2)  # edge points this close to the shaft's outline are left out too
+_MAX_HIDDEN_FRACTION = 0.6  # a spot whose edge the shaft hides more than this is occluded
+_SHAFT_PASSES = 3
 
-STATUSES = ("ok", "no_spot", "ambiguous", "too_few_spots", "clipped", "wrong_size", "unreliable", "unreadable")
+STATUSES = (
+    "ok",
+    "no_spot",
+    "ambiguous",
+    "too_few_spots",
+    "clipped",
+    "occluded",
+    "wrong_size",
+    "unreliable",
+    "unreadable",
+)
 
 
 @dataclass(frozen=True)
@@ -296,6 +318,16 @@ def _beam_assignment(solution: _ThesisSolution, axis: np.ndarray, setup: Setup) 
     return assign_beams(cone_axes, axis)
 
 
+def smallest_spot_area_px(setup: Setup) -> float:
+    """Area of the smallest spot a beam makes with the tip ``_MIN_TIP_HEIGHT_MM`` above the retina, pixels.
+
+    A bright region this large may be a spot: it is never dismissed as clutter.
+    """
+    camera = setup.camera
+    radius_px = _MIN_TIP_HEIGHT_MM * np.tan(setup.instrument.beam_half_angle) * camera.focal_px / camera.distance_mm
+    return float(np.pi * radius_px**2)
+
+
 def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PoseEstimate:
     """spotnav's precise method (see :func:`localize_precise_with_edges`)."""
     return localize_precise_with_edges(image, setup, through_insertion=through_insertion)[0]
@@ -318,7 +350,8 @@ def localize_precise_with_edges(
 
     The coarse detection accepts fainter spots than the thesis's; more bright
     regions than beams are ``ambiguous`` unless the extra ones are less than a
-    quarter of the size of the smallest spot kept (clutter).
+    quarter of the size of the smallest spot kept and smaller than any spot
+    can be (:func:`smallest_spot_area_px`): clutter such as glints.
 
     Parameters
     ----------
@@ -344,7 +377,8 @@ def localize_precise_with_edges(
     beams = setup.instrument.beam_count
     spots = detection.spots
     if len(spots) > beams:
-        if spots[beams].area_px > _MAX_CLUTTER_AREA * spots[beams - 1].area_px:
+        extra = spots[beams].area_px
+        if extra > _MAX_CLUTTER_AREA * spots[beams - 1].area_px or extra >= smallest_spot_area_px(setup):
             return PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}"), None
         detection = replace(detection, spots=spots[:beams])
     prepared = _prepare_edges(image, detection, setup, through_insertion)
@@ -393,6 +427,8 @@ def _prepare_edges(
     Returns the reason (a :class:`PoseEstimate` that is not ``ok``) when the frame cannot be used.
     """
     plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
+    # Start from the spots' convex outlines: the shaft or a vessel in front of a spot carves into it.
+    detection = replace(detection, spots=tuple(outer_boundary(spot) for spot in detection.spots))
     solution = _solve_thesis(detection, plain, "sphere")
     start = solution.estimate
     if not start.ok:
@@ -406,19 +442,121 @@ def _prepare_edges(
     if assignment is None:
         return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
     beams, roll = assignment
-    edges = tuple(detect_edge_subpixel(image, spot).pixels for spot in solution.spots)
-    if min(len(e) for e in edges) < MIN_EDGE_POINTS:
-        return PoseEstimate("unreliable", spots=start.spots, detail="too few edge points")
-    return EdgeFrame(edges, beams, start, axis, roll, solution)
+    spot_edges = [detect_edge_subpixel(image, spot) for spot in solution.spots]
+    radii_px = [np.sqrt(spot.area_px / np.pi) for spot in solution.spots]
+    problems = [p for p in (edge_problem(e, setup, r) for e, r in zip(spot_edges, radii_px, strict=True)) if p]
+    if problems:
+        return PoseEstimate("unreliable", spots=start.spots, detail=problems[0])
+    return EdgeFrame(tuple(e.pixels for e in spot_edges), beams, start, axis, roll, solution)
+
+
+def edge_problem(edge: SpotEdge, setup: Setup, radius_px: float) -> str | None:
+    """Why a spot's edge cannot be trusted, or None.
+
+    Too few points; noise that biases the halfway level (contrast under
+    ``_MIN_CONTRAST_TO_NOISE`` times the noise); a plateau clipped at full
+    scale in every channel (over ``_MAX_CLIPPED_FRACTION`` of it), which lowers
+    that level and moves the edge outward; or an edge wider than the beam's
+    soft band (``2 (beta - edge angle)`` of the spot's radius ``radius_px``)
+    plus ``_EDGE_WIDTH_SLACK_PX``: motion blur or defocus, which the edge
+    model does not know.
+    """
+    if len(edge.pixels) < MIN_EDGE_POINTS:
+        return "too few edge points"
+    if not edge.contrast_to_noise >= _MIN_CONTRAST_TO_NOISE:
+        return (
+            f"the edge's contrast is {edge.contrast_to_noise:.0f} times the noise, under {_MIN_CONTRAST_TO_NOISE:.0f}"
+        )
+    if edge.clipped_fraction > _MAX_CLIPPED_FRACTION:
+        return f"{100 * edge.clipped_fraction:.0f} % of the spot inside its edge is at full scale in every channel"
+    beta = setup.instrument.beam_half_angle
+    band_px = max(2.0 * (beta - edge_half_angle(setup)) / beta, 0.0) * radius_px
+    if edge.width_px > band_px + _EDGE_WIDTH_SLACK_PX:
+        return f"the edge is {edge.width_px:.1f} px wide, the beam's {band_px:.1f} px: blurred"
+    return None
+
+
+def hidden_by_shaft(
+    setup: Setup,
+    edges_px: Sequence[np.ndarray],
+    tip_in_eye: np.ndarray,
+    axis: np.ndarray,
+    margin_mm: float = 0.05,
+) -> list[np.ndarray]:
+    """Which edge points the instrument's shaft hides from the camera, for a pose.
+
+    The shaft (``instrument.shaft_diameter_mm``) runs from the tip back along
+    the axis as far as the insertion point; points within ``margin_mm`` of
+    its outline count as hidden too (the edge detector's rays that graze the
+    shaft, and the pose's own error).
+
+    Parameters
+    ----------
+    edges_px : sequence of ndarray, shape (N_k, 2)
+        Each spot's edge points, pixels.
+    tip_in_eye, axis : ndarray, shape (3,)
+    margin_mm : float
+
+    Returns
+    -------
+    list of ndarray of bool, shape (N_k,)
+    """
+    instrument = setup.instrument
+    if instrument.shaft_diameter_mm == 0:
+        return [np.zeros(len(edge), dtype=bool) for edge in edges_px]
+    end = tip_in_eye - axis * float(np.linalg.norm(instrument.insertion_in_eye - tip_in_eye))
+    radius = instrument.shaft_diameter_mm / 2.0 + margin_mm
+    return [pixels_behind_segment(setup.camera, edge, tip_in_eye, end, radius) for edge in edges_px]
+
+
+def visible_edge_points(
+    setup: Setup, edges_px: Sequence[np.ndarray], hidden: Sequence[np.ndarray]
+) -> list[np.ndarray] | PoseEstimate:
+    """Each spot's edge points on the sphere (mm) without the hidden ones, or ``occluded`` if too few are left."""
+    points = []
+    for edge, covered in zip(edges_px, hidden, strict=True):
+        if covered.mean() > _MAX_HIDDEN_FRACTION or np.sum(~covered) < MIN_EDGE_POINTS:
+            detail = f"the shaft hides {100 * covered.mean():.0f} % of a spot's edge"
+            return PoseEstimate("occluded", spots=len(edges_px), detail=detail)
+        on_sphere = unproject_pixels_to_sphere(setup.camera, edge[~covered], setup.eye.radius_mm)
+        points.append(on_sphere[np.all(np.isfinite(on_sphere), axis=1)])
+    return points
+
+
+def _fit_unhidden(
+    prepared: EdgeFrame, setup: Setup, edge_angle: float, common: dict, margin_mm: float
+) -> tuple[ConeFit, list[np.ndarray]] | PoseEstimate:
+    """The fit through the insertion point to the edge the shaft leaves visible, and that edge (mm).
+
+    Which points the shaft hides depends on the pose: they are found again at
+    each fitted pose until they stop changing (at most ``_SHAFT_PASSES``
+    fits; the first fit uses every point if the start's shaft would hide too
+    many). ``occluded`` when the shaft hides too much of a spot's edge at a
+    fitted pose.
+    """
+    start = prepared.start
+    assert start.tip_in_eye is not None and start.axis is not None
+    hidden = hidden_by_shaft(setup, prepared.edges_px, start.tip_in_eye, start.axis, margin_mm)
+    if isinstance(visible_edge_points(setup, prepared.edges_px, hidden), PoseEstimate):
+        hidden = [np.zeros(len(edge), dtype=bool) for edge in prepared.edges_px]  # judge at a fitted pose instead
+    for _ in range(_SHAFT_PASSES):
+        points = visible_edge_points(setup, prepared.edges_px, hidden)
+        if isinstance(points, PoseEstimate):
+            return points
+        fit = fit_cones(
+            points, prepared.beams, edge_angle, insertion_in_eye=setup.instrument.insertion_in_eye, **common
+        )
+        now_hidden = hidden_by_shaft(setup, prepared.edges_px, fit.tip_in_eye, fit.axis, margin_mm)
+        if all(np.array_equal(a, b) for a, b in zip(hidden, now_hidden, strict=True)):
+            break
+        hidden = now_hidden
+        common = common | {"tip_in_eye": fit.tip_in_eye, "axis": fit.axis, "roll": fit.roll}
+    return fit, points
 
 
 def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> PoseEstimate:
     start, solution, beams, roll, axis = prepared.start, prepared.solution, prepared.beams, prepared.roll, prepared.axis
     assert start.tip_in_eye is not None and start.axis is not None
-    points = []
-    for edge in prepared.edges_px:
-        on_sphere = unproject_pixels_to_sphere(setup.camera, edge, setup.eye.radius_mm)
-        points.append(on_sphere[np.all(np.isfinite(on_sphere), axis=1)])
     instrument = setup.instrument
     common = {
         "beam_count": instrument.beam_count,
@@ -429,7 +567,14 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
         **edge_model_options(setup),
     }
     edge_angle = edge_half_angle(setup)
-    constrained = fit_cones(points, beams, edge_angle, insertion_in_eye=instrument.insertion_in_eye, **common)
+    # Leave out the edge the shaft hides; if the fit fails its checks, leave out a wider band around it.
+    for margin_mm in _SHAFT_MARGINS_MM:
+        unhidden = _fit_unhidden(prepared, setup, edge_angle, common, margin_mm)
+        if isinstance(unhidden, PoseEstimate):
+            return unhidden
+        constrained, points = unhidden
+        if judge_fit(constrained, np.concatenate(points), setup, spots=start.spots).ok:
+            break
     # The cross-check continues from the constrained fit. A free pose also tries both thesis
     # candidates for one beam (a cone and its mirror image fit one contour almost equally).
     common.update(tip_in_eye=constrained.tip_in_eye, axis=constrained.axis, roll=constrained.roll)
@@ -438,7 +583,13 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
         return judge_fit(
             constrained, np.concatenate(points), setup, spots=start.spots, detail=start.detail, other_axis=free.axis
         )
-    fits = [free]
+    # The shaft runs along the free axis (which the constrained fit does not know, off the insertion line).
+    hidden = hidden_by_shaft(setup, prepared.edges_px, free.tip_in_eye, free.axis)
+    points = visible_edge_points(setup, prepared.edges_px, hidden)
+    if isinstance(points, PoseEstimate):
+        return points
+    common.update(tip_in_eye=free.tip_in_eye, axis=free.axis, roll=free.roll)
+    fits = [fit_cones(points, beams, edge_angle, **common)]
     if instrument.beam_count == 1:
         starts = list(zip(solution.candidates[0].apexes, solution.candidates[0].cone_axes, strict=True))
     else:

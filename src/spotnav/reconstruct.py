@@ -297,16 +297,18 @@ def _gauss_newton_step(
 
 
 def _solve_trust_region(
-    params: np.ndarray, args: tuple, scale: float | None
+    params: np.ndarray, args: tuple, scale: float | None, tip_box: tuple[np.ndarray, np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """SciPy's trust-region least squares from ``params``; with ``scale``, the soft-L1 loss.
+    """SciPy's trust-region least squares from ``params``, the tip kept in ``tip_box``; with ``scale``, soft-L1.
 
     Returns the parameters, the residuals and the Jacobian at them.
     """
+    unbounded = np.full(len(params) - 3, np.inf)
     result = least_squares(
         lambda x: _cone_residuals(x[None, :], *args)[0],
         params,
         jac=lambda x: _residuals_and_jacobian(x, *args)[1],
+        bounds=(np.concatenate([tip_box[0], -unbounded]), np.concatenate([tip_box[1], unbounded])),
         loss="linear" if scale is None else "soft_l1",
         f_scale=1.0 if scale is None else scale,
         x_scale="jac",
@@ -315,6 +317,7 @@ def _solve_trust_region(
 
 
 SOLVERS = ("trust-region", "gauss-newton")
+_MAX_TIP_MOVE_MM = 2.0
 
 
 def fit_cones(
@@ -387,8 +390,11 @@ def fit_cones(
     params = np.array(start)
     residuals, jacobian = _residuals_and_jacobian(params, *args)
     scale = max(1.4826 * float(np.median(np.abs(residuals - np.median(residuals)))), 1e-6)
+    # The tip may not wander off: a short arc of edge also fits a narrow far cone (with the axis through
+    # the insertion point, one whose apex sits at that point); the start is within a millimetre.
+    tip_box = (params[:3] - _MAX_TIP_MOVE_MM, params[:3] + _MAX_TIP_MOVE_MM)
     if solver == "trust-region":
-        params, residuals, _ = _solve_trust_region(params, args, scale)
+        params, residuals, _ = _solve_trust_region(params, args, scale, tip_box)
     else:
         for _ in range(2):
             params = _gauss_newton_step(params, residuals, jacobian, scale)
@@ -396,7 +402,8 @@ def fit_cones(
     spread = max(1.4826 * float(np.median(np.abs(residuals))), 1e-7)
     inliers = np.abs(residuals) < 3.0 * spread
     if solver == "trust-region":
-        params, fun, jacobian = _solve_trust_region(params, (points[inliers], beam_of_point[inliers], *args[2:]), None)
+        kept = (points[inliers], beam_of_point[inliers], *args[2:])
+        params, fun, jacobian = _solve_trust_region(params, kept, None, tip_box)
         residuals = _cone_residuals(params[None, :], *args)[0]
     else:
         params = _gauss_newton_step(params, residuals[inliers], jacobian[inliers], None)

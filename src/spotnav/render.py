@@ -18,10 +18,18 @@ cone's edge crosses.
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
-from spotnav.camera import pixel_rays, project_points, unproject_pixels_to_plane, unproject_pixels_to_sphere
+from spotnav.camera import (
+    pixel_rays,
+    pixels_behind_segment,
+    project_points,
+    unproject_pixels_to_plane,
+    unproject_pixels_to_sphere,
+)
 from spotnav.config import Bump, Camera, Setup
 from spotnav.config import Render as RenderSettings
 from spotnav.geometry import (
@@ -41,6 +49,9 @@ _NEWTON_STEPS = 8
 _NOISE_MARGIN = 1 << 20
 _NOISE_BANK_SEED = 0x5EED
 _BOX_AZIMUTHS = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
+_FAULTS_STREAM = 0xFA  # the disturbances' random stream, apart from the noise offset's
+_GLINT_PEAK = 4.0  # full scales: a specular highlight saturates
+_SHAFT_LINEAR = 0.02  # dark steel in the dim ambient light
 
 
 def exposure_gain(exposure_stops: float) -> float:
@@ -171,7 +182,9 @@ class Renderer:
         v1 = min(int(np.ceil(pixels[:, 1].max() + pad)) + 1, setup.camera.height_px)
         if u0 >= u1 or v0 >= v1:
             return None
-        return u0, v0, u1, v1
+        # At least 2 px a side, for the edge's gradient (a spot that only grazes the image's border).
+        u0, v0 = min(u0, setup.camera.width_px - 2), min(v0, setup.camera.height_px - 2)
+        return u0, v0, max(u1, u0 + 2), max(v1, v0 + 2)
 
     def _irradiance(
         self, u: np.ndarray, v: np.ndarray, tip: np.ndarray, axes: np.ndarray, power_w: float
@@ -235,14 +248,15 @@ class Renderer:
         Sensor noise is Gaussian with the Poisson variance of the signal plus the
         read noise. Its standard normals are read from a bank of independent
         draws at a seeded random offset: every frame's noise is white and
-        reproducible, without drawing a new normal per pixel and channel.
+        reproducible, without drawing a new normal per pixel and channel. The
+        setup's ``faults`` add their disturbances, placed by the same seed.
 
         Parameters
         ----------
         pose : InstrumentPose
             True tip and instrument axis in the eye frame.
         seed : int
-            Seed of the sensor noise (frames are reproducible).
+            Seed of the sensor noise and the disturbances (frames are reproducible).
         power_w : float, optional
             Overrides ``light.power_w``.
 
@@ -253,11 +267,10 @@ class Renderer:
         """
         cfg = self.setup.render
         camera = self.setup.camera
-        lit = self.irradiance_image(pose, power_w)
-        gain = exposure_gain(cfg.exposure_stops)
         albedo, background, sigma, bank = _static_images(
             camera, self.setup.true_radius_mm, self.setup.world.surface, cfg
         )
+        patches = self._patches(pose, seed, power_w, albedo)
         noisy = cfg.full_well_e > 0
         if noisy:
             offset = int(np.random.default_rng(seed).integers(0, _NOISE_MARGIN))
@@ -267,16 +280,22 @@ class Renderer:
         for r0 in range(0, camera.height_px, _ROW_CHUNK):
             r1 = min(r0 + _ROW_CHUNK, camera.height_px)
             linear = background[r0:r1].copy()
-            chunk_sigma = sigma[r0:r1]
-            if lit is not None and lit[1][1] < r1 and lit[1][3] > r0:
-                irradiance, (u0, v0, u1, v1) = lit
-                a, b = max(r0, v0), min(r1, v1)
-                light = (gain * irradiance[a - v0 : b - v0, :, None]).astype(np.float32)
-                linear[a - r0 : b - r0, u0:u1] += albedo[a:b, u0:u1] * light
+            chunk_sigma, own_sigma = sigma[r0:r1], False
+            for patch in patches:
+                a, b = max(r0, patch.v0), min(r1, patch.v0 + len(patch.linear))
+                if a >= b:
+                    continue
+                region = linear[a - r0 : b - r0, patch.u0 : patch.u0 + patch.linear.shape[1]]
+                source = patch.linear[a - patch.v0 : b - patch.v0]
+                if patch.hides is None:
+                    region += source
+                else:
+                    np.copyto(region, source, where=patch.hides[a - patch.v0 : b - patch.v0, :, None])
                 if noisy:
-                    chunk_sigma = chunk_sigma.copy()
-                    chunk_sigma[a - r0 : b - r0, u0:u1] = _noise_sigma(
-                        linear[a - r0 : b - r0, u0:u1], cfg.full_well_e, cfg.read_noise_e
+                    if not own_sigma:
+                        chunk_sigma, own_sigma = chunk_sigma.copy(), True
+                    chunk_sigma[a - r0 : b - r0, patch.u0 : patch.u0 + patch.linear.shape[1]] = _noise_sigma(
+                        region, cfg.full_well_e, cfg.read_noise_e
                     )
             if noisy:
                 linear += np.multiply(chunk_sigma, noise[r0:r1], out=scratch[: r1 - r0])
@@ -285,6 +304,112 @@ class Renderer:
             linear += np.float32(0.5)
             out[r0:r1] = _SRGB_LUT[linear.astype(np.uint16)]
         return out
+
+    def _patches(self, pose: InstrumentPose, seed: int, power_w: float | None, albedo: np.ndarray) -> list[_Patch]:
+        """What each frame adds to the static background: the spots, then the faults' disturbances, in order."""
+        faults = self.setup.faults
+        rng = np.random.default_rng([seed, _FAULTS_STREAM])
+        patches = []
+        lit = self.irradiance_image(pose, power_w)
+        if lit is not None:
+            irradiance, (u0, v0, u1, v1) = lit
+            light = albedo[v0:v1, u0:u1] * (exposure_gain(self.setup.render.exposure_stops) * irradiance)[
+                ..., None
+            ].astype(np.float32)
+            if faults.vessels:
+                light *= 1.0 - faults.vessel_contrast * self._vessel_mask(light.shape[:2], faults.vessels, rng)
+            spot = _Patch(u0, v0, light)
+            if faults.motion_blur_px > 0:
+                spot = self._blurred(spot, faults.motion_blur_px, rng)
+            patches.append(spot)
+            centre = np.array([(u0 + u1) / 2.0, (v0 + v1) / 2.0])
+            size = np.array([u1 - u0, v1 - v0], dtype=float)
+            for _ in range(faults.glints):
+                where = centre + rng.uniform(-0.6, 0.6, 2) * size
+                patches.append(self._blob(where, max(1.0, 0.012 * self._px_per_mm), _GLINT_PEAK))
+            if faults.stray_light > 0:
+                direction = rng.uniform(0.0, 2.0 * np.pi)
+                distance = rng.uniform(0.15, 0.3) * self.setup.camera.width_px
+                where = centre + distance * np.array([np.cos(direction), np.sin(direction)])
+                patches.append(self._blob(where, 0.04 * self.setup.camera.width_px, faults.stray_light))
+        if faults.shaft and self.setup.instrument.shaft_diameter_mm > 0:
+            patches.append(self._shaft(pose))
+        return [p for p in patches if p is not None]
+
+    @property
+    def _px_per_mm(self) -> float:
+        """Pixels per mm on the retina near the pole."""
+        camera = self.setup.camera
+        return camera.focal_px / (camera.distance_mm - 1.0)
+
+    def _vessel_mask(self, shape: tuple[int, int], count: int, rng: np.random.Generator) -> np.ndarray:
+        """``count`` random dark lines across a box of ``shape``, 0.05-0.1 mm wide: coverage in [0, 1]."""
+        height, width = shape
+        mask = np.zeros(shape, dtype=np.float32)
+        for _ in range(count):
+            through = rng.uniform(0.3, 0.7, 2) * (width, height)
+            angle = rng.uniform(0.0, np.pi)
+            reach = 2.0 * max(width, height) * np.array([np.cos(angle), np.sin(angle)])
+            ends = np.round(np.array([through - reach, through + reach]) * 16).astype(np.int32)
+            thickness = max(1, round(rng.uniform(0.05, 0.1) * self._px_per_mm))
+            cv2.line(mask, tuple(ends[0]), tuple(ends[1]), 1.0, thickness, cv2.LINE_AA, 4)
+        return np.minimum(mask, 1.0)[..., None]
+
+    def _blurred(self, patch: _Patch, length_px: float, rng: np.random.Generator) -> _Patch:
+        """The patch smeared along a random direction over ``length_px`` (grown to hold the smear)."""
+        pad = int(np.ceil(length_px / 2.0)) + 1
+        grown = cv2.copyMakeBorder(patch.linear, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+        size = 2 * pad + 1
+        kernel = np.zeros((size, size), dtype=np.float32)
+        angle = rng.uniform(0.0, np.pi)
+        half = length_px / 2.0 * np.array([np.cos(angle), np.sin(angle)])
+        ends = np.round((pad + np.array([-half, half])) * 16).astype(np.int32)
+        cv2.line(kernel, tuple(ends[0]), tuple(ends[1]), 1.0, 1, cv2.LINE_AA, 4)
+        blurred = cv2.filter2D(grown, -1, kernel / kernel.sum(), borderType=cv2.BORDER_CONSTANT)
+        return self._clipped(_Patch(patch.u0 - pad, patch.v0 - pad, blurred.reshape((*grown.shape[:2], 3))))
+
+    def _blob(self, centre_px: np.ndarray, sigma_px: float, peak: float) -> _Patch | None:
+        """A round Gaussian light of ``peak`` full scales, grey, centred at ``centre_px``."""
+        reach = int(np.ceil(4.0 * sigma_px))
+        u0, v0 = int(np.floor(centre_px[0])) - reach, int(np.floor(centre_px[1])) - reach
+        u, v = np.meshgrid(np.arange(u0, u0 + 2 * reach + 2), np.arange(v0, v0 + 2 * reach + 2))
+        blob = peak * np.exp(-((u - centre_px[0]) ** 2 + (v - centre_px[1]) ** 2) / (2.0 * sigma_px**2))
+        return self._clipped(_Patch(u0, v0, np.repeat(blob[..., None], 3, axis=2).astype(np.float32)))
+
+    def _shaft(self, pose: InstrumentPose) -> _Patch | None:
+        """The shaft from the tip to the insertion point: dark steel over whatever lies behind it."""
+        setup = self.setup
+        end = setup.instrument.insertion_in_eye
+        radius = setup.instrument.shaft_diameter_mm / 2.0
+        ends_px = project_points(setup.camera, np.array([pose.tip_in_eye, end]))
+        pad = radius * setup.camera.focal_px / (setup.camera.distance_mm - max(pose.tip_in_eye[2], end[2])) + 2
+        u0, v0 = np.floor(ends_px.min(axis=0) - pad).astype(int)
+        u1, v1 = np.ceil(ends_px.max(axis=0) + pad).astype(int)
+        u, v = np.meshgrid(np.arange(u0, u1 + 1, dtype=float), np.arange(v0, v1 + 1, dtype=float))
+        hides = pixels_behind_segment(setup.camera, np.stack([u, v], axis=-1), pose.tip_in_eye, end, radius)
+        steel = np.full((*hides.shape, 3), _SHAFT_LINEAR, dtype=np.float32)
+        return self._clipped(_Patch(int(u0), int(v0), steel, hides))
+
+    def _clipped(self, patch: _Patch) -> _Patch | None:
+        """The part of a patch inside the image (None if nothing is)."""
+        camera = self.setup.camera
+        height, width = patch.linear.shape[:2]
+        a, b = max(-patch.u0, 0), max(-patch.v0, 0)
+        c, d = min(camera.width_px - patch.u0, width), min(camera.height_px - patch.v0, height)
+        if a >= c or b >= d:
+            return None
+        hides = None if patch.hides is None else patch.hides[b:d, a:c]
+        return _Patch(patch.u0 + a, patch.v0 + b, patch.linear[b:d, a:c], hides)
+
+
+@dataclass(frozen=True)
+class _Patch:
+    """Linear light ``linear`` (h, w, 3) added at pixel ``(u0, v0)``, or put where ``hides`` (h, w) is true."""
+
+    u0: int
+    v0: int
+    linear: np.ndarray
+    hides: np.ndarray | None = None
 
 
 @functools.lru_cache(maxsize=1)

@@ -21,18 +21,20 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from spotnav.camera import project_points, unproject_pixels_to_sphere
+from spotnav.camera import project_points
 from spotnav.config import Setup
 from spotnav.detect import detect_edge_along_rays, edge_window_px, rays_through_curve
 from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
 from spotnav.localize import (
-    MIN_EDGE_POINTS,
     PoseEstimate,
     check_image_size,
     edge_half_angle,
     edge_model_options,
+    edge_problem,
+    hidden_by_shaft,
     judge_fit,
     localize_precise,
+    visible_edge_points,
 )
 from spotnav.reconstruct import fit_cones
 
@@ -92,7 +94,8 @@ def track_frame(
         ``ok``, or ``clipped`` (a predicted edge leaves the image), or
         ``unreliable`` (an edge on fewer than half the rays: the spot is not
         where predicted; or a check of :func:`spotnav.localize.judge_fit`
-        failed).
+        failed), or ``occluded`` (the shaft, at the predicted pose, hides too
+        much of a spot's edge; its hidden edge points are never used).
     """
     assert predicted.tip_in_eye is not None and predicted.axis is not None
     camera, instrument = setup.camera, setup.instrument
@@ -101,7 +104,7 @@ def track_frame(
         return wrong
     edge_angle = edge_half_angle(setup)
     axes = beam_axes(predicted.axis, instrument.beam_count, instrument.beam_tilt, predicted.roll)
-    points = []
+    edges = []
     for beam_axis in axes:
         try:
             apex_in_eye = predicted.tip_in_eye - beam_axis * instrument.light_radius_mm / np.tan(edge_angle)
@@ -118,11 +121,16 @@ def track_frame(
         if np.any(low < 0) or high[0] > camera.width_px - 1 or high[1] > camera.height_px - 1:
             return PoseEstimate("clipped", detail="a predicted spot reaches the image's border")
         edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True)
-        if len(edge.pixels) < max(MIN_EDGE_POINTS, _MIN_EDGE_RAY_FRACTION * edge.rays):
+        if len(edge.pixels) < _MIN_EDGE_RAY_FRACTION * edge.rays:
             found = f"an edge on only {100 * len(edge.pixels) / edge.rays:.0f} % of the rays near the predicted spot"
             return PoseEstimate("unreliable", detail=found)
-        on_sphere = unproject_pixels_to_sphere(camera, edge.pixels, setup.eye.radius_mm)
-        points.append(on_sphere[np.all(np.isfinite(on_sphere), axis=1)])
+        problem = edge_problem(edge, setup, float(np.mean(radii)))
+        if problem:
+            return PoseEstimate("unreliable", detail=problem)
+        edges.append(edge.pixels)
+    points = visible_edge_points(setup, edges, hidden_by_shaft(setup, edges, predicted.tip_in_eye, predicted.axis))
+    if isinstance(points, PoseEstimate):
+        return points
     fit = fit_cones(
         points,
         list(range(instrument.beam_count)),

@@ -15,6 +15,7 @@ from pathlib import Path
 from spotnav.experiments.calibration import run_calibration
 from spotnav.experiments.chapter6 import Experiment, Options, run_ellipse, run_paths, run_world
 from spotnav.experiments.core import THESIS_TABLE_4_1_UM, approximation_rows, run_approximation, run_volume
+from spotnav.experiments.faults import run_faults
 from spotnav.experiments.paths import helix_tips, square_tips, working_volume_tips
 from spotnav.experiments.runner import ErrorSummary, FrameResult, FrameRunner, run_frames, summarize
 
@@ -41,6 +42,7 @@ EXPERIMENTS: dict[str, Callable[[Options], Experiment]] = {
     "radius": partial(run_world, "radius"),
     "calibration": run_calibration,
     "volume": run_volume,
+    "faults": run_faults,
 }
 
 

@@ -17,6 +17,7 @@ __all__ = [
     "plot_against_power",
     "plot_error_against",
     "plot_errors_by_status",
+    "plot_fault_study",
     "plot_gallery",
     "plot_path_3d",
     "plot_per_step",
@@ -157,3 +158,31 @@ def plot_error_against(
         ax.set(xlabel=xlabel, ylabel="tip error [mm]", yscale="log", xscale="log" if log_x else "linear")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
+
+
+def plot_fault_study(
+    path: Path, cells: Mapping[tuple[str, str, str], tuple[float, int, bool]], silent_error_mm: float
+) -> None:
+    """Availability per disturbance and severity, one bar per method, silent failures written beside it.
+
+    Parameters
+    ----------
+    cells : mapping of (category, severity, method) to (availability, silent failures, default severity)
+    """
+    cases = list(dict.fromkeys((category, severity) for category, severity, _ in cells))
+    methods = list(dict.fromkeys(method for _, _, method in cells))
+    height = 0.8 / len(methods)
+    with _figure(path, 1, 1, (9, 0.32 * len(cases) * len(methods) + 1.5), "Availability under disturbances") as axes:
+        ax = axes[0, 0]
+        for number, method in enumerate(methods):
+            y = np.arange(len(cases)) + number * height
+            values = [cells[(*case, method)] for case in cases]
+            ax.barh(y, [v[0] for v in values], height, color=_colour(method) or f"C{number}", label=method)
+            for row, (_, silent, _) in zip(y, values, strict=True):
+                if silent:
+                    ax.text(1.01, row, f"{silent} silent", va="center", color="tab:red", fontsize="x-small")
+        labels = [f"{c}: {s}" + (" (default)" if cells[(c, s, methods[0])][2] else "") for c, s in cases]
+        ax.set_yticks(np.arange(len(cases)) + 0.4 - height / 2, labels, fontsize="x-small")
+        ax.invert_yaxis()
+        ax.set(xlim=(0, 1.2), xlabel=f"fraction of frames ok (silent: ok but over {silent_error_mm} mm off)")
+        ax.legend(fontsize="small", loc="lower right")
