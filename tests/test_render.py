@@ -151,3 +151,10 @@ def test_a_spot_that_grazes_the_border_renders() -> None:
     pose = InstrumentPose.through_insertion([6.0, 0.0, 4.5], setup.instrument.insertion_in_eye)
     image = Renderer(setup).render(pose, seed=0)
     assert image.shape == (1024, 1024, 3) and image.dtype == np.uint8
+
+
+@pytest.mark.parametrize("tip", [(0.0, 0.0, 40.0), (13.0, 0.0, 12.5), (0.0, 0.0, -0.1)])
+def test_a_tip_outside_the_eye_is_a_clear_error(tip: tuple[float, float, float]) -> None:
+    with pytest.raises(ValueError, match=r"lies outside the eye \(radius 12.5 mm") as error:
+        Renderer(small_setup(64)).render(InstrumentPose(list(tip), [0.0, 0.0, -1.0]))
+    assert "\n" not in str(error.value)

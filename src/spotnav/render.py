@@ -264,7 +264,16 @@ class Renderer:
         -------
         ndarray, shape (height_px, width_px, 3), uint8
             RGB.
+
+        Raises
+        ------
+        ValueError
+            If the tip lies outside the (true) eye.
         """
+        radius = self.setup.true_radius_mm
+        if self.setup.world.surface == "sphere" and np.linalg.norm(pose.tip_in_eye - [0.0, 0.0, radius]) >= radius:
+            tip = ", ".join(f"{v:g}" for v in pose.tip_in_eye)
+            raise ValueError(f"the tip ({tip}) mm lies outside the eye (radius {radius:g} mm about (0, 0, {radius:g}))")
         cfg = self.setup.render
         camera = self.setup.camera
         albedo, background, sigma, bank = _static_images(
