@@ -142,8 +142,16 @@ def pixels_behind_segment(
     -------
     ndarray of bool, shape (...)
     """
-    rays = pixel_rays(camera, pixels)
+    pixels = _check_last_axis("pixels", pixels, 2)
     start, end = np.asarray(start_in_eye, dtype=float), np.asarray(end_in_eye, dtype=float)
+    # Pixels beyond the segment's image box (grown by the radius seen at the nearer end) cannot be hidden.
+    ends_px = project_points(camera, np.stack([start, end]))
+    reach = radius_mm * camera.focal_px / (camera.distance_mm - max(start[2], end[2])) + 1.0
+    low, high = ends_px.min(axis=0) - reach, ends_px.max(axis=0) + reach
+    near = np.all((pixels >= low) & (pixels <= high), axis=-1)
+    if not near.any():
+        return near
+    rays = pixel_rays(camera, pixels)
     along = end - start
     offset = camera.center_in_eye - start
     # Closest points of the ray's line and the segment's line, the segment's clamped to its ends.
@@ -153,4 +161,4 @@ def pixels_behind_segment(
     t = np.clip((e - b * d) / denominator, 0.0, 1.0)
     s = t[..., None] * along - offset  # from the camera to the segment's point
     distance2 = np.sum(s * s, axis=-1) - np.sum(s * rays, axis=-1) ** 2
-    return distance2 < radius_mm**2
+    return near & (distance2 < radius_mm**2)

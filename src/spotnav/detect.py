@@ -404,8 +404,8 @@ def detect_edge_along_rays(
     edge_radii = start + (first + fraction) * _STEP_PX
     pixels = centre + edge_radii[:, None] * directions
     ratio = float(np.median(contrast[valid]) / max(noise, 1e-6)) if valid.any() else float("nan")
-    inside = profiles[finite][:, max(int(middle - 2.5 * width), 0) : max(int(middle - width), 1)]
-    clipped = float(np.mean(inside >= _FULL_SCALE_LINEAR))
+    inside = profiles[:, max(int(middle - 2.5 * width), 0) : max(int(middle - width), 1)][finite]
+    clipped = float(np.count_nonzero(inside >= _FULL_SCALE_LINEAR)) / max(inside.size, 1)
     return SpotEdge(pixels[valid], ray_angles[valid], width * _STEP_PX, crop.saturated, rays, ratio, clipped)
 
 
