@@ -537,21 +537,22 @@ def _fit_unhidden(
     start = prepared.start
     assert start.tip_in_eye is not None and start.axis is not None
     hidden = hidden_by_shaft(setup, prepared.edges_px, start.tip_in_eye, start.axis, margin_mm)
-    if isinstance(visible_edge_points(setup, prepared.edges_px, hidden), PoseEstimate):
-        hidden = [np.zeros(len(edge), dtype=bool) for edge in prepared.edges_px]  # judge at a fitted pose instead
-    for _ in range(_SHAFT_PASSES):
+    points = visible_edge_points(setup, prepared.edges_px, hidden)
+    if isinstance(points, PoseEstimate):  # judge the shaft at a fitted pose instead
+        hidden = [np.zeros(len(edge), dtype=bool) for edge in prepared.edges_px]
         points = visible_edge_points(setup, prepared.edges_px, hidden)
+    for _ in range(_SHAFT_PASSES):
         if isinstance(points, PoseEstimate):
             return points
-        fit = fit_cones(
-            points, prepared.beams, edge_angle, insertion_in_eye=setup.instrument.insertion_in_eye, **common
-        )
+        used = points
+        fit = fit_cones(used, prepared.beams, edge_angle, insertion_in_eye=setup.instrument.insertion_in_eye, **common)
         now_hidden = hidden_by_shaft(setup, prepared.edges_px, fit.tip_in_eye, fit.axis, margin_mm)
         if all(np.array_equal(a, b) for a, b in zip(hidden, now_hidden, strict=True)):
             break
         hidden = now_hidden
+        points = visible_edge_points(setup, prepared.edges_px, hidden)
         common = common | {"tip_in_eye": fit.tip_in_eye, "axis": fit.axis, "roll": fit.roll}
-    return fit, points
+    return fit, used
 
 
 def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> PoseEstimate:

@@ -133,7 +133,8 @@ def run_faults(options: Options) -> Experiment:
     """The fault-injection study: every case of :data:`FAULT_CASES` on the helix."""
     count = max(options.count, -(-MIN_FRAMES // len(FAULT_CASES)))
     header = ["disturbance", "severity", "method", "available", "mean [mm]", "max [mm]", "silent failures", "refusals"]
-    rows, totals, cells = [], {"frames": 0, "silent": 0}, {}
+    rows, cells, shaft = [], {}, []
+    frames = silent_total = 0
     for index, case in enumerate(FAULT_CASES):
         world = fault_world(case, options.size_px)
         poses = poses_through_insertion(_tips(case, count), world.instrument.insertion_in_eye)
@@ -142,18 +143,16 @@ def run_faults(options: Options) -> Experiment:
         outputs = options.runner.map(run_frame, jobs, f"faults: {case.category} {case.severity}")
         for number, variant in enumerate(variants):
             results = [output[number] for output in outputs]
-            silent = _silent_failures(results)
-            summary = summarize(results)
-            refusals = _refusals(results)
-            errors = [f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}"]
-            rows.append([case.category, case.severity, variant.label, f"{summary.ok}/{summary.frames}", *errors])
-            rows[-1] += [str(silent), refusals]
+            silent, summary = _silent_failures(results), summarize(results)
+            row = [case.category, case.severity, variant.label, f"{summary.ok}/{summary.frames}"]
+            row += [f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}", str(silent), _refusals(results)]
+            rows.append(row)
             cells[(case.category, case.severity, variant.label)] = (summary.ok / summary.frames, silent, case.default)
             if variant.label == "precise":
-                totals["frames"] += summary.frames
-                totals["silent"] += silent
+                frames, silent_total = frames + summary.frames, silent_total + silent
+                if case.category == "shaft" and case.default:
+                    shaft = row
     plot_fault_study(options.out / "faults.png", cells, SILENT_ERROR_MM)
-    shaft = next(r for r in rows if r[0] == "shaft" and r[1] == "0.6 mm" and r[2] == "precise")
     lines = [
         "## Fault injection: never silently wrong",
         "",
@@ -169,8 +168,8 @@ def run_faults(options: Options) -> Experiment:
         "![availability and silent failures per disturbance](faults.png)",
     ]
     summary_line = (
-        f"faults: precise method {totals['silent']} silent failures in {totals['frames']} frames; "
-        f"shaft 0.6 mm available {shaft[3]}, max {shaft[5]} mm"
+        f"faults: precise method {silent_total} silent failures in {frames} frames; "
+        f"shaft {shaft[1]} available {shaft[3]}, max {shaft[5]} mm"
     )
     return Experiment("faults", "\n".join(lines), summary_line)
 

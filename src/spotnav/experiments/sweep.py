@@ -527,7 +527,7 @@ def run_sweep(
         bar.close()
     table = pa.concat_tables([pq.read_table(directory / _CHUNKS / c.name) for c in chunks])
     pq.write_table(table, directory / _TABLE)
-    frames = len(design_points(sweep)) * len(sweep.paths) * sweep.frames
+    frames = sum(c.stop - c.start for c in chunks)
     wall_s = time.perf_counter() - start
     frames_run = sum(c.stop - c.start for c in todo)
     return SweepRun(frames, frames_run, len(todo), len(chunks) - len(todo), wall_s, used, directory / _TABLE)
