@@ -4,10 +4,21 @@ import cv2
 import numpy as np
 import pytest
 from conftest import small_setup
+from hypothesis import given
+from hypothesis import strategies as st
 
 from spotnav.camera import unproject_pixels_to_sphere
 from spotnav.config import Setup
-from spotnav.detect import detect_edge_subpixel, detect_spots_otsu, linear_luminance, to_gray8
+from spotnav.detect import (
+    _SMOOTHING,
+    _smooth,
+    detect_edge_along_rays,
+    detect_edge_subpixel,
+    detect_spots_otsu,
+    linear_luminance,
+    rays_through_curve,
+    to_gray8,
+)
 from spotnav.geometry import InstrumentPose, angles_between, edge_angle_of_blend
 from spotnav.render import Renderer
 
@@ -102,3 +113,32 @@ def test_linear_luminance_inverts_srgb() -> None:
     assert linear[0, 2] == pytest.approx(0.2158605, rel=1e-5)
     rgb = np.repeat(codes[..., None], 3, axis=2)
     np.testing.assert_allclose(linear_luminance(rgb), linear, rtol=1e-6)
+
+
+@given(seed=st.integers(0, 2**31), length=st.integers(9, 80))
+def test_compiled_smoothing_is_opencvs_reflected_gaussian(seed: int, length: int) -> None:
+    values = np.random.default_rng(seed).normal(size=length)
+    expected = cv2.GaussianBlur(values[None, :], (17, 1), 2.0, borderType=cv2.BORDER_REFLECT)[0]
+    np.testing.assert_allclose(_smooth(values, _SMOOTHING, 0, length), expected, atol=1e-12)
+    part = _smooth(values, _SMOOTHING, 3, length - 2)  # only samples 3 .. length - 3
+    np.testing.assert_allclose(part[3 : length - 2], expected[3 : length - 2], atol=1e-12)
+    assert np.isnan(part[:3]).all() and np.isnan(part[length - 2 :]).all()
+
+
+@pytest.mark.parametrize("offset_px", [(0.0, 0.0), (4.0, -3.0), (-9.0, 6.0)])
+def test_aligned_rays_find_a_disc_that_moved_since_the_prediction(offset_px: tuple[float, float]) -> None:
+    """A disc of radius 60 px at (200.3, 199.6); the rays are cast around a circle of radius 64 px moved by
+    ``offset_px``: with ``align`` every edge point lies on the disc's true rim."""
+    size, centre, radius = 400, np.array([200.3, 199.6]), 60.0
+    rows, columns = np.mgrid[:size, :size]
+    distance = np.hypot(columns - centre[0], rows - centre[1])
+    light = 0.02 + 0.6 / (1.0 + np.exp((distance - radius) / 0.8))  # a soft edge, linear light
+    image = np.dstack(
+        [np.round(255 * np.where(light <= 0.0031308, 12.92 * light, 1.055 * light ** (1 / 2.4) - 0.055))] * 3
+    )
+    angles = np.linspace(0.0, 2.0 * np.pi, 200, endpoint=False)
+    predicted = centre + np.array(offset_px) + 64.0 * np.column_stack([np.cos(angles), np.sin(angles)])
+    edge = detect_edge_along_rays(image.astype(np.uint8), *rays_through_curve(predicted, 160), align=True)
+    assert len(edge.pixels) >= 0.95 * edge.rays
+    rim = np.hypot(*(edge.pixels - centre).T)
+    assert np.abs(rim - radius).max() < 0.15

@@ -161,6 +161,14 @@ def test_beam_0_tilts_toward_x_when_looking_down() -> None:
     assert beams[1, 1] > 0 and beams[2, 1] < 0
 
 
+@given(axis=unit_vectors, tilt=st.floats(0.01, 0.7), rolls=st.lists(st.floats(-np.pi, np.pi), min_size=1, max_size=4))
+def test_beam_axes_broadcast_axes_against_rolls(axis: np.ndarray, tilt: float, rolls: list[float]) -> None:
+    one_by_one = np.stack([beam_axes(axis, 3, tilt, roll) for roll in rolls])
+    np.testing.assert_array_equal(beam_axes(axis, 3, tilt, np.array(rolls)), one_by_one)
+    np.testing.assert_array_equal(beam_axes(np.tile(axis, (len(rolls), 1)), 3, tilt, np.array(rolls)), one_by_one)
+    np.testing.assert_array_equal(beam_axes(np.tile(axis, (2, 1)), 3, tilt, rolls[0]), np.stack([one_by_one[0]] * 2))
+
+
 def test_one_beam_is_the_axis() -> None:
     axis = normalize(np.array([0.1, 0.2, -1.0]))
     np.testing.assert_allclose(beam_axes(axis, 1, 0.3), axis[None, :])

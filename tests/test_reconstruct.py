@@ -9,8 +9,11 @@ from spotnav.geometry import InstrumentPose, angles_between, beam_axes, cone_gen
 from spotnav.reconstruct import (
     apex_candidates,
     choose_by_insertion,
+    correlation_inflation,
     fit_cones,
     fit_ellipse,
+    least_squares_covariance,
+    robust_sigma,
     sphere_normal,
     triangle_from_ellipse,
 )
@@ -168,3 +171,33 @@ def test_fit_cones_frees_the_axis_and_reports_the_edge_model_uncertainty() -> No
     assert angles_between(free.axis, pose.axis) < np.radians(1.0)
     with_model = fit_cones([noisy], [0], BETA, edge_sigma=np.radians(0.01), **common)
     assert with_model.tip_sigma_mm > free.tip_sigma_mm
+
+
+def test_correlation_inflation_of_known_sequences() -> None:
+    groups = np.zeros(40, dtype=np.int64)
+    assert correlation_inflation(np.tile([1.0, -1.0], 20), groups) == 1.0  # anti-correlated: no inflation
+    assert correlation_inflation(np.linspace(-1, 1, 40), groups) == pytest.approx(19.0)  # rho capped at 0.9
+    # Neighbours are taken within a group only: two groups, each alternating about its own mean.
+    two = np.concatenate([np.tile([5.0, 3.0], 10), np.tile([-2.0, -4.0], 10)])
+    assert correlation_inflation(two, np.repeat([0, 1], 20)) == 1.0
+    assert correlation_inflation(np.empty(0), np.empty(0, dtype=np.int64)) == 1.0
+
+
+@given(seed=st.integers(0, 2**31))
+def test_least_squares_covariance_is_the_textbook_formula(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    jacobian, residuals = rng.normal(size=(50, 4)), rng.normal(size=50)
+    groups = np.repeat(np.arange(5), 10)
+    covariance, normal_inverse = least_squares_covariance(jacobian, residuals, groups)
+    np.testing.assert_allclose(normal_inverse, np.linalg.inv(jacobian.T @ jacobian), rtol=1e-9)
+    expected = np.sum(residuals**2) / 46 * correlation_inflation(residuals, groups) * normal_inverse
+    np.testing.assert_allclose(covariance, expected, rtol=1e-12)
+
+
+def test_robust_sigma_ignores_outliers() -> None:
+    values = np.random.default_rng(3).normal(2.0, 0.5, 20001)
+    values[:2000] = 1e6  # 10 % gross outliers
+    # 10 % of the values off the scale widen the robust sigma by 14 % (0.5 sigma: 1.14 x 0.5); a plain
+    # standard deviation would be 3e5.
+    assert robust_sigma(values, True) == pytest.approx(0.5 * 1.14, rel=0.02)
+    assert robust_sigma(values - np.median(values), False) == pytest.approx(robust_sigma(values, True))

@@ -1,5 +1,9 @@
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -118,3 +122,22 @@ def test_tracker_rejects_bad_options() -> None:
         Tracker(world(), max_jump_mm=0.0)
     with pytest.raises(ValueError, match="acceleration"):
         Tracker(world(), smooth=True, acceleration_mm=-1.0)
+
+
+def test_a_new_tracker_has_its_compiled_kernels_ready_before_the_first_frame() -> None:
+    """Tracking's compiled kernels are compiled (or loaded) when the tracker is built, not in a frame."""
+    code = """
+import json
+import spotnav.detect as d, spotnav.reconstruct as r
+kernels = [d._linear_channel, d._aligned_radii, d._read_edges, r._residuals_and_jacobian,
+           r._normal_equations, r._pose_covariance, r.robust_sigma]
+before = [len(kernel.signatures) for kernel in kernels]
+from spotnav.config import Setup
+from spotnav.track import Tracker
+Tracker(Setup())
+print(json.dumps([before, [len(kernel.signatures) for kernel in kernels]]))
+"""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=600)
+    before, after = json.loads(result.stdout.strip().splitlines()[-1])
+    assert before == [0] * len(before)
+    assert all(count >= 1 for count in after)

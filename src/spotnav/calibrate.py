@@ -34,7 +34,7 @@ from spotnav.localize import (
     fit_height_correction,
     localize_precise_with_edges,
 )
-from spotnav.reconstruct import correlation_inflation
+from spotnav.reconstruct import least_squares_covariance, robust_sigma
 
 __all__ = [
     "Calibration",
@@ -233,15 +233,13 @@ def calibrate_edge(
     start += [e.roll for e in edges] if setup.instrument.beam_count > 1 else []
     args = (edges, setup, fit_radius, fit_light_radius)
     before = _residuals(np.array(start), *args)
-    scale = max(1.4826 * float(np.median(np.abs(before - np.median(before)))), 1e-6)
+    scale = max(robust_sigma(before, True), 1e-6)
     robust = least_squares(_residuals, start, args=args, loss="soft_l1", f_scale=scale, x_scale="jac")
-    spread = max(1.4826 * float(np.median(np.abs(robust.fun))), 1e-7)
+    spread = max(robust_sigma(robust.fun, False), 1e-7)
     inliers = np.abs(robust.fun) < 3.0 * spread
     groups = np.concatenate([e.group_of_point for e in edges])
     jacobian = robust.jac[inliers]
-    variance = float(np.sum(robust.fun[inliers] ** 2)) / max(int(inliers.sum()) - len(start), 1)
-    covariance = variance * correlation_inflation(robust.fun[inliers], groups[inliers])
-    covariance = covariance * np.linalg.pinv(jacobian.T @ jacobian)
+    covariance = least_squares_covariance(jacobian, robust.fun[inliers], groups[inliers])[0]
     sigmas = np.sqrt(np.diag(covariance))
     light_radius = setup.instrument.light_radius_mm
     if fit_light_radius:  # a light smaller than the fit can tell may come out a little below zero: a point
@@ -401,17 +399,15 @@ def self_calibrate_radius(
     edge = edge_half_angle(setup)
     args = (frames, setup, edge)
     first = _joint_residuals(np.array(start), *args)
-    scale = max(1.4826 * float(np.median(np.abs(first - np.median(first)))), 1e-6)
+    scale = max(robust_sigma(first, True), 1e-6)
     fit = least_squares(
         _joint_residuals, start, args=args, jac_sparsity=sparsity, loss="soft_l1", f_scale=scale, x_scale="jac"
     )
-    spread = max(1.4826 * float(np.median(np.abs(fit.fun))), 1e-7)
+    spread = max(robust_sigma(fit.fun, False), 1e-7)
     inliers = np.abs(fit.fun) < 3.0 * spread
     jacobian = fit.jac.tocsr()[inliers].toarray()
     groups = np.concatenate([f.group_of_point for f in frames])
-    variance = float(np.sum(fit.fun[inliers] ** 2)) / max(int(inliers.sum()) - len(start), 1)
-    covariance = variance * correlation_inflation(fit.fun[inliers], groups[inliers])
-    covariance = covariance * np.linalg.pinv(jacobian.T @ jacobian)
+    covariance = least_squares_covariance(jacobian, fit.fun[inliers], groups[inliers])[0]
     radius = float(fit.x[0])
     camera = setup.camera
     ends = np.cumsum(sizes)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+from numba import njit
 
 __all__ = [
     "Spot",
@@ -365,74 +365,25 @@ def detect_edge_along_rays(
     -------
     SpotEdge
     """
-    rays = len(ray_angles)
     crop = _linear_crop(image, centre, float(np.max(radii)) + edge_window_px(radii, align=align))
+    offset = np.asarray(centre, dtype=float) - crop.origin
+    angles, radii = np.asarray(ray_angles, dtype=float), np.asarray(radii, dtype=float)
     if align:
-        radii = _coarse_edge_radii(crop, centre, ray_angles, radii)
-    steps, directions, profiles = _ray_profiles(crop, centre, ray_angles, radii, edge_window_px(radii), _STEP_PX)
-    start = radii + steps[0]
-    finite = np.all(np.isfinite(profiles), axis=1)
-    if not finite.any():
-        return SpotEdge(np.empty((0, 2)), np.empty(0), float("nan"), crop.saturated, rays)
-    stride = 1 + int(np.sum(finite)) // _PROFILE_RAYS
-    mean_profile = np.median(profiles[::stride][finite[::stride]], axis=0)
-    mean_slope = -np.gradient(_smooth_rows(mean_profile[None, :])[0])
-    width = max(_full_width_at_half_maximum(mean_slope), 3.0)  # samples
-    middle = int(np.argmax(mean_slope))
-    smooth = _smooth_rows(np.where(finite[:, None], profiles, mean_profile))
-    count = len(steps)
-    lines = smooth @ np.hstack(
-        [
-            _line_weights(count, middle - 2.5 * width, middle - 1.0 * width),
-            _line_weights(count, middle + 1.0 * width, middle + 2.5 * width),
-        ]
+        # Every _COARSE_RAY_STRIDE-th ray, _COARSE_SAMPLES samples across the wide window; the edge kept within
+        # the fine window's reach (no pixel beyond edge_window_px(radii, align=True) is read).
+        wide = edge_window_px(radii, align=True)
+        steps = _window_steps(wide, 2.0 * wide / _COARSE_SAMPLES)
+        radii = _aligned_radii(crop.plane, offset, angles, radii, steps, wide - edge_window_px(radii))
+    edge_radii, valid, width, ratio, clipped = _read_edges(
+        crop.plane, offset, angles, radii, _window_steps(edge_window_px(radii), _STEP_PX)
     )
-    plateau_a, plateau_b, background_a, background_b = lines.T
-    index = np.arange(count, dtype=float)
-    above = smooth - 0.5 * ((plateau_a + background_a)[:, None] + (plateau_b + background_b)[:, None] * index)
-    lo, hi = max(int(middle - width), 0), min(int(middle + width) + 1, count - 1)
-    # The first fall from above the level to below it, searching outward within the edge.
-    falls = (above[:, lo:hi] > 0) & (above[:, lo + 1 : hi + 1] <= 0)
-    has_fall = falls.any(axis=1)
-    first = lo + np.argmax(falls, axis=1)
-    rows = np.arange(rays)
-    a, b = above[rows, first], above[rows, first + 1]
-    fraction = a / np.where(a - b > 0, a - b, 1.0)
-    contrast = (plateau_a - background_a) + (plateau_b - background_b) * first
-    noise = 1.4826 * np.median(np.abs(np.diff(profiles[::4][finite[::4]], axis=1))) / np.sqrt(2)  # every 4th ray
-    valid = finite & has_fall & (contrast > max(4.0 * noise, 1e-4))
-    edge_radii = start + (first + fraction) * _STEP_PX
-    pixels = centre + edge_radii[:, None] * directions
-    ratio = float(np.median(contrast[valid]) / max(noise, 1e-6)) if valid.any() else float("nan")
-    inside = profiles[:, max(int(middle - 2.5 * width), 0) : max(int(middle - width), 1)][finite]
-    clipped = float(np.count_nonzero(inside >= _FULL_SCALE_LINEAR)) / max(inside.size, 1)
-    return SpotEdge(pixels[valid], ray_angles[valid], width * _STEP_PX, crop.saturated, rays, ratio, clipped)
+    pixels = centre + edge_radii[valid, None] * np.column_stack([np.cos(angles[valid]), np.sin(angles[valid])])
+    return SpotEdge(pixels, angles[valid], width * _STEP_PX, crop.saturated, len(angles), ratio, clipped)
 
 
-def _coarse_edge_radii(crop: _LinearCrop, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """Where each ray's profile last falls through a fifth of its range, within the aligned window.
-
-    Every ``_COARSE_RAY_STRIDE``-th ray is read with ``_COARSE_SAMPLES``
-    samples across the wide window; the edges are median-filtered over
-    neighbouring rays, interpolated to all rays and kept within reach of the
-    fine window (so that no pixel beyond ``edge_window_px(radii, align=True)``
-    is read).
-    """
-    wide = edge_window_px(radii, align=True)
-    coarse_angles, coarse_radii = ray_angles[::_COARSE_RAY_STRIDE], radii[::_COARSE_RAY_STRIDE]
-    steps, _, profiles = _ray_profiles(crop, centre, coarse_angles, coarse_radii, wide, 2.0 * wide / _COARSE_SAMPLES)
-    smooth = _smooth_rows(np.nan_to_num(profiles))
-    low, high = smooth.min(axis=1), smooth.max(axis=1)
-    above = smooth > (low + _COARSE_LEVEL * (high - low))[:, None]
-    falls = above[:, :-1] & ~above[:, 1:]
-    outermost = falls.shape[1] - 1 - np.argmax(falls[:, ::-1], axis=1)
-    shift = np.where(falls.any(axis=1), steps[np.minimum(outermost + 1, len(steps) - 1)], 0.0)
-    half = _EDGE_MEDIAN_RAYS // 2
-    windows = sliding_window_view(np.concatenate([shift[-half:], shift, shift[:half]]), _EDGE_MEDIAN_RAYS)
-    shift = np.partition(windows, half, axis=1)[:, half]  # running median, around the spot
-    edge_radii = np.interp(ray_angles, coarse_angles, coarse_radii + shift, period=2 * np.pi)
-    reach = wide - edge_window_px(radii)
-    return np.clip(edge_radii, radii - reach, radii + reach)
+def _window_steps(half_window: float, step: float) -> np.ndarray:
+    """Samples every ``step`` pixels from ``-half_window`` to ``half_window``."""
+    return np.arange(-half_window, half_window + step, step)
 
 
 def edge_window_px(radii: np.ndarray, *, align: bool = False) -> float:
@@ -440,44 +391,222 @@ def edge_window_px(radii: np.ndarray, *, align: bool = False) -> float:
     return (2.0 if align else 1.0) * (0.15 * float(np.mean(radii)) + 8.0)
 
 
-def _ray_profiles(
-    crop: _LinearCrop, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, half_window: float, step: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Linear profiles along rays, sampled every ``step`` pixels within ``half_window`` of ``radii``.
+# The compiled kernels below read rays one sample at a time: a frame's few thousand samples cost
+# microseconds, where array calls would cost tens of microseconds each (tracking's budget is 5 ms).
+_SMOOTHING = cv2.getGaussianKernel(17, 2.0).ravel()  # Gaussian of 2 samples' sigma
 
-    Returns the steps along each ray (pixels from ``radii``), the rays' unit
-    directions (R, 2) and the profiles (R, steps), NaN off the crop.
+
+@njit(cache=True)
+def _sample_rays(
+    plane: np.ndarray, offset: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, steps: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear samples (R, S) of ``plane`` at ``offset + (radii + steps) * direction``, NaN off the plane.
+
+    Also returns which rays (R,) lie wholly on the plane.
     """
-    steps = np.arange(-half_window, half_window + step, step)
-    directions = np.column_stack([np.cos(ray_angles), np.sin(ray_angles)])
-    distances = radii[:, None] + steps[None, :]
-    map_u = (centre[0] - crop.origin[0] + distances * directions[:, :1]).astype(np.float32)
-    map_v = (centre[1] - crop.origin[1] + distances * directions[:, 1:]).astype(np.float32)
-    plane = crop.plane
-    profiles = cv2.remap(plane, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    outside = (map_u < 0) | (map_v < 0) | (map_u > plane.shape[1] - 1) | (map_v > plane.shape[0] - 1)
-    profiles[outside] = np.nan
-    return steps, directions, profiles
+    height, width = plane.shape
+    profiles = np.full((len(ray_angles), len(steps)), np.nan)
+    inside = np.zeros(len(ray_angles), dtype=np.bool_)
+    if height < 2 or width < 2:
+        return profiles, inside
+    for r in range(len(ray_angles)):
+        inside[r] = True
+        cos, sin = np.cos(ray_angles[r]), np.sin(ray_angles[r])
+        for s in range(len(steps)):
+            u = offset[0] + (radii[r] + steps[s]) * cos
+            v = offset[1] + (radii[r] + steps[s]) * sin
+            if not (0.0 <= u <= width - 1 and 0.0 <= v <= height - 1):
+                inside[r] = False
+                continue
+            iu, iv = min(int(u), width - 2), min(int(v), height - 2)
+            fu, fv = u - iu, v - iv
+            top = (1.0 - fu) * plane[iv, iu] + fu * plane[iv, iu + 1]
+            bottom = (1.0 - fu) * plane[iv + 1, iu] + fu * plane[iv + 1, iu + 1]
+            profiles[r, s] = (1.0 - fv) * top + fv * bottom
+    return profiles, inside
 
 
-def _smooth_rows(profiles: np.ndarray) -> np.ndarray:
-    """Each row of (R, S) ``profiles`` smoothed by a Gaussian of 2 samples' sigma (mirrored at the ends)."""
-    return cv2.GaussianBlur(profiles, (17, 1), 2.0, borderType=cv2.BORDER_REFLECT)
+@njit(cache=True)
+def _smooth(values: np.ndarray, kernel: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """``values`` (S,) convolved with ``kernel`` (odd length), mirrored at the ends (``fedcba|abcdef|fedcba``).
 
-
-def _line_weights(count: int, start: float, stop: float) -> np.ndarray:
-    """Weights (count, 2) whose product with a row gives the least-squares line ``a + b * index`` through it.
-
-    Only the row's samples with index in [start, stop] count (at least two).
+    Only samples ``start`` to ``stop`` (exclusive) are computed, the others are NaN. Rows shorter
+    than half the kernel are mirrored once, then held.
     """
-    first, last = int(np.clip(np.ceil(start), 0, count - 2)), int(np.clip(np.floor(stop), 1, count - 1))
-    last = max(last, first + 1)
-    x = np.arange(first, last + 1, dtype=float)
-    centred = x - x.mean()
-    weights = np.zeros((count, 2))
-    weights[first : last + 1, 1] = centred / np.sum(centred**2)  # slope
-    weights[first : last + 1, 0] = 1.0 / len(x) - x.mean() * weights[first : last + 1, 1]  # intercept
-    return weights
+    count, half = len(values), len(kernel) // 2
+    start, stop = max(start, 0), min(stop, count)
+    padded = np.empty(count + 2 * half)
+    for j in range(count + 2 * half):
+        i = j - half
+        if i < 0:
+            i = min(-i - 1, count - 1)
+        elif i >= count:
+            i = max(2 * count - i - 1, 0)
+        padded[j] = values[i]
+    # Taps outside, samples inside, indices counted from 0 (no negative-index checks): the inner loop vectorises.
+    source, part = padded[start:], np.zeros(max(stop - start, 0))
+    for k in range(len(kernel)):
+        for i in range(len(part)):
+            part[i] += kernel[k] * source[i + k]
+    smooth = np.full(count, np.nan)
+    for i in range(len(part)):
+        smooth[start + i] = part[i]
+    return smooth
+
+
+@njit(cache=True)
+def _fit_line(values: np.ndarray, start: float, stop: float) -> tuple[float, float]:
+    """Least-squares line ``a + b * index`` through the samples with index in [start, stop] (at least two)."""
+    count = len(values)
+    first = min(max(int(np.ceil(start)), 0), count - 2)
+    last = max(min(max(int(np.floor(stop)), 1), count - 1), first + 1)
+    index_mean = 0.5 * (first + last)
+    value_mean = np.mean(values[first : last + 1])
+    covariance, variance = 0.0, 0.0
+    for i in range(first, last + 1):
+        covariance += (i - index_mean) * (values[i] - value_mean)
+        variance += (i - index_mean) ** 2
+    slope = covariance / variance
+    return value_mean - index_mean * slope, slope
+
+
+@njit(cache=True)
+def _full_width_at_half_maximum(values: np.ndarray) -> float:
+    """Width, in samples, of the region around the maximum above half of it."""
+    peak = int(np.argmax(values))
+    half = 0.5 * values[peak]
+    left = peak
+    while left > 0 and values[left - 1] > half:
+        left -= 1
+    right = peak
+    while right < len(values) - 1 and values[right + 1] > half:
+        right += 1
+    return float(right - left + 1)
+
+
+@njit(cache=True)
+def _every_nth(selected: np.ndarray, n: int) -> np.ndarray:
+    """Indices of every ``n``-th entry of ``selected`` (R,) that is True."""
+    chosen = np.empty(len(selected), dtype=np.int64)
+    count = 0
+    for r in range(0, len(selected), n):
+        if selected[r]:
+            chosen[count] = r
+            count += 1
+    return chosen[:count]
+
+
+@njit(cache=True)
+def _read_edges(
+    plane: np.ndarray, offset: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, steps: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float, float, float]:
+    """The fine pass of :func:`detect_edge_along_rays` on rays sampled at ``steps`` (S,) around ``radii`` (R,).
+
+    Returns each ray's edge distance from the centre (R,), whether it is valid
+    (R,), the edge's width in samples, the median contrast over the noise and
+    the clipped fraction of the plateau.
+    """
+    rays, count, kernel = len(ray_angles), len(steps), _SMOOTHING
+    profiles, finite = _sample_rays(plane, offset, ray_angles, radii, steps)
+    edge_radii = np.full(rays, np.nan)
+    valid = np.zeros(rays, dtype=np.bool_)
+    if not finite.any():
+        return edge_radii, valid, np.nan, np.nan, 0.0
+    # The median profile, over about _PROFILE_RAYS rays, gives the edge's place and width in the window.
+    chosen = _every_nth(finite, 1 + finite.sum() // _PROFILE_RAYS)
+    column = np.empty(len(chosen))
+    mean_profile = np.empty(count)
+    for s in range(count):
+        for j in range(len(chosen)):
+            column[j] = profiles[chosen[j], s]
+        mean_profile[s] = np.median(column)
+    mean_smooth = _smooth(mean_profile, kernel, 0, count)
+    mean_slope = np.empty(count)  # minus the gradient: central differences, one-sided at the ends
+    for s in range(1, count - 1):
+        mean_slope[s] = 0.5 * (mean_smooth[s - 1] - mean_smooth[s + 1])
+    mean_slope[0], mean_slope[-1] = mean_smooth[0] - mean_smooth[1], mean_smooth[-2] - mean_smooth[-1]
+    width = max(_full_width_at_half_maximum(mean_slope), 3.0)  # samples
+    middle = int(np.argmax(mean_slope))
+    lo, hi = max(int(middle - width), 0), min(int(middle + width) + 1, count - 1)
+    quiet = _every_nth(finite, 4)
+    steps_between = np.empty(len(quiet) * (count - 1))
+    for j in range(len(quiet)):
+        for s in range(count - 1):
+            steps_between[j * (count - 1) + s] = abs(profiles[quiet[j], s + 1] - profiles[quiet[j], s])
+    noise = 1.4826 * np.median(steps_between) / np.sqrt(2.0)
+    contrast = np.zeros(rays)
+    # Only the samples the lines and the crossing read are smoothed.
+    needed = (max(int(np.floor(middle - 2.5 * width)) - 1, 0), int(np.ceil(middle + 2.5 * width)) + 2)
+    for r in range(rays):
+        smooth = _smooth(profiles[r], kernel, needed[0], needed[1]) if finite[r] else mean_smooth
+        plateau_a, plateau_b = _fit_line(smooth, middle - 2.5 * width, middle - 1.0 * width)
+        background_a, background_b = _fit_line(smooth, middle + 1.0 * width, middle + 2.5 * width)
+        level_a, level_b = 0.5 * (plateau_a + background_a), 0.5 * (plateau_b + background_b)
+        # The first fall from above the halfway level to below it, searching outward within the edge.
+        first, has_fall = lo, False
+        for i in range(lo, hi):
+            if smooth[i] - level_a - level_b * i > 0 and smooth[i + 1] - level_a - level_b * (i + 1) <= 0:
+                first, has_fall = i, True
+                break
+        a = smooth[first] - level_a - level_b * first
+        b = smooth[first + 1] - level_a - level_b * (first + 1)
+        fraction = a / (a - b) if a - b > 0 else a
+        contrast[r] = (plateau_a - background_a) + (plateau_b - background_b) * first
+        valid[r] = finite[r] and has_fall and contrast[r] > max(4.0 * noise, 1e-4)
+        edge_radii[r] = radii[r] + steps[0] + (first + fraction) * (steps[1] - steps[0])
+    contrast_valid = contrast[_every_nth(valid, 1)]
+    ratio = np.median(contrast_valid) / max(noise, 1e-6) if len(contrast_valid) else np.nan
+    plateau = range(max(int(middle - 2.5 * width), 0), min(max(int(middle - width), 1), count))
+    clipped_samples, samples = 0, 0
+    for r in range(rays):
+        if finite[r]:
+            for s in plateau:
+                clipped_samples += profiles[r, s] >= _FULL_SCALE_LINEAR
+                samples += 1
+    clipped = clipped_samples / max(samples, 1)
+    return edge_radii, valid, width, ratio, clipped
+
+
+@njit(cache=True)
+def _aligned_radii(
+    plane: np.ndarray, offset: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, steps: np.ndarray, reach: float
+) -> np.ndarray:
+    """The coarse pass of :func:`detect_edge_along_rays`: each ray's edge, within ``reach`` of ``radii`` (R,).
+
+    Every ``_COARSE_RAY_STRIDE``-th ray is sampled at ``steps`` (S,) around
+    ``radii``; its edge is the outermost fall through ``_COARSE_LEVEL`` of its
+    smoothed range. The edges are median-filtered over ``_EDGE_MEDIAN_RAYS``
+    neighbours around the spot and interpolated, in angle, to every ray.
+    """
+    coarse = np.arange(0, len(ray_angles), _COARSE_RAY_STRIDE)
+    rays, count = len(coarse), len(steps)
+    profiles, _ = _sample_rays(plane, offset, ray_angles[coarse], radii[coarse], steps)
+    shift = np.zeros(rays)
+    for r in range(rays):
+        for i in range(count):
+            if np.isnan(profiles[r, i]):
+                profiles[r, i] = 0.0  # off the image: dark
+        smooth = _smooth(profiles[r], _SMOOTHING, 0, count)
+        low, high = smooth.min(), smooth.max()
+        threshold = low + _COARSE_LEVEL * (high - low)
+        for i in range(count - 2, -1, -1):
+            if smooth[i] > threshold and not smooth[i + 1] > threshold:
+                shift[r] = steps[i + 1]
+                break
+    half = _EDGE_MEDIAN_RAYS // 2
+    coarse_radii, window = np.empty(rays), np.empty(_EDGE_MEDIAN_RAYS)
+    for r in range(rays):
+        for k in range(_EDGE_MEDIAN_RAYS):
+            window[k] = shift[(r + k - half) % rays]
+        coarse_radii[r] = radii[coarse[r]] + np.median(window)
+    aligned = np.empty(len(ray_angles))
+    for j in range(len(ray_angles)):
+        before, after = j // _COARSE_RAY_STRIDE, (j // _COARSE_RAY_STRIDE + 1) % rays
+        gap = (ray_angles[coarse[after]] - ray_angles[coarse[before]]) % (2.0 * np.pi)
+        weight = (ray_angles[j] - ray_angles[coarse[before]]) % (2.0 * np.pi) / gap if gap > 0 else 0.0
+        edge = (1.0 - weight) * coarse_radii[before] + weight * coarse_radii[after]
+        aligned[j] = min(max(edge, radii[j] - reach), radii[j] + reach)
+    return aligned
 
 
 @dataclass(frozen=True)
@@ -502,29 +631,40 @@ def _linear_crop(image: np.ndarray, centre: np.ndarray, reach: float) -> _Linear
     u1 = min(int(np.ceil(centre[0] + reach)) + 2, width)
     v1 = min(int(np.ceil(centre[1] + reach)) + 2, height)
     crop = image[v0:v1, u0:u1]
-    channels = [crop] if crop.ndim == 2 else cv2.split(crop)[:3]
     lut, full_scale = (_LINEAR_8, _FULL_SCALE_8) if image.dtype == np.uint8 else (_LINEAR_16, _FULL_SCALE_16)
-    brightest = np.array([cv2.minMaxLoc(c)[1] for c in channels])
-    clipped = np.array(
-        [
-            cv2.countNonZero(cv2.compare(c, full_scale, cv2.CMP_GE)) if m >= full_scale else 0
-            for c, m in zip(channels, brightest, strict=True)
-        ]
-    )
-    channel = int(np.argmax(np.where(clipped == 0, brightest, -1))) if np.any(clipped == 0) else int(np.argmin(clipped))
-    plane = channels[channel]
-    linear = cv2.LUT(plane, lut) if plane.dtype == np.uint8 else lut[plane]
-    return _LinearCrop(linear, (u0, v0), bool(np.any(clipped)))
+    plane, saturated = _linear_channel(crop if crop.ndim == 3 else crop[:, :, None], lut, full_scale)
+    return _LinearCrop(plane, (u0, v0), saturated)
 
 
-def _full_width_at_half_maximum(values: np.ndarray) -> float:
-    """Width, in samples, of the region around the maximum above half of it."""
-    peak = int(np.nanargmax(values))
-    half = 0.5 * values[peak]
-    left = peak
-    while left > 0 and values[left - 1] > half:
-        left -= 1
-    right = peak
-    while right < len(values) - 1 and values[right + 1] > half:
-        right += 1
-    return float(right - left + 1)
+@njit(cache=True)
+def _linear_channel(crop: np.ndarray, lut: np.ndarray, full_scale: int) -> tuple[np.ndarray, bool]:
+    """One channel (of the first three) of ``crop`` (H, W, C) through ``lut``, and whether any channel clips.
+
+    The channel is the brightest that never reaches ``full_scale``, else the least clipped one.
+    """
+    height, width, channels = crop.shape[0], crop.shape[1], min(crop.shape[2], 3)
+    brightest, clipped = np.zeros(channels, dtype=np.int64), np.zeros(channels, dtype=np.int64)
+    for v in range(height):
+        row = crop[v]
+        for u in range(width):
+            for c in range(channels):
+                if row[u, c] > brightest[c]:
+                    brightest[c] = row[u, c]
+    for c in range(channels):
+        if brightest[c] >= full_scale:  # only then count, in an extra pass
+            count = 0
+            for v in range(height):
+                row = crop[v]
+                for u in range(width):
+                    count += row[u, c] >= full_scale
+            clipped[c] = count
+    chosen = int(np.argmin(clipped))
+    for c in range(channels):
+        if clipped[c] == 0 and (clipped[chosen] > 0 or brightest[c] > brightest[chosen]):
+            chosen = c
+    plane = np.empty((height, width), dtype=np.float32)
+    for v in range(height):
+        row = crop[v]
+        for u in range(width):
+            plane[v, u] = lut[row[u, chosen]]
+    return plane, clipped.sum() > 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 __all__ = [
     "ApproximationDeviation",
@@ -77,11 +78,39 @@ def orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     e1, e2 : ndarray, shape (..., 3)
     """
     axis = normalize(axis)
-    e1 = np.array([1.0, 0.0, 0.0]) - axis[..., :1] * axis
-    vanished = np.linalg.norm(e1, axis=-1, keepdims=True) < 1e-6
-    e1 = normalize(np.where(vanished, np.array([0.0, 1.0, 0.0]) - axis[..., 1:2] * axis, e1))
-    e1 = normalize(e1 - np.sum(e1 * axis, axis=-1, keepdims=True) * axis)  # remove what rounding left along the axis
-    return e1, np.cross(axis, e1)
+    bases = _orthonormal_bases(np.ascontiguousarray(axis.reshape(-1, 3)))
+    return bases[:, 0].reshape(axis.shape), bases[:, 1].reshape(axis.shape)
+
+
+@njit(cache=True)
+def _orthonormal_bases(axes: np.ndarray) -> np.ndarray:
+    """``e1`` and ``e2`` (M, 2, 3) of :func:`orthonormal_basis` for unit ``axes`` (M, 3)."""
+    bases = np.empty((len(axes), 2, 3))
+    for m in range(len(axes)):
+        basis = _basis(axes[m])
+        for k in range(2):
+            for i in range(3):
+                bases[m, k, i] = basis[k, i]
+    return bases
+
+
+@njit(cache=True)
+def _basis(axis: np.ndarray) -> np.ndarray:
+    """``e1`` and ``e2`` (2, 3) of :func:`orthonormal_basis` for one unit ``axis`` (3,); compiled."""
+    x, y, z = axis[0], axis[1], axis[2]
+    a, b, c = 1.0 - x * x, -x * y, -x * z  # +x less its part along the axis
+    if np.sqrt(a * a + b * b + c * c) < 1e-6:
+        a, b, c = -y * x, 1.0 - y * y, -y * z  # +y instead
+    norm = np.sqrt(a * a + b * b + c * c)
+    a, b, c = a / norm, b / norm, c / norm
+    along = a * x + b * y + c * z  # remove what rounding left along the axis
+    a, b, c = a - along * x, b - along * y, c - along * z
+    norm = np.sqrt(a * a + b * b + c * c)
+    a, b, c = a / norm, b / norm, c / norm
+    basis = np.empty((2, 3))
+    basis[0, 0], basis[0, 1], basis[0, 2] = a, b, c
+    basis[1, 0], basis[1, 1], basis[1, 2] = y * c - z * b, z * a - x * c, x * b - y * a
+    return basis
 
 
 def cone_generators(axis: np.ndarray, half_angle: float, azimuths: np.ndarray) -> np.ndarray:
@@ -209,11 +238,39 @@ def beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float | np.n
     axis = normalize(axis)
     if beam_count == 1:
         return axis[..., None, :]
-    # Counter-clockwise seen looking along the axis is a positive turn about -axis.
-    azimuths = -(np.asarray(roll, dtype=float)[..., None] + 2.0 * np.pi * np.arange(beam_count) / beam_count)
-    e1, e2 = orthonormal_basis(axis)
-    radial = np.cos(azimuths)[..., None] * e1[..., None, :] + np.sin(azimuths)[..., None] * e2[..., None, :]
-    return np.cos(tilt) * axis[..., None, :] + np.sin(tilt) * radial
+    shape = np.broadcast_shapes(axis.shape[:-1], np.shape(roll))
+    axes = np.ascontiguousarray(np.broadcast_to(axis, (*shape, 3)).reshape(-1, 3))
+    rolls = np.ascontiguousarray(np.broadcast_to(np.asarray(roll, dtype=float), shape).reshape(-1))
+    return _beam_axes_of_rows(axes, beam_count, tilt, rolls).reshape(*shape, beam_count, 3)
+
+
+@njit(cache=True)
+def _beam_axes_of_rows(axes: np.ndarray, beam_count: int, tilt: float, rolls: np.ndarray) -> np.ndarray:
+    """Beam axes (M, beam_count, 3) of unit ``axes`` (M, 3) with ``rolls`` (M,)."""
+    beams = np.empty((len(axes), beam_count, 3))
+    for m in range(len(axes)):
+        beams_of_axis = _beam_axes(axes[m], beam_count, tilt, rolls[m])
+        for beam in range(beam_count):
+            for i in range(3):
+                beams[m, beam, i] = beams_of_axis[beam, i]
+    return beams
+
+
+@njit(cache=True)
+def _beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float) -> np.ndarray:
+    """Beam axes (beam_count, 3) of :func:`beam_axes` for one unit ``axis`` (3,); compiled."""
+    beams = np.empty((beam_count, 3))
+    if beam_count == 1:
+        beams[0, 0], beams[0, 1], beams[0, 2] = axis[0], axis[1], axis[2]
+        return beams
+    basis = _basis(axis)
+    for beam in range(beam_count):
+        # Counter-clockwise seen looking along the axis is a positive turn about -axis.
+        azimuth = -(roll + 2.0 * np.pi * beam / beam_count)
+        for i in range(3):
+            radial = np.cos(azimuth) * basis[0, i] + np.sin(azimuth) * basis[1, i]
+            beams[beam, i] = np.cos(tilt) * axis[i] + np.sin(tilt) * radial
+    return beams
 
 
 def assign_beams(directions: np.ndarray, axis: np.ndarray) -> tuple[list[int], float] | None:

@@ -17,9 +17,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.optimize import least_squares
 
-from spotnav.geometry import axis_rotations, beam_axes, normalize, rotation_about_y, rotation_about_z
+from spotnav.geometry import _beam_axes, axis_rotations, normalize, rotation_about_y, rotation_about_z
 
 __all__ = [
     "SOLVERS",
@@ -31,6 +32,8 @@ __all__ = [
     "correlation_inflation",
     "fit_cones",
     "fit_ellipse",
+    "least_squares_covariance",
+    "robust_sigma",
     "sphere_normal",
     "triangle_from_ellipse",
 ]
@@ -245,55 +248,88 @@ class ConeFit:
         return float(np.sqrt(np.trace(self.tip_covariance) / 3))
 
 
-def _instrument_axes(params: np.ndarray, insertion_in_eye: np.ndarray | None) -> np.ndarray:
-    """Instrument axes of parameter sets ``params`` (K, P), shape (K, 3)."""
-    if insertion_in_eye is not None:
-        offsets = params[:, :3] - insertion_in_eye
-        return offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
-    about_y, about_z = params[:, 3], params[:, 4]
-    # rotation_about_z(about_z) @ rotation_about_y(about_y) @ (0, 0, -1)
-    return np.column_stack([-np.sin(about_y) * np.cos(about_z), -np.sin(about_y) * np.sin(about_z), -np.cos(about_y)])
+@njit(cache=True)
+def _instrument_axis(params: np.ndarray, insertion_in_eye: np.ndarray) -> np.ndarray:
+    """Instrument axis (3,) of the parameters ``params`` (P,).
 
-
-def _cone_residuals(
-    params: np.ndarray,
-    points: np.ndarray,
-    beam_of_point: np.ndarray,
-    edge_angle: float,
-    beam_count: int,
-    tilt: float,
-    insertion_in_eye: np.ndarray | None,
-    light_radius: float,
-) -> np.ndarray:
-    """Angle of each point from its beam's cone, for parameter sets ``params`` (K, P): shape (K, N).
-
-    The cone is widened by ``light_radius`` (mm): a point's distance from the
-    beam's axis less that radius, against its distance along the axis.
+    Toward the tip ``params[:3]`` from the insertion point, or, where ``insertion_in_eye`` is NaN, the
+    rotations ``params[3:5]`` (see :func:`spotnav.geometry.axis_rotations`).
     """
-    axes = _instrument_axes(params, insertion_in_eye)
-    rolls = params[:, -1] if beam_count > 1 else np.zeros(len(params))
-    beams = axes[:, None, :] if beam_count == 1 else beam_axes(axes, beam_count, tilt, rolls)
-    rays = points[None, :, :] - params[:, None, :3]
-    along = np.einsum("knj,knj->kn", rays, beams[:, beam_of_point])
-    across = np.sqrt(np.maximum(np.einsum("knj,knj->kn", rays, rays) - along**2, 0.0))
-    return np.arctan2(across - light_radius, along) - edge_angle
+    if not np.isnan(insertion_in_eye[0]):
+        offset = params[:3] - insertion_in_eye
+        return offset / np.sqrt(np.sum(offset * offset))
+    about_y, about_z = params[3], params[4]
+    # rotation_about_z(about_z) @ rotation_about_y(about_y) @ (0, 0, -1)
+    return np.array([-np.sin(about_y) * np.cos(about_z), -np.sin(about_y) * np.sin(about_z), -np.cos(about_y)])
 
 
-def _residuals_and_jacobian(params: np.ndarray, *args: object) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals (N,) at ``params`` (P,) and their forward-difference Jacobian (N, P), in one batched call."""
-    steps = 1e-7 * np.maximum(np.abs(params), 1.0)
-    batch = np.vstack([params, params + np.diag(steps)])
-    residuals = _cone_residuals(batch, *args)
-    return residuals[0], ((residuals[1:] - residuals[0]) / steps[:, None]).T
+@njit(cache=True)
+def _cone_residuals(params: np.ndarray, model: tuple) -> np.ndarray:
+    """Angle of each point from its beam's cone, for the pose ``params`` (P,): shape (N,).
+
+    ``model`` is ``(points (N, 3), beam_of_point (N,), edge_angle, beam_count, tilt, insertion_in_eye (3,)
+    or NaN, light_radius)``. The cone is widened by ``light_radius`` (mm): a point's distance from the
+    beam's axis less that radius, against its distance along the axis. Compiled: a pose's few hundred
+    points cost microseconds.
+    """
+    points, beam_of_point, edge_angle, beam_count, tilt, insertion_in_eye, light_radius = model
+    beams = _beam_axes(_instrument_axis(params, insertion_in_eye), beam_count, tilt, params[-1])
+    angles = np.empty(len(points))
+    for n in range(len(points)):
+        b = beam_of_point[n]
+        x, y, z = points[n, 0] - params[0], points[n, 1] - params[1], points[n, 2] - params[2]
+        along = x * beams[b, 0] + y * beams[b, 1] + z * beams[b, 2]
+        across = np.sqrt(max(x * x + y * y + z * z - along * along, 0.0))
+        angles[n] = np.arctan2(across - light_radius, along) - edge_angle
+    return angles
 
 
-def _gauss_newton_step(
-    params: np.ndarray, residuals: np.ndarray, jacobian: np.ndarray, scale: float | None
-) -> np.ndarray:
-    """One Gauss-Newton step from ``params``; with ``scale``, reweighted for the soft-L1 loss."""
-    weights = np.ones_like(residuals) if scale is None else 1.0 / np.sqrt(1.0 + (residuals / scale) ** 2)
-    weighted = jacobian.T * weights
-    return params - np.linalg.solve(weighted @ jacobian, weighted @ residuals)
+@njit(cache=True)
+def _residuals_and_jacobian(params: np.ndarray, model: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals (N,) of :func:`_cone_residuals` at ``params`` (P,) and their forward-difference Jacobian (N, P)."""
+    residuals = _cone_residuals(params, model)
+    jacobian = np.empty((len(residuals), len(params)))
+    for p in range(len(params)):
+        step = 1e-7 * max(abs(params[p]), 1.0)
+        shifted = params.copy()
+        shifted[p] += step
+        moved = _cone_residuals(shifted, model)
+        for n in range(len(residuals)):
+            jacobian[n, p] = (moved[n] - residuals[n]) / step
+    return residuals, jacobian
+
+
+def _gauss_newton_step(params: np.ndarray, residuals: np.ndarray, jacobian: np.ndarray, scale: float) -> np.ndarray:
+    """One Gauss-Newton step from ``params``; with ``scale`` > 0, reweighted for the soft-L1 loss."""
+    normal, gradient = _normal_equations(jacobian, residuals, scale)
+    return params - np.linalg.solve(normal, gradient)
+
+
+@njit(cache=True)
+def _normal_equations(jacobian: np.ndarray, residuals: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``J^T W J`` (P, P) and ``J^T W r`` (P,) for a Jacobian (N, P) and residuals (N,).
+
+    The weights ``W`` are 1, or with ``scale`` > 0 those of the soft-L1 loss (iteratively reweighted least squares).
+    """
+    count, size = jacobian.shape
+    normal, gradient = np.zeros((size, size)), np.zeros(size)
+    for n in range(count):
+        weight = 1.0 if scale <= 0.0 else 1.0 / np.sqrt(1.0 + (residuals[n] / scale) ** 2)
+        for i in range(size):
+            gradient[i] += weight * jacobian[n, i] * residuals[n]
+            for j in range(size):
+                normal[i, j] += weight * jacobian[n, i] * jacobian[n, j]
+    return normal, gradient
+
+
+@njit(cache=True)
+def robust_sigma(values: np.ndarray, centred: bool) -> float:
+    """1.4826 times the median absolute value of ``values`` (N,), less their median if ``centred``.
+
+    The standard deviation of normally distributed values, robust to outliers.
+    """
+    centre = np.median(values) if centred else 0.0
+    return 1.4826 * np.median(np.abs(values - centre))
 
 
 def _solve_trust_region(
@@ -305,9 +341,9 @@ def _solve_trust_region(
     """
     unbounded = np.full(len(params) - 3, np.inf)
     result = least_squares(
-        lambda x: _cone_residuals(x[None, :], *args)[0],
+        lambda x: _cone_residuals(x, args),
         params,
-        jac=lambda x: _residuals_and_jacobian(x, *args)[1],
+        jac=lambda x: _residuals_and_jacobian(x, args)[1],
         bounds=(np.concatenate([tip_box[0], -unbounded]), np.concatenate([tip_box[1], unbounded])),
         loss="linear" if scale is None else "soft_l1",
         f_scale=1.0 if scale is None else scale,
@@ -379,17 +415,18 @@ def fit_cones(
     """
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-    points = np.concatenate(points_in_eye)
+    points = np.concatenate(points_in_eye).astype(float)
     beam_of_point = np.concatenate([np.full(len(p), b) for p, b in zip(points_in_eye, beams, strict=True)])
     start = list(np.asarray(tip_in_eye, dtype=float))
     if insertion_in_eye is None:
         start += list(axis_rotations(axis))
     if beam_count > 1:
         start.append(roll)
-    args = (points, beam_of_point, edge_angle, beam_count, tilt, insertion_in_eye, light_radius)
+    insertion = np.full(3, np.nan) if insertion_in_eye is None else np.asarray(insertion_in_eye, dtype=float)
+    args = (points, beam_of_point, float(edge_angle), int(beam_count), float(tilt), insertion, float(light_radius))
     params = np.array(start)
-    residuals, jacobian = _residuals_and_jacobian(params, *args)
-    scale = max(1.4826 * float(np.median(np.abs(residuals - np.median(residuals)))), 1e-6)
+    residuals, jacobian = _residuals_and_jacobian(params, args)
+    scale = max(robust_sigma(residuals, True), 1e-6)
     # The tip may not wander off: a short arc of edge also fits a narrow far cone (with the axis through
     # the insertion point, one whose apex sits at that point); the start is within a millimetre.
     tip_box = (params[:3] - _MAX_TIP_MOVE_MM, params[:3] + _MAX_TIP_MOVE_MM)
@@ -398,30 +435,21 @@ def fit_cones(
     else:
         for _ in range(2):
             params = _gauss_newton_step(params, residuals, jacobian, scale)
-            residuals, jacobian = _residuals_and_jacobian(params, *args)
-    spread = max(1.4826 * float(np.median(np.abs(residuals))), 1e-7)
+            residuals, jacobian = _residuals_and_jacobian(params, args)
+    spread = max(robust_sigma(residuals, False), 1e-7)
     inliers = np.abs(residuals) < 3.0 * spread
     if solver == "trust-region":
         kept = (points[inliers], beam_of_point[inliers], *args[2:])
         params, fun, jacobian = _solve_trust_region(params, kept, None, tip_box)
-        residuals = _cone_residuals(params[None, :], *args)[0]
+        residuals = _cone_residuals(params, args)
     else:
-        params = _gauss_newton_step(params, residuals[inliers], jacobian[inliers], None)
-        residuals, jacobian = _residuals_and_jacobian(params, *args)
+        params = _gauss_newton_step(params, residuals[inliers], jacobian[inliers], 0.0)
+        residuals, jacobian = _residuals_and_jacobian(params, args)
         fun, jacobian = residuals[inliers], jacobian[inliers]
-    dof = max(int(inliers.sum()) - len(params), 1)
-    variance = float(np.sum(fun**2)) / dof
-    normal_inverse = np.linalg.pinv(jacobian.T @ jacobian)
-    covariance = variance * correlation_inflation(fun, beam_of_point[inliers]) * normal_inverse
-    # A change d of the edge angle shifts every residual by -d: the pose moves by (J^T J)^-1 J^T 1 d.
-    # A shift of one contour's edge alone moves it by (J^T J)^-1 J_c^T 1 d.
-    kept_groups = beam_of_point[inliers]
-    shifts = np.stack([normal_inverse @ jacobian[kept_groups == b].sum(axis=0) for b in np.unique(kept_groups)])
-    shift = shifts.sum(axis=0)
-    covariance = covariance + edge_sigma**2 * np.outer(shift, shift) + contour_sigma**2 * shifts.T @ shifts
+    covariance = _pose_covariance(jacobian, fun, beam_of_point[inliers], edge_sigma, contour_sigma)
     return ConeFit(
         tip_in_eye=params[:3].copy(),
-        axis=_instrument_axes(params[None, :], insertion_in_eye)[0],
+        axis=_instrument_axis(params, insertion),
         roll=float(params[-1]) if beam_count > 1 else 0.0,
         residuals=residuals,
         inliers=inliers,
@@ -429,6 +457,50 @@ def fit_cones(
     )
 
 
+@njit(cache=True)
+def least_squares_covariance(
+    jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance (P, P) of least-squares parameters, and ``(J^T J)^+``, from the fit's Jacobian (N, P) and residuals.
+
+    The residuals' variance (over ``N - P`` degrees of freedom) times ``(J^T J)^+``, inflated for the
+    correlation of neighbouring residuals within each of ``groups`` (N,) (:func:`correlation_inflation`).
+    """
+    variance = np.sum(residuals**2) / max(len(residuals) - jacobian.shape[1], 1)
+    normal_inverse = np.linalg.pinv(_normal_equations(jacobian, residuals, 0.0)[0])
+    return variance * correlation_inflation(residuals, groups) * normal_inverse, normal_inverse
+
+
+@njit(cache=True)
+def _pose_covariance(
+    jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarray, edge_sigma: float, contour_sigma: float
+) -> np.ndarray:
+    """:func:`least_squares_covariance` plus the effect of the edge angle's and each contour's uncertainty.
+
+    A change d of the edge angle shifts every residual by -d: the pose moves by ``(J^T J)^-1 J^T 1 d``.
+    A shift of one contour's edge alone moves it by ``(J^T J)^-1 J_c^T 1 d``.
+    """
+    covariance, normal_inverse = least_squares_covariance(jacobian, residuals, groups)
+    size = jacobian.shape[1]
+    sums = np.zeros((groups.max() + 1, size))  # J_c^T 1 of each contour
+    for n in range(len(residuals)):
+        for i in range(size):
+            sums[groups[n], i] += jacobian[n, i]
+    shifts = np.zeros((len(sums), size))  # (J^T J)^-1 J_c^T 1
+    for g in range(len(sums)):
+        for i in range(size):
+            for j in range(size):
+                shifts[g, i] += normal_inverse[i, j] * sums[g, j]
+    for i in range(size):
+        for j in range(size):
+            together = 0.0
+            for g in range(len(shifts)):
+                together += shifts[g, i] * shifts[g, j]
+            covariance[i, j] += edge_sigma**2 * shifts[:, i].sum() * shifts[:, j].sum() + contour_sigma**2 * together
+    return covariance
+
+
+@njit(cache=True)
 def correlation_inflation(residuals: np.ndarray, groups: np.ndarray) -> float:
     """Variance inflation ``(1 + rho) / (1 - rho)`` for the lag-1 correlation of neighbouring residuals.
 
@@ -436,13 +508,20 @@ def correlation_inflation(residuals: np.ndarray, groups: np.ndarray) -> float:
     ----------
     residuals : ndarray, shape (N,)
         In order along each contour.
-    groups : ndarray, shape (N,)
-        Which contour each residual belongs to (neighbours are taken within one).
+    groups : ndarray, shape (N,), int
+        Which contour (0, 1, ...) each residual belongs to (neighbours are taken within one).
     """
-    group_index = np.unique(groups, return_inverse=True)[1]
-    means = np.bincount(group_index, residuals) / np.bincount(group_index)
-    r = residuals - means[group_index]
-    neighbours = group_index[1:] == group_index[:-1]
-    products, squares = float(np.sum((r[1:] * r[:-1])[neighbours])), float(np.sum(r * r))
-    rho = float(np.clip(products / squares, 0.0, 0.9)) if squares > 0 else 0.0
+    if len(residuals) == 0:
+        return 1.0
+    sums, counts = np.zeros(groups.max() + 1), np.zeros(groups.max() + 1)
+    for n in range(len(residuals)):
+        sums[groups[n]] += residuals[n]
+        counts[groups[n]] += 1.0
+    products, squares = 0.0, 0.0
+    for n in range(len(residuals)):
+        r = residuals[n] - sums[groups[n]] / counts[groups[n]]
+        squares += r * r
+        if n > 0 and groups[n] == groups[n - 1]:
+            products += r * (residuals[n - 1] - sums[groups[n - 1]] / counts[groups[n - 1]])
+    rho = min(max(products / squares, 0.0), 0.9) if squares > 0 else 0.0
     return (1.0 + rho) / (1.0 - rho)

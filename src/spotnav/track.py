@@ -147,6 +147,36 @@ def track_frame(
     return judge_fit(fit, np.concatenate(points), setup, spots=instrument.beam_count)
 
 
+def _prepare_kernels(setup: Setup) -> None:
+    """Run tracking's compiled kernels once, on a synthetic spot and cone.
+
+    They are compiled (or loaded from Numba's cache) on their first call: here, before the first
+    frame, rather than during a tracked frame.
+    """
+    rows, columns = np.mgrid[:96, :96]
+    image = np.zeros((96, 96, 3), dtype=np.uint8)
+    image[(rows - 48) ** 2 + (columns - 48) ** 2 < 24**2] = 200
+    circle = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
+    curve_px = 48 + 20 * np.column_stack([np.cos(circle), np.sin(circle)])
+    detect_edge_along_rays(image, *rays_through_curve(curve_px, 64), align=True)
+    instrument, eye = setup.instrument, setup.eye
+    tip_in_eye = 0.5 * (instrument.insertion_in_eye + eye.center_in_eye)
+    axis = normalize(tip_in_eye - instrument.insertion_in_eye)
+    edge_angle = edge_half_angle(setup)
+    beams = beam_axes(axis, instrument.beam_count, instrument.beam_tilt)
+    fit_cones(
+        [cone_sphere_curve(tip_in_eye, beam, edge_angle, eye.center_in_eye, eye.radius_mm, 64) for beam in beams],
+        list(range(instrument.beam_count)),
+        edge_angle,
+        beam_count=instrument.beam_count,
+        tilt=instrument.beam_tilt,
+        tip_in_eye=tip_in_eye + 0.01,
+        axis=axis,
+        insertion_in_eye=instrument.insertion_in_eye,
+        solver="gauss-newton",
+    )
+
+
 class ConstantVelocityFilter:
     """Kalman filter with a constant-velocity model for each coordinate of a vector.
 
@@ -239,6 +269,7 @@ class Tracker:
             raise ValueError(f"max_rays must be at least 64, got {self.max_rays}")
         if self.smooth:
             self._filter = ConstantVelocityFilter(3, self.acceleration_mm)
+        _prepare_kernels(self.setup)
 
     def update(self, image: np.ndarray) -> TrackedFrame:
         """Localize the next frame.
