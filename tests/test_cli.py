@@ -207,7 +207,7 @@ def test_localize_fit_radius_needs_the_precise_method_and_20_frames(
     assert "at least 20 frames" in capsys.readouterr().err
 
 
-def test_render_a_path_as_video_then_track_it(tmp_path: Path) -> None:
+def test_render_a_path_as_video_then_track_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scene = write_scene(tmp_path / "setup.toml", size_px=512, blend=0.15)
     video = tmp_path / "seq" / "helix.mkv"
     argv = ["render", "--scene", str(scene), "--path", "helix", "--frames", "12", "--tremor", "--out", str(video)]
@@ -226,6 +226,9 @@ def test_render_a_path_as_video_then_track_it(tmp_path: Path) -> None:
         for p, t in zip(poses, truth, strict=True)
     ]
     assert max(errors) < 0.05  # 512 px: the precise method's some 0.01 mm, on a lossless video
+    # A video's rows have no image name: evaluate joins them on the frame.
+    assert main(["evaluate", str(tmp_path / "poses.csv"), str(tmp_path / "seq" / "truth.csv")]) == 0
+    assert f"max {max(errors):.4f}" in capsys.readouterr().out
 
 
 def test_render_a_csv_path_to_png_frames(tmp_path: Path) -> None:

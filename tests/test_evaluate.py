@@ -57,6 +57,18 @@ def test_an_image_listed_twice_is_an_error() -> None:
         evaluate_poses(poses, known)
 
 
+def test_a_videos_rows_join_on_the_frame() -> None:
+    known = [KnownPose(Path(""), np.array([i, 0.0, 4.0]), AXIS, frame=i) for i in range(3)]
+    poses = [PoseRow("", "ok", known[i].tip_in_eye + np.array([0, 0, 0.01 * i]), AXIS, frame=i) for i in (2, 0, 1)]
+    evaluation = evaluate_poses(poses, known)
+    assert [f.image for f in evaluation.frames] == ["frame 2", "frame 0", "frame 1"]
+    assert [f.error_mm for f in evaluation.frames] == pytest.approx([0.02, 0.0, 0.01])
+    with pytest.raises(ValueError, match=r"no truth for 1 image\(s\): frame 7"):
+        evaluate_poses([*poses, PoseRow("", "no_spot", None, None, frame=7)], known)
+    with pytest.raises(ValueError, match="frame 1 appears twice"):
+        evaluate_poses([*poses, PoseRow("", "no_spot", None, None, frame=1)], known)
+
+
 def test_an_ok_row_without_a_pose_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "poses.csv"
     path.write_text("image,status,x_mm,y_mm,z_mm,dir_x,dir_y,dir_z\na.png,ok,1,2,,0,0,-1\n")

@@ -186,12 +186,25 @@ class KnownPose:
     image: Path
     tip_in_eye: np.ndarray
     axis: np.ndarray | None
+    frame: int | None = None
+
+
+def _frame_number(row: dict[str, str], path: Path, number: int) -> int | None:
+    """The optional ``frame`` column (a video's frame index), or None where it is absent or empty."""
+    if not row.get("frame"):
+        return None
+    try:
+        return int(row["frame"])
+    except ValueError:
+        raise ValueError(f"{path}, line {number}: the frame must be a whole number") from None
 
 
 def read_known_poses(path: str | Path) -> list[KnownPose]:
     """Read ``known.csv`` (contract: ``image,x_mm,y_mm,z_mm``; optional ``dir_x,dir_y,dir_z``).
 
-    Image paths are taken relative to the CSV's folder unless absolute.
+    Image paths are taken relative to the CSV's folder unless absolute; an
+    empty one (a video's frame, as in ``truth.csv``) stays empty, with the
+    optional ``frame`` column's index.
 
     Raises
     ------
@@ -211,7 +224,9 @@ def read_known_poses(path: str | Path) -> list[KnownPose]:
         if not np.all(np.isfinite(tip)) or (axis is not None and not np.all(np.isfinite(axis))):
             raise ValueError(f"{path}, line {number}: the position must be finite")
         image = Path(row["image"])
-        poses.append(KnownPose(image if image.is_absolute() else path.parent / image, tip, axis))
+        if row["image"] and not image.is_absolute():
+            image = path.parent / image
+        poses.append(KnownPose(image, tip, axis, _frame_number(row, path, number)))
     return poses
 
 
@@ -226,10 +241,11 @@ class PoseRow:
     status: str
     tip_in_eye: np.ndarray | None
     axis: np.ndarray | None
+    frame: int | None = None
 
 
 def read_poses_csv(path: str | Path) -> list[PoseRow]:
-    """Read a ``poses.csv`` (the contract's columns ``image,status,x_mm,...,dir_z``; others are ignored).
+    """Read a ``poses.csv`` (the contract's columns ``image,status,x_mm,...,dir_z``, and ``frame`` if present).
 
     Raises
     ------
@@ -242,8 +258,9 @@ def read_poses_csv(path: str | Path) -> list[PoseRow]:
     parsed = []
     for number, row in enumerate(rows, start=2):
         values = [row[k] for k in needed[2:]]
+        frame = _frame_number(row, path, number)
         if not any(values) and row["status"] != "ok":
-            parsed.append(PoseRow(row["image"], row["status"], None, None))
+            parsed.append(PoseRow(row["image"], row["status"], None, None, frame))
             continue
         try:
             numbers = np.array([float(v) for v in values])
@@ -251,7 +268,7 @@ def read_poses_csv(path: str | Path) -> list[PoseRow]:
             raise ValueError(f"{path}, line {number}: the pose must be six numbers") from None
         if not np.all(np.isfinite(numbers)):
             raise ValueError(f"{path}, line {number}: the pose must be finite")
-        parsed.append(PoseRow(row["image"], row["status"], numbers[:3], numbers[3:]))
+        parsed.append(PoseRow(row["image"], row["status"], numbers[:3], numbers[3:], frame))
     return parsed
 
 

@@ -1,6 +1,8 @@
 """Evaluate a ``poses.csv`` against the truth: what ``spotnav evaluate`` prints and writes.
 
-The two files are joined on ``image``, by file name (the folders may differ).
+The two files are joined on ``image``, by file name (the folders may differ);
+rows without one (a video's frames, from ``spotnav track`` and ``spotnav
+render --out FILE.mkv``) join on ``frame``.
 The tip error is the distance between the estimated and the true tip over the
 ``ok`` rows; the bias is the mean of the error's components; the axis error is
 the angle between the estimated and the true axis.
@@ -29,7 +31,7 @@ class FrameEvaluation:
     Attributes
     ----------
     image : str
-        The file name both files share.
+        The file name both files share (``frame N`` for a video's frame).
     status : str
     error_xyz_mm : ndarray, shape (3,)
         Estimate minus truth, mm (NaN without a pose).
@@ -77,10 +79,15 @@ class Evaluation:
     axis_max_deg: float
 
 
-def _by_name(names: Sequence[str], what: str) -> dict[str, int]:
+def _frame_key(image: str, frame: int | None) -> str:
+    """The join key of a row: its image's file name, or ``frame N`` for a row without an image."""
+    name = Path(image).name
+    return name if name or frame is None else f"frame {frame}"
+
+
+def _by_name(keys: Sequence[str], what: str) -> dict[str, int]:
     index: dict[str, int] = {}
-    for position, name in enumerate(names):
-        key = Path(name).name
+    for position, key in enumerate(keys):
         if key in index:
             raise ValueError(f"{what}: the image {key} appears twice")
         index[key] = position
@@ -92,15 +99,15 @@ def _listed(names: Sequence[str]) -> str:
 
 
 def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Evaluation:
-    """Join estimates and truth on the image's file name and measure the errors.
+    """Join estimates and truth on the image's file name (or frame, without one) and measure the errors.
 
     Raises
     ------
     ValueError
         Naming the images that only one of the two lists has, or an image listed twice.
     """
-    estimated = _by_name([p.image for p in poses], "poses")
-    known = _by_name([str(t.image) for t in truth], "truth")
+    estimated = _by_name([_frame_key(p.image, p.frame) for p in poses], "poses")
+    known = _by_name([_frame_key(t.image.name, t.frame) for t in truth], "truth")
     missing_truth = sorted(set(estimated) - set(known))
     missing_pose = sorted(set(known) - set(estimated))
     if missing_truth:
