@@ -506,7 +506,7 @@ def _read_edges(
     (R,), the edge's width in samples, the median contrast over the noise and
     the clipped fraction of the plateau.
     """
-    rays, count, kernel = len(ray_angles), len(steps), _SMOOTHING
+    rays, count = len(ray_angles), len(steps)
     profiles, finite = _sample_rays(plane, offset, ray_angles, radii, steps)
     edge_radii = np.full(rays, np.nan)
     valid = np.zeros(rays, dtype=np.bool_)
@@ -520,7 +520,7 @@ def _read_edges(
         for j in range(len(chosen)):
             column[j] = profiles[chosen[j], s]
         mean_profile[s] = np.median(column)
-    mean_smooth = _smooth(mean_profile, kernel, 0, count)
+    mean_smooth = _smooth(mean_profile, _SMOOTHING, 0, count)
     mean_slope = np.empty(count)  # minus the gradient: central differences, one-sided at the ends
     for s in range(1, count - 1):
         mean_slope[s] = 0.5 * (mean_smooth[s - 1] - mean_smooth[s + 1])
@@ -538,7 +538,7 @@ def _read_edges(
     # Only the samples the lines and the crossing read are smoothed.
     needed = (max(int(np.floor(middle - 2.5 * width)) - 1, 0), int(np.ceil(middle + 2.5 * width)) + 2)
     for r in range(rays):
-        smooth = _smooth(profiles[r], kernel, needed[0], needed[1]) if finite[r] else mean_smooth
+        smooth = _smooth(profiles[r], _SMOOTHING, needed[0], needed[1]) if finite[r] else mean_smooth
         plateau_a, plateau_b = _fit_line(smooth, middle - 2.5 * width, middle - 1.0 * width)
         background_a, background_b = _fit_line(smooth, middle + 1.0 * width, middle + 2.5 * width)
         level_a, level_b = 0.5 * (plateau_a + background_a), 0.5 * (plateau_b + background_b)

@@ -491,12 +491,13 @@ def _pose_covariance(
         for i in range(size):
             for j in range(size):
                 shifts[g, i] += normal_inverse[i, j] * sums[g, j]
+    shift = shifts.sum(axis=0)  # (J^T J)^-1 J^T 1: every contour's edge at once
     for i in range(size):
         for j in range(size):
             together = 0.0
             for g in range(len(shifts)):
                 together += shifts[g, i] * shifts[g, j]
-            covariance[i, j] += edge_sigma**2 * shifts[:, i].sum() * shifts[:, j].sum() + contour_sigma**2 * together
+            covariance[i, j] += edge_sigma**2 * shift[i] * shift[j] + contour_sigma**2 * together
     return covariance
 
 
