@@ -29,21 +29,31 @@ bench: $(TEST_STAMP)
 	$(BIN)/spotnav bench
 
 CYCLES_DEV ?= ../shared/cycles-dev
+CYCLES_GEOMETRY ?= ../shared/cycles-geometry
 VALIDATION := results/validation
 
+# A plain calibrate on each Cycles set's cal_* frames, then its test_* frames localized by the precise method
+# (calibrated, and with the nominal setup: refused, not wrong) and the thesis's, and its seq_* helix tracked.
 validation: $(STAMP)
-	@test -d $(CYCLES_DEV) || { echo "no Cycles frames at $(CYCLES_DEV) (make validation CYCLES_DEV=...)"; exit 2; }
-	@for set in b1 b3; do \
-	  d=$(CYCLES_DEV)/$$set; o=$(VALIDATION)/$$set; mkdir -p $$o; \
-	  $(BIN)/spotnav calibrate --scene $$d/setup.toml --poses $$d/known.csv --fit-light-radius --height-correction \
+	@for folder in $(CYCLES_DEV) $(CYCLES_GEOMETRY); do \
+	  test -d $$folder || { echo "no Cycles frames at $$folder (make validation CYCLES_DEV=... CYCLES_GEOMETRY=...)"; exit 2; }; \
+	done
+	@for folder in $(CYCLES_DEV) $(CYCLES_GEOMETRY); do for set in b1 b3; do \
+	  d=$$folder/$$set; o=$(VALIDATION)/$$(basename $$folder)/$$set; mkdir -p $$o; \
+	  $(BIN)/spotnav calibrate --scene $$d/setup.toml --poses $$d/known.csv --height-correction \
 	    --out $$o/calibrated.toml > $$o/calibrate.txt || exit 1; \
-	  for run in "precise calibrated" "thesis calibrated" "thesis setup"; do \
+	  for run in "precise calibrated" "precise setup" "thesis calibrated"; do \
 	    set -- $$run; scene=$$o/calibrated.toml; [ $$2 = setup ] && scene=$$d/setup.toml; \
 	    $(BIN)/spotnav localize --scene $$scene --method $$1 $$d/test_*.png --out $$o/poses_$$1_$$2.csv 2>/dev/null || exit 1; \
-	    echo "== $$set, $$1, $$2:"; \
+	    echo "== $$(basename $$folder) $$set, $$1, $$2:"; \
 	    $(BIN)/spotnav evaluate $$o/poses_$$1_$$2.csv $$d/truth.csv --out $$o/$$1_$$2 2>/dev/null || exit 1; \
 	  done; \
-	done
+	  if [ -f $$d/seq_truth.csv ]; then \
+	    $(BIN)/spotnav track --scene $$o/calibrated.toml "$$d/seq_*.png" --out $$o/track.csv 2>/dev/null || exit 1; \
+	    echo "== $$(basename $$folder) $$set, tracked, calibrated:"; \
+	    $(BIN)/spotnav evaluate $$o/track.csv $$d/seq_truth.csv --out $$o/track 2>/dev/null || exit 1; \
+	  fi; \
+	done; done
 
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check src tests benchmarks

@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 from hypothesis import settings
 
-from spotnav.config import Camera, Light, Render, Setup
+from spotnav.config import Camera, Light, Render, Setup, Uncertainty
 from spotnav.render import Renderer
 
 # No per-example deadline: the first example of a test may compile (or load) Numba kernels, and a
@@ -17,8 +17,12 @@ settings.load_profile("spotnav")
 
 
 def small_setup(size_px: int = 512, *, blend: float = 0.0, **render: object) -> Setup:
-    """The thesis setup at a smaller image size (same field of view)."""
-    base = Setup(camera=Camera(width_px=size_px, height_px=size_px), light=Light(power_w=1.0, blend=blend))
+    """The thesis setup at a smaller image size (same field of view), its geometry known exactly (a simulation)."""
+    base = Setup(
+        camera=Camera(width_px=size_px, height_px=size_px),
+        light=Light(power_w=1.0, blend=blend),
+        uncertainty=Uncertainty.exact(),
+    )
     return replace(base, render=replace(Render(), **render)) if render else base
 
 

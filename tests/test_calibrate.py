@@ -1,3 +1,5 @@
+"""Calibration from known poses: what the frames determine is fitted, the rest is named, a misfit is refused."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -5,89 +7,173 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from conftest import small_setup
+from hypothesis import given
+from hypothesis import strategies as st
 
-from spotnav.calibrate import Calibration, KnownFrame, calibrate_edge, self_calibrate_radius
-from spotnav.config import Instrument, Setup, World
+from spotnav.calibrate import KnownFrame, calibrate, insertion_from_axes, self_calibrate_radius
+from spotnav.conefit import SHARED_SIZE, setup_with_geometry
+from spotnav.config import GEOMETRY_PARAMETERS, Instrument, Setup, Uncertainty, World
 from spotnav.experiments import helix_tips, working_volume_tips
-from spotnav.geometry import InstrumentPose, edge_angle_of_blend
+from spotnav.experiments.chapter6 import with_true_edge
+from spotnav.geometry import InstrumentPose, edge_angle_of_blend, normalize
+from spotnav.localize import localize
 from spotnav.render import Renderer
 
 
-def known_frames(setup: Setup, count: int = 8, seed: int = 5) -> list[KnownFrame]:
-    renderer = Renderer(setup)
+def known_frames(world: Setup, count: int = 8, seed: int = 5, *, axes: bool = False) -> list[KnownFrame]:
+    """Frames rendered in ``world`` at tips over the working volume, with the robot's tips (and axes)."""
+    renderer = Renderer(world)
     frames = []
     for i, tip in enumerate(working_volume_tips(count, seed=seed)):
-        pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
-        frames.append(KnownFrame(f"frame {i}", renderer.render(pose, seed=i), tip))
+        pose = InstrumentPose.through_insertion(tip, world.instrument.insertion_in_eye)
+        frames.append(KnownFrame(f"frame {i}", renderer.render(pose, seed=i), tip, pose.axis if axes else None))
     return frames
 
 
-def test_calibration_round_trip_edge_angle() -> None:
-    # A beam softer than the default model (blend 0.3): 8 known frames recover its half-light angle.
-    setup = small_setup(1024, blend=0.3)
-    result = calibrate_edge(known_frames(setup), setup)
-    truth = np.degrees(edge_angle_of_blend(setup.instrument.beam_half_angle, 0.3))
-    assert result.edge_half_angle_deg == pytest.approx(truth, abs=max(4 * result.edge_sigma_deg, 0.02))
+def _value(result: object, name: str) -> tuple[float, float]:
+    index = GEOMETRY_PARAMETERS.index(name)
+    return float(result.values[index]), float(result.sigmas[index])  # type: ignore[attr-defined]
+
+
+def _only(setup: Setup, **uncertain: float) -> Setup:
+    """The setup known exactly but for these ``[uncertainty]`` values."""
+    return replace(setup, uncertainty=replace(Uncertainty.exact(), **uncertain))
+
+
+def test_the_edge_angle_is_fitted_when_the_beam_is_softer_than_the_model() -> None:
+    # A beam softer than the default model (blend 0.3), the rest known: 8 known frames recover its
+    # half-light angle and nothing else is fitted.
+    world = small_setup(1024, blend=0.3)
+    setup = _only(world, edge_half_angle_deg=0.3)
+    result = calibrate(known_frames(world), setup)
+    truth = np.degrees(edge_angle_of_blend(world.instrument.beam_half_angle, 0.3))
+    value, sigma = _value(result, "edge_half_angle_deg")
+    assert value == pytest.approx(truth, abs=max(4 * sigma, 0.02))
+    assert result.fitted == ("edge_half_angle_deg",)
     assert result.rms_after_deg < 0.5 * result.rms_before_deg
-    assert result.frames == 8 and np.isnan(result.radius_sigma_mm)
-    calibrated = result.apply(setup)
-    assert calibrated.instrument.edge_half_angle_deg == result.edge_half_angle_deg
+    assert result.setup.instrument.edge_half_angle_deg == pytest.approx(value)
+    assert result.setup.camera == world.camera and result.setup.light == world.light
+    assert dict(result.fixed)["camera_x_mm"] == "known exactly ([uncertainty] 0)"
 
 
 def test_a_point_light_calibrates_to_no_light_radius() -> None:
-    # spotnav's renderer has a point light: fitting the light's radius must not invent one (it widens
-    # the edge by 0.02 mm in the Cycles frames, a tenth of a degree at 5 mm).
-    setup = small_setup(1024, blend=0.3)
-    result = calibrate_edge(known_frames(setup), setup, fit_light_radius=True)
-    assert abs(result.light_radius_mm) < max(4 * result.light_radius_sigma_mm, 0.003)
-    truth = np.degrees(edge_angle_of_blend(setup.instrument.beam_half_angle, 0.3))
-    assert result.edge_half_angle_deg == pytest.approx(truth, abs=0.05)
-    assert result.apply(setup).instrument.light_radius_mm == result.light_radius_mm
+    # spotnav's renderer has a point light: fitting the light's radius must not invent one.
+    world = small_setup(1024, blend=0.3)
+    result = calibrate(known_frames(world), _only(world, edge_half_angle_deg=0.3, light_radius_mm=0.05))
+    assert "light_radius_mm" in result.fitted
+    value, sigma = _value(result, "light_radius_mm")
+    assert value < max(4 * sigma, 0.003)
+    truth = np.degrees(edge_angle_of_blend(world.instrument.beam_half_angle, 0.3))
+    assert _value(result, "edge_half_angle_deg")[0] == pytest.approx(truth, abs=0.05)
 
 
-def test_calibration_round_trip_radius_three_beams() -> None:
-    # The true eye is 13.5 mm, the setup says 12.5: the joint fit finds the radius within 0.1 mm.
+def test_the_eye_radius_is_fitted_with_three_beams() -> None:
+    # The true eye is 13.5 mm, the setup says 12.5: forced, the joint fit finds the radius within 0.1 mm.
     base = small_setup(1024, blend=0.15)
-    setup = replace(base, instrument=Instrument(beam_count=3), world=World(eye_radius_mm=13.5))
-    result = calibrate_edge(known_frames(setup), setup, fit_radius=True)
-    assert result.radius_mm == pytest.approx(13.5, abs=0.1)
-    assert 0 < result.radius_sigma_mm < 0.1
-    assert result.apply(setup).eye.radius_mm == result.radius_mm
+    world = replace(base, instrument=Instrument(beam_count=3), world=World(eye_radius_mm=13.5))
+    result = calibrate(known_frames(world), _only(with_true_edge(world), eye_radius_mm=1.0), fit=["eye-radius"])
+    value, sigma = _value(result, "eye_radius_mm")
+    assert value == pytest.approx(13.5, abs=0.1)
+    assert 0 < sigma < 0.1
+    assert result.setup.eye.radius_mm == pytest.approx(value)
 
 
-def test_calibration_refuses_too_few_or_degenerate_frames() -> None:
-    setup = small_setup(512, blend=0.15)
-    frames = known_frames(setup, count=2)
+def test_a_wrong_geometry_is_measured_and_localized_within_its_sigma() -> None:
+    # The world differs from the setup in every way at once (camera tilted and shifted, 0.5 % longer, a lens,
+    # the principal point, the eye, the insertion point, the beam): a plain calibrate on 10 known poses
+    # with axes, then new frames are localized as the Cycles frames must be at this size (mean 0.010 mm,
+    # max 0.030), and within 3 sigma (the calibration's own uncertainty included) but for one at most.
+    nominal = small_setup(1024, blend=0.15)
+    change = np.zeros(SHARED_SIZE)
+    change[3:17] = [*np.radians([0.3, -0.4, 0.2]), 0.3, -0.4, 0.5, 0.005, 6.0, -4.0, -3.0, 0, 0, 0, 0]
+    world = setup_with_geometry(nominal, change)
+    world = replace(world, eye=replace(world.eye, radius_mm=12.6), world=World(eye_radius_mm=12.6))
+    instrument = replace(world.instrument, insertion_point_mm=(0.4, 5.7, 20.5), beam_half_angle_deg=9.2)
+    world = replace(world, instrument=instrument)
+    setup = replace(nominal, uncertainty=Uncertainty())
+    result = calibrate(known_frames(world, 10, seed=11, axes=True), setup)
+    for group in ("edge_half_angle_deg", "camera_rotation_x_deg", "camera_rotation_z_deg", "distortion_k1"):
+        assert group in result.fitted
+    np.testing.assert_allclose(result.setup.instrument.insertion_point_mm, (0.4, 5.7, 20.5), atol=1e-3)
+    assert "camera_z_mm" in dict(result.fixed)  # a camera's height looks like its focal length
+    renderer = Renderer(world)
+    errors, within = [], []
+    for i, tip in enumerate(helix_tips(6)):
+        pose = InstrumentPose.through_insertion(tip, world.instrument.insertion_in_eye)
+        estimate = localize(renderer.render(pose, seed=100 + i), result.setup)
+        assert estimate.ok, estimate.detail
+        errors.append(np.linalg.norm(estimate.tip_in_eye - tip))
+        within.append(errors[-1] <= 3 * estimate.sigma_mm)
+    assert np.mean(errors) < 0.010 and np.max(errors) < 0.030
+    assert sum(within) >= len(within) - 1
+    nominal_estimate = localize(renderer.render(pose, seed=100), setup)
+    assert nominal_estimate.status == "uncalibrated", nominal_estimate.detail  # refused, not 0.6 mm off
+
+
+def test_a_plain_calibration_of_an_exact_geometry_does_not_make_it_worse() -> None:
+    world = small_setup(1024, blend=0.15)
+    exact = with_true_edge(world)
+    result = calibrate(known_frames(world, 10, seed=3, axes=True), replace(world, uncertainty=Uncertainty()))
+    renderer = Renderer(world)
+    errors: dict[str, list[float]] = {"exact": [], "calibrated": []}
+    for i, tip in enumerate(helix_tips(6)):
+        image = renderer.render(InstrumentPose.through_insertion(tip, world.instrument.insertion_in_eye), seed=i)
+        for name, setup in (("exact", exact), ("calibrated", result.setup)):
+            estimate = localize(image, setup)
+            assert estimate.ok, estimate.detail
+            errors[name].append(np.linalg.norm(estimate.tip_in_eye - tip))
+    # Ten frames at 1024 px pin the edge angle to some 0.01 deg: at most 0.005 mm more error on average than
+    # knowing the geometry, and none that its sigma does not cover.
+    assert np.mean(errors["calibrated"]) < np.mean(errors["exact"]) + 0.005
+
+
+def test_calibration_refuses_too_few_degenerate_or_misfit_frames() -> None:
+    world = small_setup(512, blend=0.15)
+    setup = _only(world, edge_half_angle_deg=0.3, eye_radius_mm=0.25, light_radius_mm=0.05)
+    frames = known_frames(world, count=2)
     with pytest.raises(ValueError, match="at least 3 usable frames"):
-        calibrate_edge(frames, setup)
-    renderer = Renderer(setup)
-    same = InstrumentPose.through_insertion([1.0, 1.0, 4.0], setup.instrument.insertion_in_eye)
+        calibrate(frames, setup)
+    renderer = Renderer(world)
+    same = InstrumentPose.through_insertion([1.0, 1.0, 4.0], world.instrument.insertion_in_eye)
     repeated = [KnownFrame(f"f{i}", renderer.render(same, seed=i), same.tip_in_eye) for i in range(5)]
-    with pytest.raises(ValueError, match="degenerate"):
-        calibrate_edge(repeated, setup, fit_radius=True)
-    with pytest.raises(ValueError, match=r"4\.00-4\.00 mm above the pole"):
-        calibrate_edge(repeated, setup, fit_light_radius=True)
+    with pytest.raises(ValueError, match=r"cannot determine eye-radius.*degenerate"):
+        calibrate(repeated, setup, fit=["eye-radius"])
+    with pytest.raises(ValueError, match=r"cannot determine (edge-angle|light-radius).*4\.00-4\.00 mm above the pole"):
+        calibrate(repeated, setup, fit=["edge-angle", "light-radius"])
     dark = [KnownFrame("dark", renderer.render(same, power_w=0.0), same.tip_in_eye), *frames]
-    with pytest.raises(ValueError, match="dark: 0 whole spots"):
-        calibrate_edge(dark, setup)
+    with pytest.raises(ValueError, match="dark: 0 bright regions"):
+        calibrate(dark, setup)
+    with pytest.raises(ValueError, match="'lens' is not a parameter group"):
+        calibrate(frames, setup, fit=["lens"])
+    # Tips swapped between frames: no geometry puts their edges on their cones.
+    many = known_frames(world, count=6)
+    shuffled = [replace(f, tip_in_eye=g.tip_in_eye) for f, g in zip(many, many[1:] + many[:1], strict=True)]
+    with pytest.raises(ValueError, match="does not fit the frames"):
+        calibrate(shuffled, setup)
 
 
-def test_calibration_apply_keeps_the_rest() -> None:
-    result = Calibration(8.5, 0.01, 12.7, 0.02, 0.03, 0.001, 0.3, 0.05, 5, 900)
-    setup = small_setup(256)
-    calibrated = result.apply(setup)
-    assert calibrated.camera == setup.camera and calibrated.light == setup.light
-    assert calibrated.eye.radius_mm == 12.7 and calibrated.instrument.edge_half_angle_deg == 8.5
+@given(
+    point=st.tuples(st.floats(-2, 2), st.floats(3, 8), st.floats(15, 22)),
+    seed=st.integers(0, 2**16),
+)
+def test_the_insertion_point_is_where_the_axes_meet(point: tuple[float, float, float], seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    tips = np.column_stack([rng.uniform(-3, 3, 6), rng.uniform(-3, 3, 6), rng.uniform(2, 7, 6)])
+    axes = normalize(tips - np.array(point))
+    found, covariance, rms = insertion_from_axes(tips, axes)
+    np.testing.assert_allclose(found, point, atol=1e-6)
+    assert rms < 1e-6 and np.all(np.diag(covariance) < 1e-10)
 
 
 def test_self_calibration_of_the_radius_from_a_sequence() -> None:
     # 20 helix frames in a 13.5 mm eye that the setup calls 12.5 mm, poses unknown: the joint fit
     # finds the radius within 0.1 mm and the tips to a few hundredths of a millimetre.
-    setup = replace(small_setup(768, blend=0.15), world=World(eye_radius_mm=13.5))
-    renderer = Renderer(setup)
+    world = replace(small_setup(768, blend=0.15), world=World(eye_radius_mm=13.5))
+    setup = with_true_edge(world)
+    renderer = Renderer(world)
     tips = helix_tips(20)
     images = [
-        renderer.render(InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye), seed=i)
+        renderer.render(InstrumentPose.through_insertion(tip, world.instrument.insertion_in_eye), seed=i)
         for i, tip in enumerate(tips)
     ]
     result = self_calibrate_radius(images, setup)

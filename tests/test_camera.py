@@ -107,3 +107,65 @@ def test_a_segment_hides_the_pixels_of_its_own_points() -> None:
     assert pixels_behind_segment(CAMERA, on_it, start, end, 0.3).all()
     beside = project_points(CAMERA, np.linspace(start, end, 7) + np.array([1.0, 0.0, 0.0]))
     assert not pixels_behind_segment(CAMERA, beside, start, end, 0.3).any()
+
+
+def _calibrated(distortion: list[float], rotation_deg: tuple[float, float, float], shift: tuple) -> Camera:
+    import cv2
+
+    matrix = np.array([[8000.0, 0.0, 500.0], [0.0, 8100.0, 520.0], [0.0, 0.0, 1.0]])
+    turn, _ = cv2.Rodrigues(np.radians(np.array(rotation_deg)))
+    rotation = np.diag([1.0, -1.0, -1.0]) @ turn
+    centre = np.array([0.0, 0.0, 110.0]) + np.array(shift)
+    return Camera.calibrated(1024, 1024, matrix, distortion, rotation, -rotation @ centre)
+
+
+@given(
+    count=st.sampled_from([4, 5, 8, 12, 14]),
+    seed=st.integers(0, 2**16),
+    rotation=st.tuples(*[st.floats(-1.0, 1.0)] * 3),
+    shift=st.tuples(*[st.floats(-1.0, 1.0)] * 3),
+)
+def test_projection_is_opencvs(count: int, seed: int, rotation: tuple, shift: tuple) -> None:
+    # Any of OpenCV's distortion models (the tilted sensor too), any pose: cv2.projectPoints' pixels, and
+    # the rays back through them point at the points.
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    distortion = rng.normal(0.0, 0.05, count)
+    distortion[0] = rng.uniform(-4.0, 4.0)
+    if count == 14:
+        distortion[12:] = rng.uniform(-0.02, 0.02, 2)
+    camera = _calibrated(list(distortion), rotation, shift)
+    points = rng.uniform([-4, -4, 0], [4, 4, 6], (50, 3))
+    # In the camera's frame (cv2.Rodrigues loses digits near the half turn of R = diag(1, -1, -1)).
+    in_camera = points @ camera.rotation_to_camera.T + camera.translation_to_camera_mm
+    expected, _ = cv2.projectPoints(
+        in_camera, np.zeros(3), np.zeros(3), camera.matrix_px, camera.distortion_coefficients[:count]
+    )
+    pixels = project_points(camera, points)
+    np.testing.assert_allclose(pixels, expected.reshape(-1, 2), atol=1e-6)
+    towards = points - camera.center_in_eye
+    rays = towards / np.linalg.norm(towards, axis=1)[:, None]
+    np.testing.assert_allclose(pixel_rays(camera, pixels), rays, atol=1e-9)
+
+
+def test_the_ideal_camera_is_the_calibrated_special_case() -> None:
+    # The contract: matrix [[f, 0, c], [0, f, c], [0, 0, 1]], no distortion, R = diag(1, -1, -1), t = (0, 0, d).
+    ideal = Camera(width_px=1024, height_px=1024)
+    calibrated = ideal.as_calibrated()
+    np.testing.assert_allclose(calibrated.matrix_px, [[8533.333333, 0, 511.5], [0, 8533.333333, 511.5], [0, 0, 1]])
+    assert calibrated.rotation == ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0))
+    assert calibrated.translation_mm == (0.0, 0.0, 110.0)
+    points = np.random.default_rng(0).uniform([-3, -3, 0], [3, 3, 6], (20, 3))
+    np.testing.assert_allclose(project_points(calibrated, points), project_points(ideal, points), atol=1e-9)
+    pixels = project_points(ideal, points)
+    np.testing.assert_allclose(
+        unproject_pixels_to_sphere(calibrated, pixels, 12.5), unproject_pixels_to_sphere(ideal, pixels, 12.5)
+    )
+
+
+def test_a_resized_camera_sees_the_same_field() -> None:
+    camera = _calibrated([-3.0, 0.0, 0.0, 0.0, 0.0], (0.2, -0.1, 0.3), (0.1, 0.2, 0.3))
+    half = camera.resized(512, 512)
+    points = np.random.default_rng(1).uniform([-3, -3, 0], [3, 3, 6], (20, 3))
+    np.testing.assert_allclose((project_points(half, points) + 0.5) * 2, project_points(camera, points) + 0.5)

@@ -1,17 +1,19 @@
 from __future__ import annotations
 
 import math
+import re
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from spotnav.config import EXAMPLE_SETUP, Bump, Setup, SetupError, setup_from_dict, setup_from_toml
+from spotnav.config import EXAMPLE_SETUP, Bump, Setup, SetupError, Uncertainty, setup_from_dict, setup_from_toml
 
 
 def test_example_is_the_thesis_setup() -> None:
     setup = setup_from_toml(EXAMPLE_SETUP)
-    assert setup == Setup()
+    assert setup == Setup(uncertainty=Uncertainty.exact())  # a simulation knows its geometry
     assert setup.camera.focal_px == pytest.approx(300 * 5000 / 36)
     assert setup.camera.principal_point_px == (2499.5, 2499.5)
     assert setup.instrument.insertion_point_mm == (0.0, 6.0, 20.0)
@@ -152,3 +154,72 @@ def test_any_value_builds_or_raises_setup_error(section: str, key: str, value: o
         assert str(error)
     else:
         assert isinstance(setup, Setup)
+
+
+CALIBRATED = """
+[camera]
+width_px = 1024
+height_px = 1024
+matrix = [[8567.5, 0.0, 511.5], [0.0, 8567.5, 511.5], [0.0, 0.0, 1.0]]
+distortion = [-3.0, 0.0, 0.0, 0.0, 0.0]
+rotation = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
+translation_mm = [-0.25, -0.35, 110.6]
+"""
+
+
+def test_a_calibrated_camera_is_read() -> None:
+    camera = setup_from_toml(CALIBRATED).camera
+    assert camera.is_calibrated and camera.focal_length_mm is None and camera.distance_mm is None
+    assert camera.focal_px == 8567.5
+    assert camera.distortion == (-3.0, 0.0, 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(camera.center_in_eye, (0.25, -0.35, 110.6))
+
+
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        (("distortion = [-3.0, 0.0, 0.0, 0.0, 0.0]", "distortion = [-3.0, 0.0, 0.0]"), "camera.distortion"),
+        (("[0.0, 8567.5, 511.5]", "[0.5, 8567.5, 511.5]"), "camera.matrix"),
+        (("[[8567.5, 0.0, 511.5]", "[[-1.0, 0.0, 511.5]"), "camera.matrix[0][0]"),
+        (("[0.0, 8567.5, 511.5]", "[0.0, 8567.5, 2000.0]"), "camera.matrix[1][2]"),
+        (("[0.0, -1.0, 0.0]", "[0.0, -1.1, 0.0]"), "camera.rotation"),
+        (("[0.0, 0.0, -1.0]]", "[0.0, 0.0, 1.0]]"), "camera.rotation"),
+        (("translation_mm = [-0.25, -0.35, 110.6]", ""), "camera.translation_mm is missing"),
+        (("translation_mm = [-0.25, -0.35, 110.6]", "translation_mm = [-0.25, -0.35, -110.6]"), "camera"),
+        (("translation_mm = [-0.25, -0.35, 110.6]", "translation_mm = [-0.25, -0.35, 20.0]"), "inside the eye"),
+        (("height_px = 1024", "height_px = 1024\ndistance_mm = 110.0"), "camera.distance_mm cannot be given"),
+    ],
+)
+def test_a_bad_calibrated_camera_names_the_key(change: tuple[str, str], key: str) -> None:
+    with pytest.raises(SetupError, match=re.escape(key)):
+        setup_from_toml(CALIBRATED.replace(*change))
+
+
+def test_uncertainty_and_calibration_sections() -> None:
+    setup = setup_from_toml("[uncertainty]\ncamera_rotation_deg = 0.1\n")
+    assert setup.uncertainty.camera_rotation_deg == 0.1 and setup.uncertainty.insertion_point_mm == 0.5
+    text = (
+        '[calibration]\nparameters = ["camera_x_mm", "eye_radius_mm"]\ncovariance = [[0.01, 0.001], [0.001, 0.04]]\n'
+        'fitted = ["camera_x_mm"]\nrms_deg = 0.02\nframes = 10\nframe_edge_sigma_deg = 0.01\n'
+    )
+    record = setup_from_toml(text).calibration
+    assert record.parameters == ("camera_x_mm", "eye_radius_mm") and record.covariance[1] == (0.001, 0.04)
+    for bad, key in (
+        ("0.001], [0.002", "symmetric"),
+        ("[[0.01, 0.001], [0.001, 0.04]]", "positive semi-definite"),
+        ('"camera_x_mm", "eye_radius_mm"]\ncov', "calibration.covariance must be 1 rows"),
+        ("camera_x_mm", "is not a known parameter"),
+    ):
+        changed = {
+            "symmetric": text.replace("0.001], [0.001", "0.001], [0.002"),
+            "positive semi-definite": text.replace("[[0.01, 0.001], [0.001, 0.04]]", "[[0.01, 0.5], [0.5, 0.04]]"),
+            "calibration.covariance must be 1 rows": text.replace(
+                '["camera_x_mm", "eye_radius_mm"]\ncov', '["camera_x_mm"]\ncov'
+            ),
+            "is not a known parameter": text.replace('fitted = ["camera_x_mm"]', 'fitted = ["lens"]'),
+        }[key]
+        assert bad
+        with pytest.raises(SetupError, match=re.escape(key)):
+            setup_from_toml(changed)
+    with pytest.raises(SetupError, match=r"uncertainty\.eye_radius_mm"):
+        setup_from_toml("[uncertainty]\neye_radius_mm = -1.0\n")

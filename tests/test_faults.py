@@ -12,8 +12,9 @@ from spotnav.camera import project_points
 from spotnav.experiments import faults, reproduce
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.geometry import InstrumentPose
-from spotnav.localize import hidden_by_shaft, localize
+from spotnav.localize import localize
 from spotnav.render import Renderer
+from spotnav.shaft import hidden_by_shaft
 
 ABOVE = (0.0, 1.0, 24.0)  # an insertion point above the working volume: the shaft crosses the spot
 
@@ -35,18 +36,6 @@ def test_the_shaft_hides_part_of_the_spot_and_the_rest_gives_the_pose(tip: tuple
     assert np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < 0.03
     edges = [np.asarray(project_points(world.camera, pose.tip_in_eye + np.outer([-0.5, -1.0], pose.axis)))]
     assert hidden_by_shaft(world, edges, pose.tip_in_eye, pose.axis)[0].all()  # the shaft lies over the spot
-
-
-def test_hidden_by_shaft_marks_the_points_under_the_shaft_only() -> None:
-    world = _world(instrument={"insertion_point_mm": ABOVE})
-    tip, insertion = np.array([0.5, 0.5, 4.0]), world.instrument.insertion_in_eye
-    axis = (tip - insertion) / np.linalg.norm(tip - insertion)
-    on_shaft = project_points(world.camera, tip + np.outer([-0.5, -1.0, -2.0], axis))
-    aside = on_shaft + np.array([0.0, 200.0])
-    hidden = hidden_by_shaft(world, [on_shaft, aside], tip, axis)
-    assert hidden[0].all() and not hidden[1].any()
-    no_shaft = replace(world, instrument=replace(world.instrument, shaft_diameter_mm=0.0))
-    assert not hidden_by_shaft(no_shaft, [on_shaft], tip, axis)[0].any()
 
 
 @pytest.mark.parametrize(

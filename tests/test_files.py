@@ -10,6 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from spotnav.config import Bump, Instrument, Setup, SetupError, World, setup_from_toml
+from spotnav.estimate import PoseEstimate
 from spotnav.files import (
     POSES_COLUMNS,
     ImageReadError,
@@ -18,12 +19,12 @@ from spotnav.files import (
     pose_row,
     read_image,
     read_known_poses,
+    read_opencv_camera,
     read_setup,
     setup_to_toml,
     write_image,
     write_poses_csv,
 )
-from spotnav.localize import PoseEstimate
 
 
 def test_rgb_round_trip(tmp_path: Path) -> None:
@@ -141,3 +142,35 @@ def test_random_bytes_read_as_an_image_or_a_one_line_error(tmp_path: Path, data:
         assert "random.png" in str(error) and "\n" not in str(error)
     else:
         assert image.dtype in (np.uint8, np.uint16) and image.ndim in (2, 3)
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".xml", ".json"])
+def test_an_opencv_calibration_is_read(tmp_path: Path, suffix: str) -> None:
+    # As OpenCV's calibration sample writes it, through cv2.FileStorage.
+    path = tmp_path / f"camera{suffix}"
+    matrix = np.array([[8567.5, 0.0, 510.2], [0.0, 8570.1, 513.9], [0.0, 0.0, 1.0]])
+    distortion = np.array([[-3.0, 0.5, 0.001, -0.002, 0.0]])
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    storage.write("image_width", 1024)
+    storage.write("image_height", 768)
+    storage.write("camera_matrix", matrix)
+    storage.write("distortion_coefficients", distortion)
+    storage.release()
+    width, height, read_matrix, read_distortion = read_opencv_camera(path)
+    assert (width, height) == (1024, 768)
+    np.testing.assert_array_equal(read_matrix, matrix)
+    np.testing.assert_array_equal(read_distortion, distortion.ravel())
+
+
+def test_an_opencv_file_without_the_keys_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "other.yaml"
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    storage.write("camera_matrix", np.eye(3))
+    storage.release()
+    with pytest.raises(ValueError, match="no distortion_coefficients"):
+        read_opencv_camera(path)
+    with pytest.raises(ValueError, match="no such file"):
+        read_opencv_camera(tmp_path / "missing.yaml")
+    (tmp_path / "text.yaml").write_text("not: [a, calibration")
+    with pytest.raises(ValueError, match=r"text\.yaml"):
+        read_opencv_camera(tmp_path / "text.yaml")

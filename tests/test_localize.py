@@ -8,10 +8,11 @@ import pytest
 from conftest import small_setup
 
 from spotnav.config import Light, Setup
+from spotnav.estimate import STATUSES
 from spotnav.experiments import helix_tips, working_volume_tips
 from spotnav.experiments.chapter6 import with_true_edge
 from spotnav.geometry import InstrumentPose, angles_between
-from spotnav.localize import STATUSES, PoseEstimate, edge_half_angle, fit_height_correction, localize
+from spotnav.localize import localize
 from spotnav.render import Renderer
 
 
@@ -93,13 +94,6 @@ def test_unknown_method(renderer_512: Renderer) -> None:
         localize(np.zeros((512, 512, 3), np.uint8), renderer_512.setup, "magic")
 
 
-def test_estimate_invariants() -> None:
-    with pytest.raises(ValueError, match="status"):
-        PoseEstimate("fine")
-    with pytest.raises(ValueError, match="exactly when"):
-        PoseEstimate("no_spot", tip_in_eye=np.zeros(3), axis=np.array([0, 0, 1.0]))
-
-
 def _three_beam(setup: Setup) -> Setup:
     return replace(setup, instrument=replace(setup.instrument, beam_count=3))
 
@@ -126,35 +120,6 @@ def test_three_beams_answer_from_two_spots(renderer_512: Renderer) -> None:
     assert estimate.ok and estimate.spots == 2
     assert "2 of 3" in estimate.detail
     assert np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < 0.1
-
-
-def test_height_correction_removes_the_soft_edge_bias() -> None:
-    # Section 5.5: one frame at a known pose gives the factor; it cuts the soft edge's error.
-    setup = small_setup(1024, blend=0.15)
-    renderer = Renderer(setup)
-    known = InstrumentPose.through_insertion([0.0, 0.0, 4.5], setup.instrument.insertion_in_eye)
-    factor = fit_height_correction(renderer.render(known, seed=50), setup, known.tip_in_eye)
-    assert 1.01 < factor < 1.1
-    calibrated = replace(setup, instrument=replace(setup.instrument, height_correction=factor))
-    plain_errors, calibrated_errors = [], []
-    for i, tip in enumerate(working_volume_tips(6, seed=2)):
-        image = renderer.render(InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye), seed=i)
-        plain_errors.append(np.linalg.norm(localize(image, setup, "thesis").tip_in_eye - tip))
-        calibrated_errors.append(np.linalg.norm(localize(image, calibrated, "thesis").tip_in_eye - tip))
-    assert np.mean(calibrated_errors) < 0.5 * np.mean(plain_errors)
-
-
-def test_height_correction_is_one_for_a_sharp_edge(renderer_2048: Renderer) -> None:
-    setup = renderer_2048.setup
-    known = InstrumentPose.through_insertion([0.0, 0.0, 4.5], setup.instrument.insertion_in_eye)
-    factor = fit_height_correction(renderer_2048.render(known, seed=3), setup, known.tip_in_eye)
-    assert factor == pytest.approx(1.0, abs=0.01)
-
-
-def test_height_correction_needs_a_spot(renderer_512: Renderer) -> None:
-    dark = renderer_512.render(InstrumentPose([0.0, 0.0, 4.0], [0.0, 0.0, -1.0]), power_w=0.0)
-    with pytest.raises(ValueError, match="no whole spot"):
-        fit_height_correction(dark, renderer_512.setup, np.array([0.0, 0.0, 4.0]))
 
 
 def test_precise_round_trip_2048_soft_edge() -> None:
@@ -209,13 +174,6 @@ def test_precise_refuses_a_pose_off_the_insertion_line_but_precise_free_finds_it
     assert free.ok, free.detail
     assert np.linalg.norm(free.tip_in_eye - pose.tip_in_eye) < 0.01
     assert angles_between(free.axis, pose.axis) < np.radians(0.5)
-
-
-def test_edge_half_angle_default_and_override() -> None:
-    setup = small_setup(256)
-    assert np.degrees(edge_half_angle(setup)) == pytest.approx(8.6553, abs=1e-4)  # blend 0.15 on 9 deg
-    sharp = replace(setup, instrument=replace(setup.instrument, edge_half_angle_deg=9.0))
-    assert edge_half_angle(sharp) == pytest.approx(np.radians(9.0))
 
 
 @pytest.mark.parametrize("form", ["16-bit", "grey", "rgba"])

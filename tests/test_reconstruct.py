@@ -5,15 +5,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spotnav.geometry import InstrumentPose, angles_between, beam_axes, cone_generators, cone_sphere_curve, normalize
+from spotnav.geometry import InstrumentPose, cone_generators, cone_sphere_curve, normalize
 from spotnav.reconstruct import (
     apex_candidates,
     choose_by_insertion,
-    correlation_inflation,
-    fit_cones,
     fit_ellipse,
-    least_squares_covariance,
-    robust_sigma,
     sphere_normal,
     triangle_from_ellipse,
 )
@@ -121,83 +117,3 @@ def test_height_correction_scales_the_triangle_about_the_ellipse_centre() -> Non
     assert np.min(np.linalg.norm(corrected.apexes - apex, axis=1)) < 1e-3
     np.testing.assert_allclose(corrected.plane_normal_in_eye, normal, atol=1e-12)
     assert corrected.s2 == pytest.approx(plain.s2)
-
-
-@settings(max_examples=25, deadline=None)
-@given(
-    x=st.floats(-2.5, 2.5),
-    y=st.floats(-2.5, 2.5),
-    z=st.floats(3, 6),
-    roll=st.floats(-np.pi, np.pi),
-    beams=st.sampled_from([1, 3]),
-    light=st.sampled_from([0.0, 0.02, 0.1]),
-)
-def test_fit_cones_recovers_the_pose_from_exact_curves(
-    x: float, y: float, z: float, roll: float, beams: int, light: float
-) -> None:
-    # Points on the exact cone-sphere curves (each cone widened by a light of radius `light`: its apex
-    # lies light / tan(beta) behind the tip), a start 0.1 mm off: the fit lands on the truth.
-    tilt = np.radians(15.0)
-    pose = InstrumentPose.through_insertion([x, y, z], INSERTION)
-    axes = beam_axes(pose.axis, beams, tilt, roll if beams == 3 else 0.0)
-    behind = light / np.tan(BETA)
-    curves = [cone_sphere_curve(pose.tip_in_eye - behind * a, a, BETA, CENTER, 12.5, count=200) for a in axes]
-    fit = fit_cones(
-        curves,
-        list(range(beams)),
-        BETA,
-        beam_count=beams,
-        tilt=tilt,
-        tip_in_eye=pose.tip_in_eye + np.array([0.05, -0.05, 0.08]),
-        axis=pose.axis,
-        roll=(roll + 0.05) if beams == 3 else 0.0,
-        insertion_in_eye=INSERTION,
-        light_radius=light,
-    )
-    np.testing.assert_allclose(fit.tip_in_eye, pose.tip_in_eye, atol=1e-6)
-    np.testing.assert_allclose(fit.axis, pose.axis, atol=1e-6)
-    assert fit.inliers.all()
-    assert fit.tip_sigma_mm < 1e-6
-
-
-def test_fit_cones_frees_the_axis_and_reports_the_edge_model_uncertainty() -> None:
-    pose = InstrumentPose([1.0, -0.5, 4.5], [0.2, -0.1, -1.0])  # not through the insertion point
-    curve = cone_sphere_curve(pose.tip_in_eye, pose.axis, BETA, CENTER, 12.5, count=300)
-    rng = np.random.default_rng(0)
-    noisy = curve + rng.normal(0.0, 0.001, curve.shape)
-    common = {"beam_count": 1, "tilt": 0.0, "tip_in_eye": pose.tip_in_eye + 0.05, "axis": pose.axis}
-    free = fit_cones([noisy], [0], BETA, **common)
-    assert np.linalg.norm(free.tip_in_eye - pose.tip_in_eye) < 3 * free.tip_sigma_mm + 1e-4
-    assert angles_between(free.axis, pose.axis) < np.radians(1.0)
-    with_model = fit_cones([noisy], [0], BETA, edge_sigma=np.radians(0.01), **common)
-    assert with_model.tip_sigma_mm > free.tip_sigma_mm
-
-
-def test_correlation_inflation_of_known_sequences() -> None:
-    groups = np.zeros(40, dtype=np.int64)
-    assert correlation_inflation(np.tile([1.0, -1.0], 20), groups) == 1.0  # anti-correlated: no inflation
-    assert correlation_inflation(np.linspace(-1, 1, 40), groups) == pytest.approx(19.0)  # rho capped at 0.9
-    # Neighbours are taken within a group only: two groups, each alternating about its own mean.
-    two = np.concatenate([np.tile([5.0, 3.0], 10), np.tile([-2.0, -4.0], 10)])
-    assert correlation_inflation(two, np.repeat([0, 1], 20)) == 1.0
-    assert correlation_inflation(np.empty(0), np.empty(0, dtype=np.int64)) == 1.0
-
-
-@given(seed=st.integers(0, 2**31))
-def test_least_squares_covariance_is_the_textbook_formula(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    jacobian, residuals = rng.normal(size=(50, 4)), rng.normal(size=50)
-    groups = np.repeat(np.arange(5), 10)
-    covariance, normal_inverse = least_squares_covariance(jacobian, residuals, groups)
-    np.testing.assert_allclose(normal_inverse, np.linalg.inv(jacobian.T @ jacobian), rtol=1e-9)
-    expected = np.sum(residuals**2) / 46 * correlation_inflation(residuals, groups) * normal_inverse
-    np.testing.assert_allclose(covariance, expected, rtol=1e-12)
-
-
-def test_robust_sigma_ignores_outliers() -> None:
-    values = np.random.default_rng(3).normal(2.0, 0.5, 20001)
-    values[:2000] = 1e6  # 10 % gross outliers
-    # 10 % of the values off the scale widen the robust sigma by 14 % (0.5 sigma: 1.14 x 0.5); a plain
-    # standard deviation would be 3e5.
-    assert robust_sigma(values, True) == pytest.approx(0.5 * 1.14, rel=0.02)
-    assert robust_sigma(values - np.median(values), False) == pytest.approx(robust_sigma(values, True))

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from spotnav.config import Setup
-from spotnav.experiments.chapter6 import thesis_world
+from spotnav.estimate import PoseEstimate
+from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
-from spotnav.localize import PoseEstimate, localize_precise
+from spotnav.precise import localize_precise
 from spotnav.render import Renderer
 from spotnav.track import ConstantVelocityFilter, Tracker, track_frame
 
@@ -18,7 +19,7 @@ SIZE_PX = 1024
 
 
 def world(beams: int = 1) -> Setup:
-    return thesis_world(SIZE_PX, beams)
+    return with_true_edge(thesis_world(SIZE_PX, beams))
 
 
 @pytest.mark.parametrize("beams", [1, 3])
@@ -128,9 +129,9 @@ def test_a_new_tracker_has_its_compiled_kernels_ready_before_the_first_frame() -
     """Tracking's compiled kernels are compiled (or loaded) when the tracker is built, not in a frame."""
     code = """
 import json
-import spotnav.detect as d, spotnav.reconstruct as r
-kernels = [d._linear_channel, d._aligned_radii, d._read_edges, r._residuals_and_jacobian,
-           r._normal_equations, r._pose_covariance, r.robust_sigma]
+import spotnav.detect as d, spotnav.conefit as c
+kernels = [d._linear_channel, d._aligned_radii, d._read_edges, c._residuals, c._shared_columns, c._frame_columns,
+           c._gauss_newton, c.correlation_inflation, c.robust_sigma]
 before = [len(kernel.signatures) for kernel in kernels]
 from spotnav.config import Setup
 from spotnav.track import Tracker

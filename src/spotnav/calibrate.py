@@ -1,17 +1,29 @@
-"""Calibration from frames at known tip positions: the beam's edge angle and, optionally, two radii.
+"""Calibration from frames at known poses: the geometry that the frames determine, on the cone-fit engine.
 
-The precise method puts each spot's edge where the light is half of its full
-value, at ``instrument.edge_half_angle_deg`` from the beam's axis. A real beam's
-soft edge, a lens's blur or a camera's tone curve move that angle, so it is
-measured: with the tip known (a robot reports it), every edge point's angle
-from its beam's axis is a measurement of it. All frames' points are fitted at
-once by robust least squares, together with each three-beam frame's roll and,
-with ``fit_radius``, the retina's radius (the points are back-projected onto a
-sphere of that radius, so only the true radius puts them all on cones of one
-angle) and, with ``fit_light_radius``, the radius of the light's emitting face
-(a light of finite size widens the edge by a distance, so by an angle that
-grows as the tip nears the retina: only the true radius puts frames at all
-heights on cones of one angle).
+With the tip known (a robot reports it, and often the instrument's axis too),
+every edge point is a measurement of the geometry: it must lie on its beam's
+edge cone once the camera has turned it into a point on the retina. All
+frames' points are fitted at once (:mod:`spotnav.conefit`) to the geometry's
+parameters (:data:`spotnav.config.GEOMETRY_PARAMETERS`: the edge model, the
+eye's radius, the camera's rotation, centre, scale, principal point and
+distortion, the insertion point) and each three-beam frame's roll.
+
+:func:`calibrate` chooses the model itself. A first fit with every
+parameter free, held by priors (the setup's ``[uncertainty]``), reaches the
+neighbourhood of the answer; then, in the order of :data:`PRIORITY`, each
+parameter joins the fit when the frames determine it (its uncertainty from the
+frames alone, with the parameters already chosen, under
+:data:`DETERMINED_RATIO` of its prior, and none of those already chosen lost).
+The others stay at the setup's values and are named: a camera's tilt and
+shift look alike from above, as do its focal length and height. The last fit
+gives the parameters' covariance, the unchosen ones' uncertainty included, and
+the calibrated setup carries it (``[calibration]``) so that every pose's
+``sigma_mm`` does too. A calibration whose edge points still miss their cones
+is refused.
+
+With known axes (``known.csv``'s ``dir_x, dir_y, dir_z``) the insertion point
+is where the axes' lines meet (least squares); without, the images determine
+it, if they can.
 """
 
 from __future__ import annotations
@@ -20,43 +32,71 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
+from scipy.stats import chi2
 
-from spotnav.camera import unproject_pixels_to_sphere
-from spotnav.config import Setup
-from spotnav.detect import detect_edge_subpixel, detect_spots_otsu
-from spotnav.geometry import angles_from_cone_axes, assign_beams, beam_axes, normalize
-from spotnav.localize import (
-    EdgeFrame,
-    PoseEstimate,
-    edge_half_angle,
-    fit_height_correction,
-    localize_precise_with_edges,
+from spotnav.camera import camera_depth_mm, unproject_pixels_to_sphere
+from spotnav.checks import MAX_RMS_DEG, MAX_RMS_PX, check_image_size, judge_fit
+from spotnav.conefit import (
+    EDGE_CONTOUR_SIGMA,
+    PARAMETER_GROUPS,
+    SHARED_SIZE,
+    ConeProblem,
+    ConeSolution,
+    EdgePoints,
+    cone_problem,
+    fit_cones,
+    geometry_to_file_units,
+    geometry_values,
+    group_of,
+    prior_sigmas,
+    scatter_covariance,
+    setup_with_geometry,
 )
-from spotnav.reconstruct import least_squares_covariance, robust_sigma
+from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup
+from spotnav.detect import detect_edge_subpixel, detect_spots_otsu
+from spotnav.estimate import PoseEstimate
+from spotnav.geometry import assign_beams, normalize
+from spotnav.precise import EdgeFrame, localize_precise_with_edges
+from spotnav.thesis import fit_height_correction
 
 __all__ = [
+    "DETERMINED_RATIO",
+    "MIN_FRAMES",
+    "PRIORITY",
     "Calibration",
     "HeightCorrection",
     "KnownFrame",
     "RadiusSelfCalibration",
-    "calibrate_edge",
+    "calibrate",
     "calibrate_height_correction",
     "prepare_self_calibration",
     "self_calibrate_radius",
 ]
 
 MIN_FRAMES = 3
-MIN_FRAMES_FOR_RADIUS = 5
-MIN_SPREAD_FOR_RADIUS_MM = 1.0
-MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS = 1.2
+# A parameter is fitted when the frames alone pin it to this fraction of how well it was known before.
+DETERMINED_RATIO = 0.25
+# The order in which parameters may join the fit: what a microscope most often gets wrong first. Of two that look
+# alike (a tilt and a shift of the camera, its focal length and its height) the first is fitted.
+PRIORITY: tuple[int, ...] = (
+    *PARAMETER_GROUPS["edge-angle"],
+    *PARAMETER_GROUPS["camera-rotation"],
+    *PARAMETER_GROUPS["focal-length"],
+    *PARAMETER_GROUPS["light-radius"],
+    *PARAMETER_GROUPS["insertion-point"],
+    *PARAMETER_GROUPS["distortion"][:1],
+    *PARAMETER_GROUPS["eye-radius"],
+    *PARAMETER_GROUPS["camera-position"][::-1],
+    *PARAMETER_GROUPS["principal-point"],
+    *PARAMETER_GROUPS["distortion"][1:],
+)
 _CONTRAST_SIGMA = 4.0
+_MIN_INLIER_FRACTION = 0.5
 
 
 @dataclass(frozen=True)
 class KnownFrame:
-    """A calibration frame and where the tip was.
+    """A calibration frame and where the instrument was.
 
     Attributes
     ----------
@@ -78,185 +118,374 @@ class KnownFrame:
 
 @dataclass(frozen=True)
 class Calibration:
-    """Fitted values, their 1-sigma uncertainties and the residuals before and after.
+    """A calibrated geometry: the setup, what was fitted, how well, and the residuals before and after.
 
     Attributes
     ----------
-    edge_half_angle_deg, edge_sigma_deg : float
-    radius_mm : float
-        Fitted radius, or the setup's when it was not fitted.
-    radius_sigma_mm : float
-        NaN when the radius was not fitted.
-    light_radius_mm, light_radius_sigma_mm : float
-        Fitted light radius (or the setup's) and its uncertainty (NaN when not fitted).
+    setup : Setup
+        The calibrated setup, with ``[calibration]``: the geometry's covariance.
+    values : ndarray, shape (SHARED_SIZE,)
+        Each parameter of :data:`~spotnav.config.GEOMETRY_PARAMETERS` in the
+        calibrated setup, in its units (changes for the camera's rotation and
+        focal length).
+    sigmas : ndarray, shape (SHARED_SIZE,)
+        Their 1-sigma uncertainty after the calibration.
+    fitted : tuple of str
+        The parameters fitted (names of :data:`~spotnav.config.GEOMETRY_PARAMETERS`).
+    fixed : tuple of (str, str)
+        Parameters left at the setup's value, and why.
+    insertion_rms_mm : float
+        RMS distance of the known axes' lines from the insertion point they
+        give (NaN without known axes).
     rms_before_deg, rms_after_deg : float
         RMS angle of the inlying edge points from their cones with the setup's
-        values and with the fitted ones.
+        geometry and with the calibrated one.
+    rms_after_px : float
+        The latter in pixels.
     frames : int
         Frames used.
     points : int
-        Edge points used.
+        Edge points used (inliers).
     skipped : tuple of str
         Frames left out, with the reason.
     """
 
-    edge_half_angle_deg: float
-    edge_sigma_deg: float
-    radius_mm: float
-    radius_sigma_mm: float
-    light_radius_mm: float
-    light_radius_sigma_mm: float
+    setup: Setup
+    values: np.ndarray
+    sigmas: np.ndarray
+    fitted: tuple[str, ...]
+    fixed: tuple[tuple[str, str], ...]
+    insertion_rms_mm: float
     rms_before_deg: float
     rms_after_deg: float
+    rms_after_px: float
     frames: int
     points: int
     skipped: tuple[str, ...] = ()
 
-    def apply(self, setup: Setup) -> Setup:
-        """The setup with the fitted edge angle (and radii) in place."""
-        instrument = replace(
-            setup.instrument, edge_half_angle_deg=self.edge_half_angle_deg, light_radius_mm=self.light_radius_mm
-        )
-        eye = replace(setup.eye, radius_mm=self.radius_mm)
-        return replace(setup, eye=eye, instrument=instrument)
-
 
 @dataclass(frozen=True)
 class _FrameEdges:
-    pixels: np.ndarray  # (N, 2)
-    beam_of_point: np.ndarray  # (N,)
-    group_of_point: np.ndarray  # (N,) one group per spot
+    edges_px: list[np.ndarray]
+    beams: list[int]
     tip: np.ndarray
     axis: np.ndarray
     roll: float
 
 
-def _frame_edges(frame: KnownFrame, setup: Setup, group: int) -> _FrameEdges | str:
-    """The frame's edge pixels, the beam of each and the starting roll, or why the frame cannot be used."""
+def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
+    """The frame's spots' edges, the beam of each and the starting roll, or why the frame cannot be used."""
     instrument = setup.instrument
-    if frame.image.shape[:2] != (setup.camera.height_px, setup.camera.width_px):
-        return f"{frame.name}: image is {frame.image.shape[1]}x{frame.image.shape[0]} px, not the setup's size"
+    wrong = check_image_size(frame.image, setup)
+    if wrong is not None:
+        return f"{frame.name}: {wrong.detail}"
     spots = detect_spots_otsu(frame.image, min_contrast_sigma=_CONTRAST_SIGMA).spots
-    if len(spots) != instrument.beam_count or any(s.touches_border for s in spots):
-        return f"{frame.name}: {len(spots)} whole spots, need {instrument.beam_count}"
+    whole = [spot for spot in spots if not spot.touches_border]
+    if len(spots) != instrument.beam_count or len(whole) != len(spots):
+        cut = f", {len(spots) - len(whole)} cut by the border" if len(whole) != len(spots) else ""
+        return f"{frame.name}: {len(spots)} bright regions{cut}, {instrument.beam_count} beams"
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
-    pixels = [detect_edge_subpixel(frame.image, spot).pixels for spot in spots]
+    edges = [detect_edge_subpixel(frame.image, spot).pixels for spot in spots]
     beams, roll = [0], 0.0
     if len(spots) > 1:
         centres = np.array(
-            [unproject_pixels_to_sphere(setup.camera, p.mean(axis=0), setup.eye.radius_mm) for p in pixels]
+            [unproject_pixels_to_sphere(setup.camera, e.mean(axis=0), setup.eye.radius_mm) for e in edges]
         )
-        assignment = assign_beams(centres - tip, axis)
+        # Around their centroid, not the tip: a camera that is not where the setup says moves them all alike.
+        assignment = assign_beams(centres - centres.mean(axis=0), axis)
         if assignment is None:
             return f"{frame.name}: cannot tell which spot each beam made"
         beams, roll = assignment
-    return _FrameEdges(
-        np.concatenate(pixels),
-        np.concatenate([np.full(len(p), b) for p, b in zip(pixels, beams, strict=True)]),
-        np.concatenate([np.full(len(p), group + k) for k, p in enumerate(pixels)]),
-        tip,
-        axis,
-        roll,
+    return _FrameEdges(edges, beams, tip, axis, roll)
+
+
+def insertion_from_axes(tips_in_eye: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Where the instrument's lines meet: the point nearest all of them, least squares.
+
+    Parameters
+    ----------
+    tips_in_eye, axes : ndarray, shape (F, 3)
+        A point on each line and its direction.
+
+    Returns
+    -------
+    point : ndarray, shape (3,), mm
+    covariance : ndarray, shape (3, 3), mm^2
+        From the lines' scatter about the point (two constraints per line).
+    rms_mm : float
+        RMS distance of the lines from the point.
+    """
+    axes = normalize(axes)
+    projectors = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
+    normal = projectors.sum(axis=0)
+    point = np.linalg.solve(normal, np.einsum("fij,fj->i", projectors, tips_in_eye))
+    offsets = np.einsum("fij,fj->fi", projectors, point - tips_in_eye)
+    squares = float(np.sum(offsets**2))
+    variance = squares / max(2 * len(axes) - 3, 1)
+    return point, variance * np.linalg.inv(normal), float(np.sqrt(squares / len(axes)))
+
+
+def _problem(
+    setup: Setup, frames: list[_FrameEdges], axis: str, free: Sequence[int], shared: np.ndarray
+) -> ConeProblem:
+    points = EdgePoints.of_frames([f.edges_px for f in frames], [f.beams for f in frames])
+    return cone_problem(
+        setup,
+        points,
+        np.array([f.tip for f in frames]),
+        np.array([f.axis for f in frames]),
+        np.array([f.roll for f in frames]),
+        axis=axis,
+        free_tips=False,
+        free_shared=free,
+        shared=shared,
     )
 
 
-def _residuals(
-    params: np.ndarray, frames: list[_FrameEdges], setup: Setup, fit_radius: bool, fit_light_radius: bool
-) -> np.ndarray:
-    """Edge points' angles from their cones; ``params``: edge, [radius], [light radius], rolls."""
-    edge = params[0]
-    radius = params[1] if fit_radius else setup.eye.radius_mm
-    light_radius = params[1 + fit_radius] if fit_light_radius else setup.instrument.light_radius_mm
-    rolls = params[1 + fit_radius + fit_light_radius :]
-    instrument = setup.instrument
-    out = []
-    for f, frame in enumerate(frames):
-        points = unproject_pixels_to_sphere(setup.camera, frame.pixels, radius)
-        roll = rolls[f] if instrument.beam_count > 1 else 0.0
-        axes = beam_axes(frame.axis, instrument.beam_count, instrument.beam_tilt, roll)[frame.beam_of_point]
-        angle = angles_from_cone_axes(points - frame.tip, axes, light_radius)
-        out.append(np.nan_to_num(angle - edge, nan=1.0))  # a point off the sphere is a gross misfit
-    return np.concatenate(out)
+def _dense(solution: ConeSolution) -> np.ndarray:
+    matrix = solution.problem.jacobian_matrix(solution.x, solution.inliers)
+    return matrix if isinstance(matrix, np.ndarray) else matrix.toarray()
 
 
-def calibrate_edge(
-    frames: Sequence[KnownFrame], setup: Setup, *, fit_radius: bool = False, fit_light_radius: bool = False
+def _chosen(solution: ConeSolution, candidates: Sequence[int], forced: Sequence[int]) -> tuple[list[int], np.ndarray]:
+    """The candidates the frames determine, in :data:`PRIORITY` order, and each one's sigma over its prior.
+
+    ``solution`` is the fit with every candidate free, held by its prior (in
+    ``candidates``' order, then the frames' own parameters). A parameter joins
+    when the frames alone, with the parameters chosen before it, pin it to
+    under :data:`DETERMINED_RATIO` of its prior and still pin every one chosen
+    before. The uncertainty from the frames alone: the points' scatter
+    (correlation-inflated) and each spot's whole-edge shift.
+    """
+    jacobian = _dense(solution)
+    residuals = solution.residuals[solution.inliers]
+    spots = solution.problem.points.spot[solution.inliers]
+    own = list(range(len(candidates), jacobian.shape[1]))  # the frames' rolls are always fitted
+    prior = np.sqrt(np.diag(solution.problem.prior))
+
+    def ratios(chosen: list[int]) -> np.ndarray:
+        columns = [candidates.index(i) for i in chosen] + own
+        size = jacobian.shape[1]
+        covariance = scatter_covariance(jacobian[:, columns], residuals, spots, EDGE_CONTOUR_SIGMA, size)[0]
+        return np.sqrt(np.diag(covariance)[: len(chosen)]) / prior[chosen]
+
+    chosen = list(forced)
+    tried = np.full(SHARED_SIZE, np.nan)
+    for index in PRIORITY:
+        if index not in candidates or index in chosen:
+            continue
+        trial = [*chosen, index]
+        trial_ratios = ratios(trial)
+        tried[index] = trial_ratios[-1]
+        if np.all(trial_ratios[len(forced) :] < DETERMINED_RATIO):
+            chosen = trial
+    if chosen:
+        tried[chosen] = ratios(chosen)
+    return chosen, tried
+
+
+def _describe_poses(frames: list[_FrameEdges]) -> str:
+    tips = np.array([f.tip for f in frames])
+    spread = float(np.max(np.ptp(tips[:, :2], axis=0)))
+    return f"tips {spread:.2f} mm apart in x, y, {tips[:, 2].min():.2f}-{tips[:, 2].max():.2f} mm above the pole"
+
+
+def calibrate(
+    frames: Sequence[KnownFrame], setup: Setup, *, fit: Sequence[str] = (), fix: Sequence[str] = ()
 ) -> Calibration:
-    """Fit the edge angle (and the eye's radius) to frames at known tip positions.
+    """Fit the geometry that frames at known poses determine (see the module's docstring).
 
     Parameters
     ----------
     frames : sequence of KnownFrame
     setup : Setup
-        The eye, camera and instrument; its edge angle and radius are the
-        starting values and the "before" of the residuals.
-    fit_radius : bool
-        Fit ``eye.radius_mm`` too.
-    fit_light_radius : bool
-        Fit ``instrument.light_radius_mm`` too (a light of finite size widens
-        the edge more, in angle, the closer the tip; the known tips' heights
-        above the pole must differ by a factor of
-        ``MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS`` or more).
+        The eye, camera and instrument to start from, and how well they are
+        known (``[uncertainty]`` or ``[calibration]``): the priors of the
+        first fit, the yardstick of "determined", and the uncertainty of what
+        stays fixed.
+    fit : sequence of str
+        Groups of :data:`~spotnav.conefit.PARAMETER_GROUPS` to fit whatever
+        the frames say (an error when they cannot determine them).
+    fix : sequence of str
+        Groups to keep at the setup's values.
 
     Raises
     ------
     ValueError
-        Too few usable frames (3, or 5 with ``fit_radius``), or known tips too
-        close together to tell the radius (they must spread over 1 mm in x, y).
+        Unknown group names; fewer than :data:`MIN_FRAMES` usable frames; a
+        forced group the frames cannot determine; or a calibrated model whose
+        edge points still miss their cones (RMS over 0.1 deg and 1 px).
     """
+    for name in (*fit, *fix):
+        if name not in PARAMETER_GROUPS:
+            raise ValueError(f"{name!r} is not a parameter group, allowed: {', '.join(PARAMETER_GROUPS)}")
+    both = sorted(set(fit) & set(fix))
+    if both:
+        raise ValueError(f"{both[0]} cannot be both fitted and fixed")
     edges, skipped = [], []
     for frame in frames:
-        result = _frame_edges(frame, setup, 3 * len(edges))
+        result = _frame_edges(frame, setup)
         (skipped if isinstance(result, str) else edges).append(result)
-    needed = MIN_FRAMES_FOR_RADIUS if fit_radius else MIN_FRAMES
-    if len(edges) < needed:
+    if len(edges) < MIN_FRAMES:
         reasons = "; ".join(skipped) if skipped else "none given"
-        raise ValueError(f"calibration needs at least {needed} usable frames, got {len(edges)} ({reasons})")
-    if fit_radius:
-        tips = np.array([e.tip for e in edges])
-        spread = float(np.max(np.ptp(tips[:, :2], axis=0)))
-        if spread < MIN_SPREAD_FOR_RADIUS_MM:
-            raise ValueError(
-                f"the known tips spread {spread:.2f} mm in x, y; fitting the radius needs at least "
-                f"{MIN_SPREAD_FOR_RADIUS_MM:g} mm (degenerate poses)"
-            )
-    if fit_light_radius:
-        heights = np.array([e.tip[2] for e in edges])
-        if np.max(heights) < MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS * max(float(np.min(heights)), 1e-9):
-            raise ValueError(
-                f"the known tips lie {np.min(heights):.2f}-{np.max(heights):.2f} mm above the pole; "
-                f"fitting the light's radius needs a ratio of {MIN_HEIGHT_RATIO_FOR_LIGHT_RADIUS:g} or more"
-            )
-    start = [edge_half_angle(setup)] + ([setup.eye.radius_mm] if fit_radius else [])
-    start += [setup.instrument.light_radius_mm] if fit_light_radius else []
-    start += [e.roll for e in edges] if setup.instrument.beam_count > 1 else []
-    args = (edges, setup, fit_radius, fit_light_radius)
-    before = _residuals(np.array(start), *args)
-    scale = max(robust_sigma(before, True), 1e-6)
-    robust = least_squares(_residuals, start, args=args, loss="soft_l1", f_scale=scale, x_scale="jac")
-    spread = max(robust_sigma(robust.fun, False), 1e-7)
-    inliers = np.abs(robust.fun) < 3.0 * spread
-    groups = np.concatenate([e.group_of_point for e in edges])
-    jacobian = robust.jac[inliers]
-    covariance = least_squares_covariance(jacobian, robust.fun[inliers], groups[inliers])[0]
-    sigmas = np.sqrt(np.diag(covariance))
-    light_radius = setup.instrument.light_radius_mm
-    if fit_light_radius:  # a light smaller than the fit can tell may come out a little below zero: a point
-        light_radius = max(float(robust.x[1 + fit_radius]), 0.0)
+        raise ValueError(f"calibration needs at least {MIN_FRAMES} usable frames, got {len(edges)} ({reasons})")
+    reasons = {i: "fixed (--fix)" for name in fix for i in PARAMETER_GROUPS[name]}
+    prior = prior_sigmas(setup)
+    reasons.update({i: "known exactly ([uncertainty] 0)" for i in range(SHARED_SIZE) if prior[i] == 0})
+    known_axes = all(frame.axis is not None for frame in frames) and "insertion-point" not in fix
+    lines = None
+    if known_axes:
+        lines = insertion_from_axes(np.array([e.tip for e in edges]), np.array([e.axis for e in edges]))
+        setup = replace(setup, instrument=replace(setup.instrument, insertion_point_mm=tuple(lines[0])))
+        reasons.update({i: "where the known axes meet" for i in PARAMETER_GROUPS["insertion-point"]})
+    axis_mode = "known" if known_axes else "insertion"
+    forced = [i for name in fit for i in PARAMETER_GROUPS[name]]
+    candidates = [i for i in PRIORITY if i in forced or i not in reasons]
+    if not candidates:
+        raise ValueError(
+            "nothing to calibrate: the setup's [uncertainty] says its geometry is known exactly "
+            "(leave the section out for a real microscope, or force parameters with --fit)"
+        )
+    zeros = np.zeros(SHARED_SIZE)
+    before = _problem(setup, edges, axis_mode, [], zeros)
+    # First every candidate, held by its prior; then the ones the frames determine, on their own.
+    everything = _problem(setup, edges, axis_mode, candidates, zeros)
+    widths = np.full(everything.size, np.inf)
+    widths[: len(candidates)] = np.where(prior[candidates] > 0, prior[candidates], np.inf)
+    held = fit_cones(everything, priors=widths)
+    chosen, ratios = _chosen(held, candidates, forced)
+    unresolved = [i for i in forced if not ratios[i] < DETERMINED_RATIO]
+    if unresolved:
+        raise ValueError(
+            f"the known frames cannot determine {group_of(unresolved[0])} (they give it "
+            f"{ratios[unresolved[0]]:.2f} of its prior uncertainty, under {DETERMINED_RATIO} is needed): too few "
+            f"frames, or degenerate poses ({_describe_poses(edges)})"
+        )
+    reasons.update(
+        {i: f"not determined by these frames ({ratios[i]:.2f} of its prior)" for i in candidates if i not in chosen}
+    )
+    chosen = sorted(chosen)
+    start = np.where(np.isin(np.arange(SHARED_SIZE), chosen), held.shared, 0.0)
+    solution = fit_cones(_problem(setup, edges, axis_mode, chosen, start))
+    rms_before = _rms(before.residuals(before.start), solution.inliers)
+    frame_edge = _frame_edge_sigma(setup, edges, axis_mode, chosen, solution.shared)
+    return _calibration(setup, solution, chosen, rms_before, frame_edge, reasons, lines, skipped)
+
+
+def _frame_edge_sigma(
+    setup: Setup, edges: list[_FrameEdges], axis_mode: str, chosen: list[int], shared: np.ndarray
+) -> float:
+    """How far one frame's edge strays from the edge model as a whole, radians: each frame left out in turn.
+
+    The edge model (its angle, and the light's radius if fitted) is fitted to
+    the other frames in the calibrated camera and eye; the left-out frame's own
+    edge angle (its known pose, the roll free) then differs from it by an
+    offset. The offsets' mean square (the upper end of its 68 % interval: a
+    few frames tell a spread only roughly), less what each spot's own
+    whole-edge shift (:data:`~spotnav.conefit.EDGE_CONTOUR_SIGMA`, over the
+    frame's spots) explains, is the frame's share.
+    """
+    edge = PARAMETER_GROUPS["edge-angle"][0]
+    model = [i for i in chosen if group_of(i) in ("edge-angle", "light-radius")]
+    offsets = []
+    for f in range(len(edges)):
+        others = edges[:f] + edges[f + 1 :]
+        geometry = fit_cones(_problem(setup, others, axis_mode, model, shared)).shared
+        alone = fit_cones(_problem(setup, edges[f : f + 1], axis_mode, [edge], geometry))
+        offsets.append(alone.shared[edge] - geometry[edge])
+    square = np.mean(np.square(offsets)) * len(offsets) / chi2.ppf(0.16, len(offsets))
+    return float(np.sqrt(max(square - EDGE_CONTOUR_SIGMA**2 / setup.instrument.beam_count, 0.0)))
+
+
+def _rms(residuals: np.ndarray, inliers: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(residuals[inliers] ** 2)))
+
+
+def _calibration(
+    setup: Setup,
+    solution: ConeSolution,
+    chosen: list[int],
+    rms_before: float,
+    frame_edge: float,
+    reasons: dict[int, str],
+    lines: tuple[np.ndarray, np.ndarray, float] | None,
+    skipped: list[str],
+) -> Calibration:
+    """The calibration from the final fit: its check, its covariance and the calibrated setup."""
+    problem, inliers = solution.problem, solution.inliers
+    rms_after = _rms(solution.residuals, inliers)
+    calibrated = setup_with_geometry(setup, solution.shared)
+    # The residuals in pixels: each point's distance from its tip over its depth, times the focal length.
+    at_calibrated = cone_problem(
+        calibrated, problem.points, problem.frames[:, :3], problem.known_axes, problem.frames[:, 5], free_tips=False
+    )
+    points, camera = at_calibrated.points_in_eye, calibrated.camera
+    distance = np.linalg.norm(points - problem.frames[problem.points.frame, :3], axis=1)
+    scale_px = distance * camera.focal_px / camera_depth_mm(camera, points)
+    rms_px = float(np.sqrt(np.mean((solution.residuals * scale_px)[inliers] ** 2)))
+    if inliers.mean() < _MIN_INLIER_FRACTION or (np.degrees(rms_after) > MAX_RMS_DEG and rms_px > MAX_RMS_PX):
+        raise ValueError(
+            f"the calibrated model does not fit the frames: RMS {np.degrees(rms_after):.3f} deg ({rms_px:.2f} px) "
+            f"after, {np.degrees(rms_before):.3f} deg before, {100 * inliers.mean():.0f} % of the edge points fit; "
+            "check known.csv (tips in the eye frame, images in its order) and the setup's beam (count, angles)"
+        )
+    covariance = _geometry_covariance(solution, None if lines is None else lines[1])
+    fitted = [*chosen, *([] if lines is None else PARAMETER_GROUPS["insertion-point"])]
+    record = CalibrationRecord(
+        parameters=GEOMETRY_PARAMETERS,
+        covariance=tuple(tuple(float(v) for v in row) for row in covariance),
+        fitted=tuple(GEOMETRY_PARAMETERS[i] for i in sorted(fitted)),
+        rms_deg=float(np.degrees(rms_after)),
+        frames=len(problem.frames),
+        frame_edge_sigma_deg=float(np.degrees(frame_edge)),
+    )
+    calibrated = replace(calibrated, calibration=record)
+    values = geometry_values(calibrated)
+    changes_only = [*PARAMETER_GROUPS["camera-rotation"], *PARAMETER_GROUPS["focal-length"]]
+    values[changes_only] = geometry_to_file_units(solution.shared)[changes_only]
     return Calibration(
-        edge_half_angle_deg=float(np.degrees(robust.x[0])),
-        edge_sigma_deg=float(np.degrees(sigmas[0])),
-        radius_mm=float(robust.x[1]) if fit_radius else setup.eye.radius_mm,
-        radius_sigma_mm=float(sigmas[1]) if fit_radius else float("nan"),
-        light_radius_mm=light_radius,
-        light_radius_sigma_mm=float(sigmas[1 + fit_radius]) if fit_light_radius else float("nan"),
-        rms_before_deg=float(np.degrees(np.sqrt(np.mean(before[inliers] ** 2)))),
-        rms_after_deg=float(np.degrees(np.sqrt(np.mean(robust.fun[inliers] ** 2)))),
-        frames=len(edges),
+        setup=calibrated,
+        values=values,
+        sigmas=np.sqrt(np.diag(covariance)),
+        fitted=record.fitted,
+        fixed=tuple((GEOMETRY_PARAMETERS[i], reasons[i]) for i in range(SHARED_SIZE) if i not in fitted),
+        insertion_rms_mm=float("nan") if lines is None else lines[2],
+        rms_before_deg=float(np.degrees(rms_before)),
+        rms_after_deg=float(np.degrees(rms_after)),
+        rms_after_px=rms_px,
+        frames=len(problem.frames),
         points=int(inliers.sum()),
         skipped=tuple(skipped),
     )
+
+
+def _geometry_covariance(solution: ConeSolution, insertion_covariance: np.ndarray | None) -> np.ndarray:
+    """The calibrated geometry's error covariance over every shared parameter, file units, (SHARED_SIZE,)*2.
+
+    The fitted ones: the fit's covariance, which carries the fixed ones'
+    uncertainty; the fixed ones: their prior; between them ``-M C``, where ``M``
+    is how the fit followed the fixed ones. An insertion point from the known
+    axes' lines brings its own covariance.
+    """
+    problem = solution.problem
+    chosen, fixed = list(problem.free_shared), list(solution.geometry_ids)
+    covariance = np.array(problem.prior, dtype=float)
+    covariance[chosen, :] = 0.0
+    covariance[:, chosen] = 0.0
+    covariance[np.ix_(chosen, chosen)] = solution.covariance[: len(chosen), : len(chosen)]
+    if fixed and chosen:
+        cross = -solution.geometry_gain[: len(chosen)] @ problem.prior[np.ix_(fixed, fixed)]
+        covariance[np.ix_(chosen, fixed)] = cross
+        covariance[np.ix_(fixed, chosen)] = cross.T
+    if insertion_covariance is not None:
+        insertion = list(PARAMETER_GROUPS["insertion-point"])
+        covariance[insertion, :] = 0.0
+        covariance[:, insertion] = 0.0
+        covariance[np.ix_(insertion, insertion)] = insertion_covariance
+    scale = geometry_to_file_units(np.ones(SHARED_SIZE))
+    covariance = covariance * np.outer(scale, scale)
+    return 0.5 * (covariance + covariance.T)
 
 
 @dataclass(frozen=True)
@@ -282,7 +511,7 @@ class HeightCorrection:
 
 
 def calibrate_height_correction(frames: Sequence[KnownFrame], setup: Setup) -> HeightCorrection:
-    """Section 5.5's factor averaged over frames at known tips (:func:`spotnav.localize.fit_height_correction`).
+    """Section 5.5's factor averaged over frames at known tips (:func:`spotnav.thesis.fit_height_correction`).
 
     Raises
     ------
@@ -322,23 +551,6 @@ class RadiusSelfCalibration:
     frames: int
 
 
-def _joint_residuals(params: np.ndarray, frames: list[_FrameEdges], setup: Setup, edge: float) -> np.ndarray:
-    instrument = setup.instrument
-    radius = params[0]
-    per_frame = 4 if instrument.beam_count > 1 else 3
-    out = []
-    for f, frame in enumerate(frames):
-        block = params[1 + per_frame * f : 1 + per_frame * (f + 1)]
-        tip = block[:3]
-        axis = normalize(tip - instrument.insertion_in_eye)
-        roll = block[3] if per_frame == 4 else 0.0
-        axes = beam_axes(axis, instrument.beam_count, instrument.beam_tilt, roll)[frame.beam_of_point]
-        rays = unproject_pixels_to_sphere(setup.camera, frame.pixels, radius) - tip
-        angle = angles_from_cone_axes(rays, axes, instrument.light_radius_mm)
-        out.append(np.nan_to_num(angle - edge, nan=1.0))
-    return np.concatenate(out)
-
-
 def prepare_self_calibration(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, EdgeFrame | None]:
     """One frame's share of :func:`self_calibrate_radius`: its precise pose and its edges (None if unusable)."""
     estimate, prepared = localize_precise_with_edges(image, setup)
@@ -352,9 +564,9 @@ def self_calibrate_radius(
 
     Only the true radius puts every frame's back-projected edge on a right
     circular cone of the edge angle with its axis through the insertion point,
-    so the radius is fitted with all poses at once (robust least squares with
-    a sparse Jacobian), starting from each frame's precise fit at the setup's
-    radius.
+    so the radius is fitted with all poses at once (one cone problem, the
+    tips, rolls and radius free), starting from each frame's precise fit at
+    the setup's radius.
 
     Parameters
     ----------
@@ -370,61 +582,27 @@ def self_calibrate_radius(
     """
     shares = [f if isinstance(f, tuple) else prepare_self_calibration(f, setup) for f in frames_or_images]
     estimates = [estimate for estimate, _ in shares]
-    frames, used = [], []
-    for index, (estimate, prepared) in enumerate(shares):
-        if prepared is None:
-            continue
-        assert estimate.tip_in_eye is not None
-        pixels = np.concatenate(prepared.edges_px)
-        beams = np.concatenate([np.full(len(e), b) for e, b in zip(prepared.edges_px, prepared.beams, strict=True)])
-        groups = np.concatenate([np.full(len(e), 3 * len(frames) + k) for k, e in enumerate(prepared.edges_px)])
-        frames.append(_FrameEdges(pixels, beams, groups, estimate.tip_in_eye, prepared.axis, prepared.roll))
-        used.append(index)
-    if len(frames) < MIN_FRAMES_FOR_SELF_CALIBRATION:
+    used = [index for index, (_, prepared) in enumerate(shares) if prepared is not None]
+    if len(used) < MIN_FRAMES_FOR_SELF_CALIBRATION:
         raise ValueError(
             f"fitting the radius from the frames alone needs at least {MIN_FRAMES_FOR_SELF_CALIBRATION} frames "
-            f"with a pose, got {len(frames)}"
+            f"with a pose, got {len(used)}"
         )
-    per_frame = 4 if setup.instrument.beam_count > 1 else 3
-    start = [setup.eye.radius_mm]
-    for frame in frames:
-        start += [*frame.tip, frame.roll][:per_frame]
-    sizes = [len(f.pixels) for f in frames]
-    sparsity = lil_matrix((sum(sizes), len(start)), dtype=int)
-    sparsity[:, 0] = 1
-    row = 0
-    for f, size in enumerate(sizes):
-        sparsity[row : row + size, 1 + per_frame * f : 1 + per_frame * (f + 1)] = 1
-        row += size
-    edge = edge_half_angle(setup)
-    args = (frames, setup, edge)
-    first = _joint_residuals(np.array(start), *args)
-    scale = max(robust_sigma(first, True), 1e-6)
-    fit = least_squares(
-        _joint_residuals, start, args=args, jac_sparsity=sparsity, loss="soft_l1", f_scale=scale, x_scale="jac"
+    prepared = [shares[i][1] for i in used]
+    starts = [estimates[i] for i in used]
+    points = EdgePoints.of_frames([p.edges_px for p in prepared], [p.beams for p in prepared])  # type: ignore[union-attr]
+    problem = cone_problem(
+        setup,
+        points,
+        np.array([e.tip_in_eye for e in starts]),
+        np.array([e.axis for e in starts]),
+        np.array([e.roll for e in starts]),
+        free_shared=PARAMETER_GROUPS["eye-radius"],
     )
-    spread = max(robust_sigma(fit.fun, False), 1e-7)
-    inliers = np.abs(fit.fun) < 3.0 * spread
-    jacobian = fit.jac.tocsr()[inliers].toarray()
-    groups = np.concatenate([f.group_of_point for f in frames])
-    covariance = least_squares_covariance(jacobian, fit.fun[inliers], groups[inliers])[0]
-    radius = float(fit.x[0])
-    camera = setup.camera
-    ends = np.cumsum(sizes)
+    solution = fit_cones(problem)
+    radius = float(setup.eye.radius_mm + solution.shared[PARAMETER_GROUPS["eye-radius"][0]])
     for f, index in enumerate(used):
-        block = slice(1 + per_frame * f, 1 + per_frame * f + 3)
-        tip = fit.x[block]
-        points = unproject_pixels_to_sphere(camera, frames[f].pixels, radius)
-        kept = inliers[ends[f] - sizes[f] : ends[f]]
-        scale_px = np.linalg.norm(points - tip, axis=1) * camera.focal_px / (camera.distance_mm - points[:, 2])
-        residual_px = fit.fun[ends[f] - sizes[f] : ends[f]] * scale_px
-        estimates[index] = replace(
-            estimates[index],
-            tip_in_eye=tip.copy(),
-            axis=normalize(tip - setup.instrument.insertion_in_eye),
-            sigma_mm=float(np.sqrt(np.trace(covariance[block, block]) / 3)),
-            rms_px=float(np.sqrt(np.mean(residual_px[kept] ** 2))),
-            other_axis=None,
-            detail=f"eye radius fitted over {len(frames)} frames: {radius:.3f} mm",
-        )
-    return RadiusSelfCalibration(radius, float(np.sqrt(covariance[0, 0])), estimates, len(frames))
+        judged = judge_fit(solution.frame_solution(f), setup, spots=len(prepared[f].edges_px))  # type: ignore[union-attr]
+        estimates[index] = replace(judged, detail=f"eye radius fitted over {len(used)} frames: {radius:.3f} mm")
+    sigma = float(np.sqrt(solution.covariance[0, 0]))
+    return RadiusSelfCalibration(radius, sigma, estimates, len(used))

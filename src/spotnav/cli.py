@@ -20,13 +20,16 @@ from tqdm import tqdm
 
 from spotnav import __version__
 from spotnav.calibrate import (
+    Calibration,
     KnownFrame,
-    calibrate_edge,
+    calibrate,
     calibrate_height_correction,
     prepare_self_calibration,
     self_calibrate_radius,
 )
-from spotnav.config import EXAMPLE_SETUP, Setup
+from spotnav.conefit import PARAMETER_GROUPS
+from spotnav.config import EXAMPLE_SETUP, GEOMETRY_PARAMETERS, Camera, Setup
+from spotnav.estimate import PoseEstimate
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.experiments.bench import bench_markdown, run_bench
 from spotnav.experiments.evaluate import evaluate_poses, evaluation_text, write_evaluation
@@ -41,6 +44,7 @@ from spotnav.files import (
     pose_row,
     read_image,
     read_known_poses,
+    read_opencv_camera,
     read_path_csv,
     read_poses_csv,
     read_setup,
@@ -53,7 +57,7 @@ from spotnav.files import (
 )
 from spotnav.geometry import InstrumentPose, beam_axes
 from spotnav.igtl import DEFAULT_PORT, DEVICE_NAME, PoseServer
-from spotnav.localize import DEFAULT_METHOD, METHODS, PoseEstimate, localize
+from spotnav.localize import DEFAULT_METHOD, METHODS, localize
 from spotnav.render import Renderer
 from spotnav.track import TrackedFrame, Tracker
 
@@ -65,9 +69,23 @@ class UsageError(ValueError):
 
 
 def _cmd_scene(args: argparse.Namespace) -> int:
-    if not args.example:
-        raise UsageError("scene needs --example (print the thesis's setup)")
-    sys.stdout.write(EXAMPLE_SETUP)
+    if args.example == (args.opencv is not None):
+        raise UsageError("scene needs --example (print the thesis's setup) or --opencv FILE (a calibrated camera)")
+    if args.example:
+        sys.stdout.write(EXAMPLE_SETUP)
+        return 0
+    base = read_setup(args.scene) if args.scene else Setup()
+    width, height, matrix, distortion = read_opencv_camera(args.opencv)
+    nominal = base.camera
+    camera = Camera.calibrated(
+        width, height, matrix, distortion, nominal.rotation_to_camera, nominal.translation_to_camera_mm
+    )
+    setup = replace(base, camera=camera)
+    header = (
+        f"written by spotnav scene --opencv {args.opencv}: OpenCV's camera matrix and distortion, the pose of "
+        f"{args.scene or 'the thesis setup'}'s camera; spotnav calibrate measures the pose"
+    )
+    sys.stdout.write(setup_to_toml(setup, header))
     return 0
 
 
@@ -254,25 +272,14 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
             print(f"spotnav: warning: {error}; left out", file=sys.stderr)
             continue
         frames.append(KnownFrame(str(pose.image), image, pose.tip_in_eye, pose.axis))
-    result = calibrate_edge(frames, setup, fit_radius=args.fit_radius, fit_light_radius=args.fit_light_radius)
+    fit = list(args.fit or []) + ["eye-radius"] * args.fit_radius + ["light-radius"] * args.fit_light_radius
+    result = calibrate(frames, setup, fit=sorted(set(fit)), fix=sorted(set(args.fix or [])))
     for reason in result.skipped:
         print(f"spotnav: warning: {reason}; left out", file=sys.stderr)
-    lines = [
-        f"frames used: {result.frames} ({result.points} edge points)",
-        f"instrument.edge_half_angle_deg = {result.edge_half_angle_deg:.4f} +- {result.edge_sigma_deg:.4f} (1 sigma)",
-    ]
-    if args.fit_radius:
-        lines.append(f"eye.radius_mm = {result.radius_mm:.4f} +- {result.radius_sigma_mm:.4f} (1 sigma)")
-    if args.fit_light_radius:
-        sigma = result.light_radius_sigma_mm
-        lines.append(f"instrument.light_radius_mm = {result.light_radius_mm:.4f} +- {sigma:.4f} (1 sigma)")
-    lines.append(
-        f"RMS angle of the edge points from their cones: {result.rms_before_deg:.4f} deg before, "
-        f"{result.rms_after_deg:.4f} deg after"
-    )
-    calibrated = result.apply(setup)
+    lines = _calibration_lines(result)
+    calibrated = result.setup
     if args.height_correction:
-        height = calibrate_height_correction(frames, setup)
+        height = calibrate_height_correction(frames, calibrated)
         for reason in height.skipped:
             print(f"spotnav: warning: {reason}; left out of the height correction", file=sys.stderr)
         lines.append(
@@ -287,6 +294,39 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     out.write_text(setup_to_toml(calibrated, header), encoding="utf-8")
     print(f"wrote {out}", file=sys.stderr)
     return 0
+
+
+_SETUP_KEYS = {
+    "edge_half_angle_deg": "instrument.edge_half_angle_deg",
+    "light_radius_mm": "instrument.light_radius_mm",
+    "eye_radius_mm": "eye.radius_mm",
+}
+
+
+def _calibration_lines(result: Calibration) -> list[str]:
+    """What ``calibrate`` prints: the fitted values +- 1 sigma, what stayed fixed and why, the residuals."""
+    lines = [f"frames used: {result.frames} ({result.points} edge points)", "fitted (1 sigma):"]
+    for name in result.fitted:
+        index = GEOMETRY_PARAMETERS.index(name)
+        lines.append(f"  {_SETUP_KEYS.get(name, name)} = {result.values[index]:.6g} +- {result.sigmas[index]:.2g}")
+    if np.isfinite(result.insertion_rms_mm):
+        lines.append(f"  (the insertion point is where the known axes meet, RMS {result.insertion_rms_mm:.4f} mm)")
+    exact = [name for name, reason in result.fixed if result.sigmas[GEOMETRY_PARAMETERS.index(name)] == 0]
+    others = [(name, reason) for name, reason in result.fixed if name not in exact]
+    if others:
+        lines.append("left at the setup's values (1 sigma):")
+    for name, reason in others:
+        index = GEOMETRY_PARAMETERS.index(name)
+        lines.append(f"  {name} = {result.values[index]:.6g} +- {result.sigmas[index]:.2g}: {reason}")
+    if exact:
+        lines.append(f"known exactly ([uncertainty] 0): {', '.join(exact)}")
+    lines.append(
+        f"RMS angle of the edge points from their cones: {result.rms_before_deg:.4f} deg before, "
+        f"{result.rms_after_deg:.4f} deg after ({result.rms_after_px:.3f} px)"
+    )
+    edge = result.setup.calibration.frame_edge_sigma_deg
+    lines.append(f"one frame's edge strays from the model by {edge:.4f} deg (1 sigma, each frame left out in turn)")
+    return lines
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
@@ -361,6 +401,13 @@ def _parser() -> argparse.ArgumentParser:
 
     scene = commands.add_parser("scene", help="print a setup file")
     scene.add_argument("--example", action="store_true", help="the thesis's setup, commented")
+    scene.add_argument(
+        "--opencv",
+        metavar="FILE",
+        help="a setup whose camera is an OpenCV calibration (camera_matrix, distortion_coefficients, image_width, "
+        "image_height in the YAML, XML or JSON that cv2.FileStorage writes)",
+    )
+    scene.add_argument("--scene", help="with --opencv: the setup to take the rest from (default: the thesis's)")
     scene.set_defaults(run=_cmd_scene)
 
     render = commands.add_parser("render", help="render a camera frame (or a moving instrument) and its truth")
@@ -452,10 +499,15 @@ def _parser() -> argparse.ArgumentParser:
     )
     bench.set_defaults(run=_cmd_bench)
 
-    cal = commands.add_parser("calibrate", help="fit the edge angle (and the eye's radius) from known poses")
+    cal = commands.add_parser("calibrate", help="fit the geometry that frames at known poses determine")
     cal.add_argument("--scene", required=True, help="setup TOML")
     cal.add_argument("--poses", required=True, help="known.csv: image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z]")
-    cal.add_argument("--fit-radius", action="store_true", help="fit eye.radius_mm too")
+    groups = ", ".join(PARAMETER_GROUPS)
+    cal.add_argument(
+        "--fit", action="append", choices=list(PARAMETER_GROUPS), metavar="GROUP", help=f"always fit: {groups}"
+    )
+    cal.add_argument("--fix", action="append", choices=list(PARAMETER_GROUPS), metavar="GROUP", help="never fit")
+    cal.add_argument("--fit-radius", action="store_true", help="always fit eye.radius_mm (--fit eye-radius)")
     cal.add_argument(
         "--height-correction",
         action="store_true",
@@ -464,7 +516,7 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--fit-light-radius",
         action="store_true",
-        help="fit instrument.light_radius_mm too (known tips at heights differing by 1.2x or more)",
+        help="always fit instrument.light_radius_mm (--fit light-radius)",
     )
     cal.add_argument("--out", required=True, help="the calibrated setup TOML to write")
     cal.add_argument("images", nargs="*", metavar="IMAGE", help="images to use (default: all in known.csv)")

@@ -15,14 +15,16 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
 
 __all__ = [
     "EXAMPLE_SETUP",
+    "GEOMETRY_PARAMETERS",
     "Bump",
+    "CalibrationRecord",
     "Camera",
     "Eye",
     "Faults",
@@ -31,6 +33,7 @@ __all__ = [
     "Render",
     "Setup",
     "SetupError",
+    "Uncertainty",
     "World",
     "setup_from_dict",
     "setup_from_toml",
@@ -102,50 +105,211 @@ class Eye:
         return np.array([0.0, 0.0, self.radius_mm])
 
 
+IDEAL_ROTATION = ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0))  # eye frame to the ideal camera's frame
+DISTORTION_COUNTS = (4, 5, 8, 12, 14)  # OpenCV's distortion vector lengths
+_CALIBRATED_KEYS = ("matrix", "distortion", "rotation", "translation_mm")
+_IDEAL_KEYS = ("sensor_width_mm", "focal_length_mm", "distance_mm")
+_ORTHONORMAL_TOLERANCE = 1e-6
+
+
+def _matrix3(key: str, value: Any) -> tuple[tuple[float, float, float], ...]:
+    if not isinstance(value, list | tuple) or len(value) != 3:
+        raise SetupError(f"{key} must be 3 rows of 3 numbers, got {value!r}")
+    return tuple(_vector3(f"{key}[{i}]", row) for i, row in enumerate(value))
+
+
 @dataclass(frozen=True)
 class Camera:
-    """Ideal pinhole at ``(0, 0, distance_mm)`` looking down ``-z`` (contract).
+    """The microscope camera: the thesis's ideal pinhole, or a calibrated camera (contract).
+
+    The ideal camera is a pinhole at ``(0, 0, distance_mm)`` looking down ``-z``
+    with the principal point at the image's centre. A calibrated camera gives
+    instead OpenCV's camera matrix, distortion coefficients and pose (the four
+    keys ``matrix``, ``distortion``, ``rotation``, ``translation_mm`` come
+    together); its ``sensor_width_mm``, ``focal_length_mm`` and ``distance_mm``
+    are ``None``. Every method reads the camera through :attr:`matrix_px`,
+    :attr:`distortion_coefficients`, :attr:`rotation_to_camera` and
+    :attr:`translation_to_camera_mm`, which the ideal camera fills in too.
 
     Attributes
     ----------
     width_px, height_px : int
         Image size in pixels.
-    sensor_width_mm : float
-        Physical sensor width; pixels are square.
-    focal_length_mm : float
-        Lens focal length.
-    distance_mm : float
-        Height of the pinhole above the pole.
+    sensor_width_mm, focal_length_mm, distance_mm : float or None
+        The ideal camera: sensor width (square pixels), focal length and the
+        pinhole's height above the pole.
+    matrix : tuple of 3 rows of 3 floats, or None
+        OpenCV's camera matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``, pixels.
+    distortion : tuple of 4, 5, 8, 12 or 14 floats, or None
+        OpenCV's distortion coefficients ``(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tau_x, tau_y]]]])``.
+    rotation : tuple of 3 rows of 3 floats, or None
+        ``R``, eye frame to OpenCV's camera frame (``x`` right, ``y`` down, ``z`` forward).
+    translation_mm : tuple of 3 floats, or None
+        ``t``: ``x_cam = R x_eye + t``, mm.
     """
 
     width_px: int = 5000
     height_px: int = 5000
-    sensor_width_mm: float = 36.0
-    focal_length_mm: float = 300.0
-    distance_mm: float = 110.0
+    sensor_width_mm: float | None = 36.0
+    focal_length_mm: float | None = 300.0
+    distance_mm: float | None = 110.0
+    matrix: tuple[tuple[float, float, float], ...] | None = None
+    distortion: tuple[float, ...] | None = None
+    rotation: tuple[tuple[float, float, float], ...] | None = None
+    translation_mm: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         for name in ("width_px", "height_px"):
             value = _integer(f"camera.{name}", getattr(self, name))
             _in_range(f"camera.{name}", value, 16, 20000)
-        for name in ("sensor_width_mm", "focal_length_mm", "distance_mm"):
-            value = _number(f"camera.{name}", getattr(self, name))
-            _in_range(f"camera.{name}", value, 0.0, low_open=True)
+        given = [name for name in _CALIBRATED_KEYS if getattr(self, name) is not None]
+        if given:
+            missing = [name for name in _CALIBRATED_KEYS if name not in given]
+            if missing:
+                raise SetupError(
+                    f"camera.{missing[0]} is missing: a calibrated camera gives "
+                    f"{', '.join('camera.' + k for k in _CALIBRATED_KEYS)} together"
+                )
+            for name in _IDEAL_KEYS:  # the calibrated camera replaces the ideal one's keys
+                object.__setattr__(self, name, None)
+            self._check_calibrated()
+        else:
+            for name in _IDEAL_KEYS:
+                value = _number(f"camera.{name}", getattr(self, name))
+                _in_range(f"camera.{name}", value, 0.0, low_open=True)
+
+    def _check_calibrated(self) -> None:
+        matrix = _matrix3("camera.matrix", self.matrix)
+        (fx, skew, cx), (zero_a, fy, cy), last = matrix
+        for name, value in (("camera.matrix[0][0] (fx)", fx), ("camera.matrix[1][1] (fy)", fy)):
+            _in_range(name, value, 0.0, low_open=True)
+        if skew != 0.0 or zero_a != 0.0 or last != (0.0, 0.0, 1.0):
+            raise SetupError(f"camera.matrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {self.matrix!r}")
+        _in_range("camera.matrix[0][2] (cx)", cx, -0.5, self.width_px - 0.5)
+        _in_range("camera.matrix[1][2] (cy)", cy, -0.5, self.height_px - 0.5)
+        distortion = self.distortion
+        if not isinstance(distortion, list | tuple) or len(distortion) not in DISTORTION_COUNTS:
+            counts = ", ".join(map(str, DISTORTION_COUNTS))
+            raise SetupError(
+                f"camera.distortion must be a list of {counts} numbers (OpenCV's order), got {distortion!r}"
+            )
+        distortion = tuple(_number(f"camera.distortion[{i}]", v) for i, v in enumerate(distortion))
+        rotation = _matrix3("camera.rotation", self.rotation)
+        array = np.array(rotation)
+        if not (np.allclose(array @ array.T, np.eye(3), atol=_ORTHONORMAL_TOLERANCE) and np.linalg.det(array) > 0):
+            raise SetupError(
+                "camera.rotation must be a rotation matrix (orthonormal to 1e-6, determinant +1), "
+                f"got {self.rotation!r}"
+            )
+        translation = _vector3("camera.translation_mm", self.translation_mm)
+        for name, value in (
+            ("matrix", matrix),
+            ("distortion", distortion),
+            ("rotation", rotation),
+            ("translation_mm", translation),
+        ):
+            object.__setattr__(self, name, value)
+
+    @classmethod
+    def calibrated(
+        cls,
+        width_px: int,
+        height_px: int,
+        matrix: np.ndarray,
+        distortion: np.ndarray,
+        rotation: np.ndarray,
+        translation_mm: np.ndarray,
+    ) -> Camera:
+        """A calibrated camera from arrays (OpenCV's ``K``, ``dist``, ``R``, ``t``)."""
+        return cls(
+            width_px=width_px,
+            height_px=height_px,
+            matrix=tuple(tuple(float(v) for v in row) for row in np.asarray(matrix, dtype=float)),
+            distortion=tuple(float(v) for v in np.asarray(distortion, dtype=float).ravel()),
+            rotation=tuple(tuple(float(v) for v in row) for row in np.asarray(rotation, dtype=float)),
+            translation_mm=tuple(float(v) for v in np.asarray(translation_mm, dtype=float).ravel()),
+        )
+
+    @property
+    def is_calibrated(self) -> bool:
+        """Whether the camera is given in OpenCV's terms (else it is the thesis's ideal pinhole)."""
+        return self.matrix is not None
+
+    @property
+    def matrix_px(self) -> np.ndarray:
+        """OpenCV's camera matrix ``K``, shape (3, 3), pixels."""
+        if self.matrix is not None:
+            return np.array(self.matrix, dtype=float)
+        assert self.focal_length_mm is not None and self.sensor_width_mm is not None
+        focal = self.focal_length_mm * self.width_px / self.sensor_width_mm
+        cx, cy = (self.width_px - 1) / 2.0, (self.height_px - 1) / 2.0
+        return np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def distortion_coefficients(self) -> np.ndarray:
+        """OpenCV's distortion coefficients padded with zeros to all 14, shape (14,)."""
+        coefficients = np.zeros(14)
+        if self.distortion is not None:
+            coefficients[: len(self.distortion)] = self.distortion
+        return coefficients
+
+    @property
+    def rotation_to_camera(self) -> np.ndarray:
+        """``R``, eye frame to OpenCV's camera frame, shape (3, 3)."""
+        return np.array(self.rotation if self.rotation is not None else IDEAL_ROTATION, dtype=float)
+
+    @property
+    def translation_to_camera_mm(self) -> np.ndarray:
+        """``t`` of ``x_cam = R x_eye + t``, shape (3,), mm."""
+        if self.translation_mm is not None:
+            return np.array(self.translation_mm, dtype=float)
+        assert self.distance_mm is not None
+        return np.array([0.0, 0.0, self.distance_mm])
 
     @property
     def focal_px(self) -> float:
-        """Focal length in pixels, ``fx = fy``."""
-        return self.focal_length_mm * self.width_px / self.sensor_width_mm
+        """Focal length in pixels: the mean of ``fx`` and ``fy``."""
+        matrix = self.matrix_px
+        return float(0.5 * (matrix[0, 0] + matrix[1, 1]))
 
     @property
     def principal_point_px(self) -> tuple[float, float]:
-        """Image centre ``(cx, cy)`` in OpenCV pixel coordinates."""
-        return ((self.width_px - 1) / 2.0, (self.height_px - 1) / 2.0)
+        """Principal point ``(cx, cy)`` in OpenCV pixel coordinates (the image centre for the ideal camera)."""
+        matrix = self.matrix_px
+        return (float(matrix[0, 2]), float(matrix[1, 2]))
 
     @property
     def center_in_eye(self) -> np.ndarray:
-        """Pinhole position in the eye frame, shape (3,), mm."""
-        return np.array([0.0, 0.0, self.distance_mm])
+        """The camera's centre (pinhole) in the eye frame, ``-R^T t``, shape (3,), mm."""
+        return -self.rotation_to_camera.T @ self.translation_to_camera_mm
+
+    def as_calibrated(self) -> Camera:
+        """The same camera written with the four calibrated keys."""
+        return Camera.calibrated(
+            self.width_px,
+            self.height_px,
+            self.matrix_px,
+            self.distortion_coefficients[: len(self.distortion) if self.distortion is not None else 5],
+            self.rotation_to_camera,
+            self.translation_to_camera_mm,
+        )
+
+    def resized(self, width_px: int, height_px: int) -> Camera:
+        """The camera with another image size and the same field of view (pixels scaled, as a sensor binned)."""
+        if not self.is_calibrated:
+            return replace(self, width_px=width_px, height_px=height_px)
+        scale = np.array([width_px / self.width_px, height_px / self.height_px])
+        matrix = self.matrix_px
+        matrix[[0, 1], [0, 1]] *= scale
+        matrix[:2, 2] = (matrix[:2, 2] + 0.5) * scale - 0.5  # pixel centres stay at integers
+        return Camera.calibrated(
+            width_px,
+            height_px,
+            matrix,
+            self.distortion_coefficients,
+            self.rotation_to_camera,
+            self.translation_to_camera_mm,
+        )
 
 
 @dataclass(frozen=True)
@@ -392,6 +556,161 @@ class Faults:
         _in_range("faults.motion_blur_px", _number("faults.motion_blur_px", self.motion_blur_px), 0.0, 500.0)
 
 
+GEOMETRY_PARAMETERS: tuple[str, ...] = (
+    "edge_half_angle_deg",
+    "light_radius_mm",
+    "eye_radius_mm",
+    "camera_rotation_x_deg",
+    "camera_rotation_y_deg",
+    "camera_rotation_z_deg",
+    "camera_x_mm",
+    "camera_y_mm",
+    "camera_z_mm",
+    "focal_length_percent",
+    "principal_point_u_px",
+    "principal_point_v_px",
+    "distortion_k1",
+    "distortion_k2",
+    "distortion_p1",
+    "distortion_p2",
+    "distortion_k3",
+    "insertion_x_mm",
+    "insertion_y_mm",
+    "insertion_z_mm",
+)
+"""The geometry's parameters, each a small change of the setup's value (``docs/setup.md``).
+
+The edge model's angle (the beam's edge) and light radius; the eye's radius;
+the camera's rotation about its own centre, about its own ``x``, ``y``, ``z``
+axes; the camera centre's shift in the eye frame; both focal lengths scaled by
+a percentage; the principal point; OpenCV's first five distortion
+coefficients; the insertion point's shift. ``[uncertainty]`` and
+``[calibration]`` state how well each is known.
+"""
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """How well the setup's geometry is known, 1 sigma (setup section ``[uncertainty]``).
+
+    A setup that does not say gets a real operating microscope's: the precise
+    methods add the geometry's uncertainty to every pose's ``sigma_mm`` and
+    refuse a pose it makes too uncertain (status ``uncalibrated``). A
+    simulation rendered from the setup itself knows its geometry exactly
+    (:meth:`exact`). ``[calibration]``, written by ``spotnav calibrate``,
+    replaces these values for the parameters it lists.
+
+    Attributes
+    ----------
+    edge_half_angle_deg : float
+        The beam's edge angle (so its half-angle), degrees.
+    light_radius_mm : float
+        The light's emitting radius, mm.
+    eye_radius_mm : float
+        The retina's radius, mm.
+    camera_rotation_deg : float
+        The camera's rotation about each of its axes, degrees.
+    camera_position_mm : float
+        The camera centre, along each eye-frame axis, mm.
+    focal_length_percent : float
+        The camera's scale (focal length, magnification), per cent.
+    principal_point_percent : float
+        The principal point, per cent of the image's width.
+    distortion_px : float
+        The lens's radial distortion (k1), as its displacement at the middle
+        of the image's edge, pixels; k2 is given half of it, k3 and the
+        tangential terms (p1, p2) a quarter.
+    insertion_point_mm : float
+        The insertion point, along each axis, mm.
+    """
+
+    edge_half_angle_deg: float = 0.3
+    light_radius_mm: float = 0.05
+    eye_radius_mm: float = 0.25
+    camera_rotation_deg: float = 0.5
+    camera_position_mm: float = 0.5
+    focal_length_percent: float = 1.0
+    principal_point_percent: float = 1.0
+    distortion_px: float = 5.0
+    insertion_point_mm: float = 0.5
+
+    def __post_init__(self) -> None:
+        for item in fields(self):
+            key = f"uncertainty.{item.name}"
+            _in_range(key, _number(key, getattr(self, item.name)), 0.0, 100.0)
+
+    @classmethod
+    def exact(cls) -> Uncertainty:
+        """A geometry known exactly: every value 0 (a simulation's own setup)."""
+        return cls(**{item.name: 0.0 for item in fields(cls)})
+
+
+@dataclass(frozen=True)
+class CalibrationRecord:
+    """The covariance of a calibrated geometry (setup section ``[calibration]``, written by ``spotnav calibrate``).
+
+    Attributes
+    ----------
+    parameters : tuple of str
+        Names from :data:`GEOMETRY_PARAMETERS`, each once.
+    covariance : tuple of tuples of float
+        Their error covariance around the setup's values, in the names' units
+        (degrees, mm, per cent, pixels, or none for distortion coefficients).
+    fitted : tuple of str
+        The parameters the calibration fitted; the others kept the setup's
+        value and their ``[uncertainty]``.
+    rms_deg : float
+        RMS angle of the calibration's edge points from their cones, degrees.
+    frames : int
+        Frames the calibration used.
+    frame_edge_sigma_deg : float
+        How far one frame's edge strays from the edge model as a whole (the
+        same for all its spots, beyond each spot's own), degrees: measured on
+        the calibration frames, each left out of the fit in turn. 0: not measured.
+    """
+
+    parameters: tuple[str, ...] = ()
+    covariance: tuple[tuple[float, ...], ...] = ()
+    fitted: tuple[str, ...] = ()
+    rms_deg: float = 0.0
+    frames: int = 0
+    frame_edge_sigma_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        for key in ("parameters", "fitted"):
+            names = getattr(self, key)
+            if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
+                raise SetupError(f"calibration.{key} must be a list of names, got {names!r}")
+            unknown = [n for n in names if n not in GEOMETRY_PARAMETERS]
+            if unknown:
+                raise SetupError(
+                    f"calibration.{key}: {unknown[0]!r} is not a known parameter, allowed: "
+                    f"{', '.join(GEOMETRY_PARAMETERS)}"
+                )
+            if len(set(names)) != len(names):
+                raise SetupError(f"calibration.{key} names a parameter twice")
+            object.__setattr__(self, key, tuple(names))
+        size = len(self.parameters)
+        rows = self.covariance
+        if not isinstance(rows, list | tuple) or len(rows) != size:
+            raise SetupError(f"calibration.covariance must be {size} rows of {size} numbers (one per parameter)")
+        matrix = []
+        for i, row in enumerate(rows):
+            if not isinstance(row, list | tuple) or len(row) != size:
+                raise SetupError(f"calibration.covariance[{i}] must be {size} numbers")
+            matrix.append(tuple(_number(f"calibration.covariance[{i}][{j}]", v) for j, v in enumerate(row)))
+        array = np.array(matrix, dtype=float).reshape(size, size)
+        if size and not np.allclose(array, array.T, rtol=1e-6, atol=1e-12):
+            raise SetupError("calibration.covariance must be symmetric")
+        if size and np.linalg.eigvalsh(array).min() < -1e-9 * max(float(np.abs(array).max()), 1e-30):
+            raise SetupError("calibration.covariance must be positive semi-definite")
+        object.__setattr__(self, "covariance", tuple(matrix))
+        _in_range("calibration.rms_deg", _number("calibration.rms_deg", self.rms_deg), 0.0)
+        key = "calibration.frame_edge_sigma_deg"
+        _in_range(key, _number(key, self.frame_edge_sigma_deg), 0.0, 10.0)
+        _in_range("calibration.frames", _integer("calibration.frames", self.frames), 0)
+
+
 @dataclass(frozen=True)
 class Setup:
     """A whole setup: the contract's sections plus the simulator's own.
@@ -407,26 +726,39 @@ class Setup:
     world: World = field(default_factory=World)
     render: Render = field(default_factory=Render)
     faults: Faults = field(default_factory=Faults)
+    uncertainty: Uncertainty = field(default_factory=Uncertainty)
+    calibration: CalibrationRecord = field(default_factory=CalibrationRecord)
 
     def __post_init__(self) -> None:
         radius = self.eye.radius_mm
-        if self.camera.distance_mm <= 2.0 * radius:
-            raise SetupError(
-                f"camera.distance_mm = {self.camera.distance_mm:g} puts the camera inside the eye, "
-                f"allowed > 2 * eye.radius_mm = {2 * radius:g}"
-            )
-        true_radius = self.true_radius_mm
-        if self.camera.distance_mm <= 2.0 * true_radius:
-            raise SetupError(
-                f"camera.distance_mm = {self.camera.distance_mm:g} puts the camera inside the eye, "
-                f"allowed > 2 * world.eye_radius_mm = {2 * true_radius:g}"
-            )
+        for key, sphere in (("eye.radius_mm", radius), ("world.eye_radius_mm", self.true_radius_mm)):
+            self._check_camera_outside(key, sphere)
         gap = np.linalg.norm(self.instrument.insertion_in_eye - self.eye.center_in_eye)
         if gap > radius * (1.0 + 1e-9):
             raise SetupError(
                 f"instrument.insertion_point_mm is {gap:g} mm from the eye's centre, "
                 f"allowed at most eye.radius_mm = {radius:g} (inside the eye)"
             )
+
+    def _check_camera_outside(self, key: str, radius: float) -> None:
+        """The camera must see the bowl of the sphere of ``radius`` from outside it, from above."""
+        camera = self.camera
+        if not camera.is_calibrated:
+            assert camera.distance_mm is not None
+            if camera.distance_mm <= 2.0 * radius:
+                raise SetupError(
+                    f"camera.distance_mm = {camera.distance_mm:g} puts the camera inside the eye, "
+                    f"allowed > 2 * {key} = {2 * radius:g}"
+                )
+            return
+        centre = camera.center_in_eye
+        if centre[2] <= 2.0 * radius:
+            raise SetupError(
+                f"camera.translation_mm puts the camera's centre at z = {centre[2]:g} mm, inside the eye or "
+                f"beside it, allowed above 2 * {key} = {2 * radius:g}"
+            )
+        if (camera.rotation_to_camera @ -centre)[2] <= 0:
+            raise SetupError("camera.rotation turns the camera away from the eye (the pole is behind it)")
 
     @property
     def true_radius_mm(self) -> float:
@@ -455,6 +787,8 @@ _SECTIONS: dict[str, type] = {
     "world": World,
     "render": Render,
     "faults": Faults,
+    "uncertainty": Uncertainty,
+    "calibration": CalibrationRecord,
 }
 
 
@@ -466,6 +800,13 @@ def _build_section(name: str, cls: type, table: Any) -> Any:
     if unknown:
         raise SetupError(f"{name}.{unknown[0]} is not a known key, allowed: {', '.join(sorted(allowed))}")
     values = dict(table)
+    if cls is Camera and any(k in values for k in _CALIBRATED_KEYS):
+        ideal = [k for k in _IDEAL_KEYS if k in values]
+        if ideal:
+            raise SetupError(
+                f"camera.{ideal[0]} cannot be given with a calibrated camera (camera.matrix, camera.distortion, "
+                "camera.rotation, camera.translation_mm replace it)"
+            )
     if cls is World and "bumps" in values:
         values["bumps"] = tuple(_build_bump(i, b) for i, b in enumerate(_as_list("world.bumps", values["bumps"])))
     return cls(**values)
@@ -532,6 +873,11 @@ height_px = 5000
 sensor_width_mm = 36.0
 focal_length_mm = 300.0
 distance_mm = 110.0           # height of the pinhole above the pole
+# A calibrated camera replaces the three keys above with OpenCV's (spotnav scene --opencv FILE writes them):
+# matrix = [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]   # pixels
+# distortion = [k1, k2, p1, p2, k3]                          # 4, 5, 8, 12 or 14 values
+# rotation = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # eye frame to camera frame
+# translation_mm = [0.0, 0.0, 110.0]                         # x_cam = rotation x_eye + translation
 
 [instrument]
 insertion_point_mm = [0.0, 6.0, 20.0]   # remote centre of motion
@@ -542,6 +888,23 @@ height_correction = 1.0       # thesis method only: section 5.5 height factor, 1
 # edge_half_angle_deg = 8.656 # precise method's edge model (default: beta with Blender's blend 0.15)
 # light_radius_mm = 0.0       # precise method's edge model: the light's emitting radius (0 = a point)
 shaft_diameter_mm = 0.6       # precise method: ignore the edge the shaft hides (0 = no shaft)
+
+[uncertainty]                 # how well the geometry above is known (1 sigma); the precise methods add it to
+                              # every pose's sigma_mm and refuse poses it makes too uncertain (uncalibrated).
+                              # A simulation rendered from this very file knows it exactly: every value 0.
+                              # Without this section spotnav assumes a real microscope's: edge 0.3 deg, light
+                              # radius 0.05 mm, eye radius 0.25 mm, camera 0.5 deg and 0.5 mm, focal length 1 %,
+                              # principal point 1 % of the width, distortion 5 px, insertion point 0.5 mm.
+                              # spotnav calibrate measures it and writes [calibration].
+edge_half_angle_deg = 0.0
+light_radius_mm = 0.0
+eye_radius_mm = 0.0
+camera_rotation_deg = 0.0
+camera_position_mm = 0.0
+focal_length_percent = 0.0
+principal_point_percent = 0.0
+distortion_px = 0.0
+insertion_point_mm = 0.0
 
 [light]                       # simulator only, Blender's conventions
 power_w = 1.0                 # radiant intensity power_w / (4 pi) W/sr on the axis

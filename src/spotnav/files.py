@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 
 from spotnav.config import Setup, SetupError, setup_from_toml
+from spotnav.estimate import PoseEstimate
 from spotnav.geometry import InstrumentPose
-from spotnav.localize import PoseEstimate
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -37,6 +37,7 @@ __all__ = [
     "pose_row",
     "read_image",
     "read_known_poses",
+    "read_opencv_camera",
     "read_path_csv",
     "read_poses_csv",
     "read_setup",
@@ -234,7 +235,8 @@ def read_known_poses(path: str | Path) -> list[KnownPose]:
 class PoseRow:
     """One row of a ``poses.csv``: the contract's columns, parsed.
 
-    ``tip_in_eye`` and ``axis`` are None when the row has no pose.
+    ``tip_in_eye`` and ``axis`` are None when the row has no pose; ``sigma_mm``
+    is NaN where the file has no such column or value.
     """
 
     image: str
@@ -242,10 +244,11 @@ class PoseRow:
     tip_in_eye: np.ndarray | None
     axis: np.ndarray | None
     frame: int | None = None
+    sigma_mm: float = float("nan")
 
 
 def read_poses_csv(path: str | Path) -> list[PoseRow]:
-    """Read a ``poses.csv`` (the contract's columns ``image,status,x_mm,...,dir_z``, and ``frame`` if present).
+    """Read a ``poses.csv``: the contract's columns, and ``frame`` and ``sigma_mm`` where the file has them.
 
     Raises
     ------
@@ -259,8 +262,12 @@ def read_poses_csv(path: str | Path) -> list[PoseRow]:
     for number, row in enumerate(rows, start=2):
         values = [row[k] for k in needed[2:]]
         frame = _frame_number(row, path, number)
+        try:
+            sigma = float(row.get("sigma_mm") or "nan")
+        except ValueError:
+            raise ValueError(f"{path}, line {number}: sigma_mm must be a number") from None
         if not any(values) and row["status"] != "ok":
-            parsed.append(PoseRow(row["image"], row["status"], None, None, frame))
+            parsed.append(PoseRow(row["image"], row["status"], None, None, frame, sigma))
             continue
         try:
             numbers = np.array([float(v) for v in values])
@@ -268,8 +275,68 @@ def read_poses_csv(path: str | Path) -> list[PoseRow]:
             raise ValueError(f"{path}, line {number}: the pose must be six numbers") from None
         if not np.all(np.isfinite(numbers)):
             raise ValueError(f"{path}, line {number}: the pose must be finite")
-        parsed.append(PoseRow(row["image"], row["status"], numbers[:3], numbers[3:], frame))
+        parsed.append(PoseRow(row["image"], row["status"], numbers[:3], numbers[3:], frame, sigma))
     return parsed
+
+
+_OPENCV_MATRIX_KEYS = ("camera_matrix", "cameraMatrix", "K", "M", "intrinsic_matrix")
+_OPENCV_DISTORTION_KEYS = ("distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "dist", "distortion")
+_OPENCV_SIZE_KEYS = (("image_width", "imageWidth", "width"), ("image_height", "imageHeight", "height"))
+
+
+def read_opencv_camera(path: str | Path) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """An OpenCV camera calibration: image size, camera matrix and distortion coefficients.
+
+    Reads what ``cv2.FileStorage`` writes (YAML, XML or JSON), as OpenCV's
+    calibration sample and tools do: ``camera_matrix`` and
+    ``distortion_coefficients`` (or ``cameraMatrix``/``K``, ``dist_coeffs``/
+    ``distCoeffs``/``D``) and ``image_width``, ``image_height``.
+
+    Returns
+    -------
+    width_px, height_px : int
+    matrix : ndarray, shape (3, 3)
+    distortion : ndarray, shape (n,), n in (4, 5, 8, 12, 14)
+
+    Raises
+    ------
+    ValueError
+        Naming the file and what is missing.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such file")
+    try:
+        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError):  # OpenCV's parser raises its error through a SystemError
+        raise ValueError(f"{path}: not a file cv2.FileStorage reads (YAML, XML or JSON)") from None
+    try:
+        if not storage.isOpened():
+            raise ValueError(f"{path}: not a file cv2.FileStorage reads (YAML, XML or JSON)")
+
+        def first(keys: Sequence[str]) -> cv2.FileNode | None:
+            for key in keys:
+                node = storage.getNode(key)
+                if not node.empty():
+                    return node
+            return None
+
+        matrix_node, distortion_node = first(_OPENCV_MATRIX_KEYS), first(_OPENCV_DISTORTION_KEYS)
+        if matrix_node is None or distortion_node is None:
+            missing = "camera_matrix" if matrix_node is None else "distortion_coefficients"
+            raise ValueError(f"{path}: no {missing} (OpenCV's calibration keys)")
+        matrix, distortion = matrix_node.mat(), distortion_node.mat()
+        sizes = [first(keys) for keys in _OPENCV_SIZE_KEYS]
+        if any(node is None for node in sizes):
+            raise ValueError(f"{path}: no image_width and image_height")
+        width, height = (int(node.real()) for node in sizes)  # type: ignore[union-attr]
+    finally:
+        storage.release()
+    if matrix is None or matrix.shape != (3, 3):
+        raise ValueError(f"{path}: camera_matrix must be 3 x 3")
+    if distortion is None:
+        raise ValueError(f"{path}: distortion_coefficients is not a matrix")
+    return width, height, np.asarray(matrix, dtype=float), np.asarray(distortion, dtype=float).ravel()
 
 
 def setup_to_toml(setup: Setup, header: str = "") -> str:

@@ -15,8 +15,8 @@ import time
 
 import pyigtl
 
+from spotnav.estimate import PoseEstimate
 from spotnav.geometry import instrument_to_eye
-from spotnav.localize import PoseEstimate
 
 __all__ = ["DEFAULT_PORT", "DEVICE_NAME", "PoseServer"]
 

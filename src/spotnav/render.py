@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from spotnav.camera import (
+    camera_depth_mm,
     pixel_rays,
     pixels_behind_segment,
     project_points,
@@ -174,8 +175,7 @@ class Renderer:
         if len(points) == 0:
             return None
         pixels = project_points(setup.camera, points)
-        px_per_mm = setup.camera.focal_px / setup.camera.distance_mm
-        pad = 4 + px_per_mm * max((abs(b.height_mm) for b in setup.world.bumps), default=0.0)
+        pad = 4 + self._px_per_mm * max((abs(b.height_mm) for b in setup.world.bumps), default=0.0)
         u0 = max(int(np.floor(pixels[:, 0].min() - pad)), 0)
         v0 = max(int(np.floor(pixels[:, 1].min() - pad)), 0)
         u1 = min(int(np.ceil(pixels[:, 0].max() + pad)) + 1, setup.camera.width_px)
@@ -347,9 +347,9 @@ class Renderer:
 
     @property
     def _px_per_mm(self) -> float:
-        """Pixels per mm on the retina near the pole."""
+        """Pixels per mm on the retina near the pole (1 mm above it, the nearest the spots are)."""
         camera = self.setup.camera
-        return camera.focal_px / (camera.distance_mm - 1.0)
+        return camera.focal_px / (float(camera_depth_mm(camera, np.zeros(3))) - 1.0)
 
     def _vessel_mask(self, shape: tuple[int, int], count: int, rng: np.random.Generator) -> np.ndarray:
         """``count`` random dark lines across a box of ``shape``, 0.05-0.1 mm wide: coverage in [0, 1]."""
@@ -391,7 +391,8 @@ class Renderer:
         end = setup.instrument.insertion_in_eye
         radius = setup.instrument.shaft_diameter_mm / 2.0
         ends_px = project_points(setup.camera, np.array([pose.tip_in_eye, end]))
-        pad = radius * setup.camera.focal_px / (setup.camera.distance_mm - max(pose.tip_in_eye[2], end[2])) + 2
+        depth = float(np.min(camera_depth_mm(setup.camera, np.array([pose.tip_in_eye, end]))))
+        pad = radius * setup.camera.focal_px / depth + 2
         u0, v0 = np.floor(ends_px.min(axis=0) - pad).astype(int)
         u1, v1 = np.ceil(ends_px.max(axis=0) + pad).astype(int)
         u, v = np.meshgrid(np.arange(u0, u1 + 1, dtype=float), np.arange(v0, v1 + 1, dtype=float))

@@ -11,12 +11,13 @@ model, with the true one, and after ``spotnav calibrate`` on 8 known frames.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
 
-from spotnav.calibrate import Calibration, KnownFrame, calibrate_edge, prepare_self_calibration, self_calibrate_radius
-from spotnav.config import Instrument, Light, Setup, World
+from spotnav.calibrate import Calibration, KnownFrame, calibrate, prepare_self_calibration, self_calibrate_radius
+from spotnav.config import GEOMETRY_PARAMETERS, Instrument, Light, Setup, Uncertainty, World
 from spotnav.experiments.chapter6 import (
     BEAMS,
     PATH_SEEDS,
@@ -26,6 +27,7 @@ from spotnav.experiments.chapter6 import (
     path_poses,
     thesis_world,
     with_true_edge,
+    with_uncertainty,
     write_results_csv,
 )
 from spotnav.experiments.paths import poses_through_insertion, working_volume_tips
@@ -42,25 +44,44 @@ from spotnav.experiments.runner import (
 )
 from spotnav.geometry import edge_angle_of_blend
 
-__all__ = ["run_calibration"]
+__all__ = ["KNOWN_FRAMES", "calibration_text", "known_calibration", "run_calibration"]
 
 KNOWN_FRAMES = 8
 KNOWN_SEED = 20_000
 SOFT_BLEND = 0.3
 
 
-def _known_calibration(
-    runner: FrameRunner, world: Setup, localizer: Setup, fit_radius: bool, label: str
+def known_calibration(
+    runner: FrameRunner,
+    world: Setup,
+    localizer: Setup,
+    label: str,
+    *,
+    fit: Sequence[str] = (),
+    axes: bool = False,
+    count: int = KNOWN_FRAMES,
 ) -> Calibration:
-    """``spotnav calibrate`` on 8 frames at known tips drawn over the working volume."""
-    poses = poses_through_insertion(working_volume_tips(KNOWN_FRAMES, seed=42), world.instrument.insertion_in_eye)
+    """``spotnav calibrate`` on ``count`` frames at known tips drawn over the working volume, rendered in ``world``.
+
+    ``axes``: the known poses carry the instrument's axis too (a robot knows it).
+    """
+    poses = poses_through_insertion(working_volume_tips(count, seed=42), world.instrument.insertion_in_eye)
     jobs = [FrameJob(world, pose, KNOWN_SEED + i, ()) for i, pose in enumerate(poses)]
     images = runner.map(render_frame, jobs, f"{label}: known frames")
     frames = [
-        KnownFrame(f"known {i}", image, pose.tip_in_eye)
+        KnownFrame(f"known {i}", image, pose.tip_in_eye, pose.axis if axes else None)
         for i, (image, pose) in enumerate(zip(images, poses, strict=True))
     ]
-    return calibrate_edge(frames, localizer, fit_radius=fit_radius)
+    return calibrate(frames, localizer, fit=fit)
+
+
+def calibration_text(result: Calibration, *names: str) -> str:
+    """The named parameters' calibrated values +- 1 sigma, for a report."""
+    parts = []
+    for name in names:
+        index = GEOMETRY_PARAMETERS.index(name)
+        parts.append(f"{name} {result.values[index]:.4f} +- {result.sigmas[index]:.4f}")
+    return ", ".join(parts)
 
 
 def run_frame_with_edges(job: FrameJob) -> tuple[tuple[FrameResult, ...], tuple]:
@@ -104,10 +125,11 @@ def run_calibration(options: Options) -> Experiment:
     summary = []
     for b, beams in BEAMS.items():
         world = thesis_world(options.size_px, beams, 1.0, World(eye_radius_mm=13.5))
-        localizer = with_true_edge(world)
+        # The simulation knows its world but for the eye's radius, known as well as an eye is (0.25 mm).
+        localizer = with_uncertainty(with_true_edge(world), eye_radius_mm=Uncertainty().eye_radius_mm)
         poses = path_poses("helix", count, world.instrument.insertion_in_eye)
-        known = _known_calibration(runner, world, localizer, True, f"radius, {b}")
-        calibrated = known.apply(localizer)
+        known = known_calibration(runner, world, localizer, f"radius, {b}", fit=["eye-radius"])
+        calibrated = known.setup
         variants = (Variant("precise", localizer, "precise"), Variant("precise + calibrate", calibrated, "precise"))
         jobs = [FrameJob(world, pose, PATH_SEEDS["helix"] + i, variants) for i, pose in enumerate(poses)]
         outputs, shares = zip(*runner.map(run_frame_with_edges, jobs, f"radius, {b}"), strict=True)
@@ -120,8 +142,7 @@ def run_calibration(options: Options) -> Experiment:
             "precise, assumes 12.5 mm": ([o[0] for o in outputs], "-"),
             "precise + calibrate --fit-radius": (
                 [o[1] for o in outputs],
-                f"radius {known.radius_mm:.3f} +- {known.radius_sigma_mm:.3f} mm, "
-                f"edge {known.edge_half_angle_deg:.4f} +- {known.edge_sigma_deg:.4f} deg",
+                calibration_text(known, "eye_radius_mm", "edge_half_angle_deg"),
             ),
             "precise + self-calibration": (
                 self_results,
@@ -143,17 +164,22 @@ def run_calibration(options: Options) -> Experiment:
     ]
     for b, beams in BEAMS.items():
         world = replace(thesis_world(options.size_px, beams), light=Light(power_w=1.0, blend=SOFT_BLEND))
-        default = replace(world, instrument=replace(world.instrument, edge_half_angle_deg=None))
-        known = _known_calibration(runner, world, default, False, f"edge, {b}")
+        # The simulation knows its world but for the beam's edge, known to the default's 0.3 deg.
+        truth = with_true_edge(world)
+        default = with_uncertainty(
+            replace(truth, instrument=replace(truth.instrument, edge_half_angle_deg=None)),
+            edge_half_angle_deg=Uncertainty().edge_half_angle_deg,
+        )
+        known = known_calibration(runner, world, default, f"edge, {b}")
         variants = (
             Variant("precise, default edge model", default, "precise"),
-            Variant("precise, true edge model", with_true_edge(world), "precise"),
-            Variant("precise + calibrate", known.apply(default), "precise"),
+            Variant("precise, true edge model", truth, "precise"),
+            Variant("precise + calibrate", known.setup, "precise"),
         )
         poses = path_poses("helix", count, world.instrument.insertion_in_eye)
         jobs = [FrameJob(world, pose, PATH_SEEDS["helix"] + i, variants) for i, pose in enumerate(poses)]
         outputs = runner.map(run_frame, jobs, f"edge, {b}")
-        fitted = f"edge {known.edge_half_angle_deg:.4f} +- {known.edge_sigma_deg:.4f} deg"
+        fitted = calibration_text(known, "edge_half_angle_deg")
         rows = [_row(v.label, [o[k] for o in outputs], fitted if k == 2 else "-") for k, v in enumerate(variants)]
         ratio = summarize([o[2] for o in outputs]).mean_mm / summarize([o[1] for o in outputs]).mean_mm
         lines += [

@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from spotnav.camera import project_points
-from spotnav.config import Bump, Camera, Instrument, Light, Render, Setup, World
+from spotnav.config import Bump, Camera, Instrument, Light, Render, Setup, Uncertainty, World
 from spotnav.detect import detect_spots_otsu
+from spotnav.estimate import PoseEstimate
 from spotnav.experiments.figures import plot_against_power, plot_gallery, plot_path_3d, plot_per_step
 from spotnav.experiments.paths import (
     HELIX,
@@ -40,8 +41,9 @@ from spotnav.experiments.runner import (
     summarize,
 )
 from spotnav.geometry import InstrumentPose, edge_angle_of_blend, rotation_about_y
-from spotnav.localize import PoseEstimate, localize_precise, locate_from_spots, spot_candidates
+from spotnav.precise import localize_precise
 from spotnav.reconstruct import fit_ellipse, triangle_from_ellipse
+from spotnav.thesis import locate_from_spots, spot_candidates
 
 __all__ = ["POWERS_W", "THESIS", "Experiment", "Options", "bump_grid", "run_ellipse", "run_paths", "run_world"]
 
@@ -148,13 +150,20 @@ def _run_configs(
 
 
 def with_true_edge(world: Setup) -> Setup:
-    """The world with the precise method's edge model set from its simulated light's blend.
+    """The world as its own localizer knows it: exactly, the edge model from its simulated light's blend.
 
-    The simulation knows its light as the thesis's method knows beta; ``spotnav
-    calibrate`` fits the edge from images where the light is not known.
+    The simulation knows its light as the thesis's method knows beta, and its
+    geometry exactly (``Uncertainty.exact()``); ``spotnav calibrate`` fits the
+    edge and the geometry from images where they are not known.
     """
     angle = edge_angle_of_blend(world.instrument.beam_half_angle, world.light.blend)
-    return replace(world, instrument=replace(world.instrument, edge_half_angle_deg=float(np.degrees(angle))))
+    instrument = replace(world.instrument, edge_half_angle_deg=float(np.degrees(angle)))
+    return replace(world, instrument=instrument, uncertainty=Uncertainty.exact())
+
+
+def with_uncertainty(setup: Setup, **uncertainty: float) -> Setup:
+    """The setup with these ``[uncertainty]`` values (the others as they are)."""
+    return replace(setup, uncertainty=replace(setup.uncertainty, **uncertainty))
 
 
 def _calibration_pose(world: Setup) -> InstrumentPose:

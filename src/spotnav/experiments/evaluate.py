@@ -37,12 +37,15 @@ class FrameEvaluation:
         Estimate minus truth, mm (NaN without a pose).
     axis_error_deg : float
         Angle between the axes, degrees (NaN without a pose or a true axis).
+    sigma_mm : float
+        The estimate's own 1-sigma tip uncertainty (NaN without one).
     """
 
     image: str
     status: str
     error_xyz_mm: np.ndarray
     axis_error_deg: float
+    sigma_mm: float = float("nan")
 
     @property
     def error_mm(self) -> float:
@@ -66,6 +69,8 @@ class Evaluation:
         Mean error per axis (x, y, z), mm.
     axis_mean_deg, axis_max_deg : float
         Axis angle error, degrees.
+    within_3_sigma : float
+        Fraction of the ``ok`` frames with a ``sigma_mm`` whose error is within 3 of it (NaN without any).
     """
 
     frames: tuple[FrameEvaluation, ...]
@@ -77,6 +82,7 @@ class Evaluation:
     bias_mm: np.ndarray
     axis_mean_deg: float
     axis_max_deg: float
+    within_3_sigma: float = float("nan")
 
 
 def _frame_key(image: str, frame: int | None) -> str:
@@ -124,7 +130,7 @@ def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Eval
             if true.axis is not None:
                 cosine = row.axis @ true.axis / (np.linalg.norm(row.axis) * np.linalg.norm(true.axis))
                 angle = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-        frames.append(FrameEvaluation(name, row.status, error, angle))
+        frames.append(FrameEvaluation(name, row.status, error, angle, row.sigma_mm))
     ok = [f for f in frames if f.status == "ok"]
     errors = np.array([f.error_mm for f in ok])
     angles = np.array([f.axis_error_deg for f in ok if np.isfinite(f.axis_error_deg)])
@@ -144,6 +150,7 @@ def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Eval
         bias_mm=np.mean([f.error_xyz_mm for f in ok], axis=0) if ok else np.full(3, np.nan),
         axis_mean_deg=stat(angles, "mean"),
         axis_max_deg=stat(angles, "max"),
+        within_3_sigma=stat(np.array([f.error_mm <= 3 * f.sigma_mm for f in ok if np.isfinite(f.sigma_mm)]), "mean"),
     )
 
 
@@ -152,15 +159,17 @@ def evaluation_text(evaluation: Evaluation) -> str:
     counts = ", ".join(f"{n} {status}" for status, n in evaluation.counts.items())
     ok = evaluation.counts.get("ok", 0)
     bias = " / ".join(f"{v:+.4f}" for v in evaluation.bias_mm)
-    return "\n".join(
-        [
-            f"frames: {len(evaluation.frames)} ({counts})",
+    lines = [f"frames: {len(evaluation.frames)} ({counts})"]
+    if ok:
+        lines += [
             f"tip error over the {ok} ok frames [mm]: mean {evaluation.mean_mm:.4f}, "
             f"median {evaluation.median_mm:.4f}, 95th percentile {evaluation.p95_mm:.4f}, max {evaluation.max_mm:.4f}",
             f"bias (mean error x / y / z) [mm]: {bias}",
             f"axis error [deg]: mean {evaluation.axis_mean_deg:.3f}, max {evaluation.axis_max_deg:.3f}",
         ]
-    )
+    if np.isfinite(evaluation.within_3_sigma):
+        lines.append(f"within 3 sigma_mm: {100 * evaluation.within_3_sigma:.0f} % of the ok frames")
+    return "\n".join(lines)
 
 
 def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:

@@ -19,6 +19,7 @@ __all__ = [
     "plot_errors_by_status",
     "plot_fault_study",
     "plot_gallery",
+    "plot_geometry_study",
     "plot_path_3d",
     "plot_per_step",
 ]
@@ -186,3 +187,36 @@ def plot_fault_study(
         ax.invert_yaxis()
         ax.set(xlim=(0, 1.2), xlabel=f"fraction of frames ok (silent: ok but over {silent_error_mm} mm off)")
         ax.legend(fontsize="small", loc="lower right")
+
+
+def plot_geometry_study(
+    path: Path, cells: Mapping[tuple[str, int, str], Any], cases: Sequence[str], variants: Sequence[str]
+) -> None:
+    """Mean tip error per case (log scale), one bar per variant, the frames ``ok`` written beside each bar.
+
+    Parameters
+    ----------
+    cells : mapping of (case, beams, variant) to an ErrorSummary
+    cases, variants : sequence of str
+        In the order shown.
+    """
+    beams = sorted({b for _, b, _ in cells})
+    height = 0.8 / len(variants)
+    colours = ("tab:red", "tab:gray", "tab:blue")
+    title = "A world that is not the setup: mean tip error, frames ok"
+    with _figure(path, 1, len(beams), (7 * len(beams), 0.45 * len(cases) * len(variants) + 1.5), title) as axes:
+        for ax, count in zip(axes[0], beams, strict=True):
+            for number, variant in enumerate(variants):
+                y = np.arange(len(cases)) + number * height
+                summaries = [cells.get((case, count, variant)) for case in cases]
+                means = [s.mean_mm if s is not None and s.ok else np.nan for s in summaries]
+                ax.barh(y, means, height, color=colours[number % len(colours)], label=variant)
+                for row, s, mean in zip(y, summaries, means, strict=True):
+                    if s is not None:
+                        where = mean if np.isfinite(mean) else 2e-4
+                        ax.text(where * 1.1, row, f"{s.ok}/{s.frames}", va="center", fontsize="x-small")
+            ax.set_xscale("log")
+            ax.set_yticks(np.arange(len(cases)) + 0.4 - height / 2, cases, fontsize="x-small")
+            ax.invert_yaxis()
+            ax.set(xlim=(2e-4, 3.0), xlabel="mean tip error of the ok frames [mm]", title=f"{count} beam(s)")
+            ax.legend(fontsize="x-small", loc="lower right")

@@ -17,9 +17,11 @@ import numpy as np
 from tqdm import tqdm
 
 from spotnav.config import Setup
+from spotnav.estimate import PoseEstimate
 from spotnav.geometry import InstrumentPose, angles_between, axis_rotations
-from spotnav.localize import PoseEstimate, fit_height_correction, localize
+from spotnav.localize import localize
 from spotnav.render import Renderer
+from spotnav.thesis import fit_height_correction
 
 __all__ = [
     "ErrorSummary",

@@ -32,7 +32,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
-from spotnav.config import Setup, setup_from_toml
+from spotnav.config import Setup, Uncertainty, setup_from_toml
 from spotnav.experiments.chapter6 import with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion, square_tips
 from spotnav.files import read_path_csv
@@ -367,13 +367,17 @@ def _pose_columns(prefix: str, tip: np.ndarray, axis: np.ndarray) -> dict[str, f
 def run_chunk(sweep: Sweep, chunk: Chunk) -> list[dict[str, Any]]:
     """Render and localize one chunk's frames with every method: one row per frame and method.
 
-    The precise methods assume the edge that the simulated light makes (as if
-    calibrated, :func:`spotnav.experiments.chapter6.with_true_edge`) unless
-    the base setup names an edge angle.
+    The precise methods know the simulated geometry exactly and assume the
+    edge that the simulated light makes (as if calibrated,
+    :func:`spotnav.experiments.chapter6.with_true_edge`) unless the base setup
+    names an edge angle.
     """
     point = design_points(sweep)[chunk.point]
     world = apply_parameters(sweep.base, point)
-    assumed = world if world.instrument.edge_half_angle_deg is not None else with_true_edge(world)
+    if world.instrument.edge_half_angle_deg is None:
+        assumed = with_true_edge(world)
+    else:
+        assumed = replace(world, uncertainty=Uncertainty.exact())
     renderer = Renderer(world)
     poses = _path_poses(chunk.path, sweep.frames, world)
     parameters = _parameter_values(world)

@@ -1,0 +1,1050 @@
+"""The cone-fit engine: one model of the edge points, one residual with its Jacobian, one robust fit.
+
+Every precise estimate in spotnav is a problem for this module: localizing a
+frame, tracking it, calibrating the geometry from known poses and fitting the
+eye's radius over a sequence differ only in which parameters are free.
+
+The model. An edge point is a pixel on a spot's edge. The camera
+(:mod:`spotnav.camera`: OpenCV's lens and pose) turns it into a ray, the ray
+meets the retina sphere, and the point there lies on its beam's *edge cone*:
+the cone of the edge half-angle about the beam's axis, widened by the light's
+emitting radius (:func:`edge_angle`). A point's residual is its angle from that
+cone, radians (the thesis's cone-sphere intersection, section 4.1, without
+the planar approximation of 4.2).
+
+The parameters. Shared by all frames, the geometry (:data:`SHARED_SIZE`
+values, :data:`spotnav.config.GEOMETRY_PARAMETERS`, each a change of the
+setup's value): the edge angle, the light's radius, the eye's radius, the
+camera's rotation, centre, focal length, principal point and distortion, and
+the insertion point. Per frame (:data:`FRAME_PARAMETERS`): the tip, the
+instrument axis (through the insertion point, free as two angles, or known)
+and the roll of three beams.
+
+The fit (:func:`fit_cones`): a robust soft-L1 fit finds the outliers (points
+over 3 robust sigmas off), a least-squares fit of the rest gives the
+parameters, and its covariance adds, to the points' own scatter, the shift of
+each spot's whole edge and the uncertainty of the geometry that was held
+fixed (:func:`geometry_covariance`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numba import njit
+from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
+
+from spotnav.camera import CHANGE_SIZE, camera_model, camera_of_model, perturbed_model, sphere_point
+from spotnav.config import GEOMETRY_PARAMETERS, Camera, Setup
+from spotnav.geometry import _beam_axes, axis_rotations, edge_angle_of_blend, normalize
+
+__all__ = [
+    "AXIS_MODES",
+    "DEFAULT_BLEND",
+    "EDGE_CONTOUR_SIGMA",
+    "EDGE_MODEL_SIGMA",
+    "FRAME_PARAMETERS",
+    "PARAMETER_GROUPS",
+    "SHARED_SIZE",
+    "SOLVERS",
+    "ConeProblem",
+    "ConeSolution",
+    "EdgePoints",
+    "cone_problem",
+    "correlation_inflation",
+    "edge_angle",
+    "fit_cones",
+    "geometry_covariance",
+    "geometry_to_file_units",
+    "geometry_values",
+    "group_of",
+    "prior_sigmas",
+    "robust_sigma",
+    "scatter_covariance",
+    "setup_with_geometry",
+]
+
+DEFAULT_BLEND = 0.15  # Blender's default spot_blend: the edge model when the setup gives none
+# The edge model's own uncertainty (shared by all spots: how the half-light level follows the light) and the shift
+# of one spot's whole edge by the texture and vessels under it (each spot its own; some 0.006-0.0095 deg rms over
+# the 5000 px paths at 1-2 W).
+EDGE_MODEL_SIGMA = float(np.radians(0.003))
+EDGE_CONTOUR_SIGMA = float(np.radians(0.007))
+
+SHARED_SIZE = len(GEOMETRY_PARAMETERS)
+_EDGE, _LIGHT, _RADIUS, _CAMERA, _INSERTION = 0, 1, 2, 3, 17  # where each part of the shared vector starts
+_CAMERA_END = _CAMERA + CHANGE_SIZE
+# File units (degrees, per cent) to the engine's (radians, fractions), per shared parameter.
+_TO_ENGINE = np.ones(SHARED_SIZE)
+_TO_ENGINE[[_EDGE, _CAMERA, _CAMERA + 1, _CAMERA + 2]] = np.pi / 180.0
+_TO_ENGINE[_CAMERA + 6] = 0.01
+# A lens's distortion beyond k1 is smaller: these shares of the stated displacement for k2, k3 and p1, p2.
+_K2_SHARE, _K3_SHARE, _TANGENTIAL_SHARE = 0.5, 0.25, 0.25
+# The shared parameters by what they describe (the names calibrate's flags use).
+PARAMETER_GROUPS: dict[str, tuple[int, ...]] = {
+    "edge-angle": (_EDGE,),
+    "light-radius": (_LIGHT,),
+    "eye-radius": (_RADIUS,),
+    "camera-rotation": (_CAMERA, _CAMERA + 1, _CAMERA + 2),
+    "camera-position": (_CAMERA + 3, _CAMERA + 4, _CAMERA + 5),
+    "focal-length": (_CAMERA + 6,),
+    "principal-point": (_CAMERA + 7, _CAMERA + 8),
+    "distortion": tuple(range(_CAMERA + 9, _CAMERA_END)),
+    "insertion-point": (_INSERTION, _INSERTION + 1, _INSERTION + 2),
+}
+
+
+def group_of(index: int) -> str:
+    """The :data:`PARAMETER_GROUPS` name of a shared parameter."""
+    return next(name for name, ids in PARAMETER_GROUPS.items() if index in ids)
+
+
+FRAME_PARAMETERS = ("tip_x_mm", "tip_y_mm", "tip_z_mm", "about_y", "about_z", "roll")
+_FRAME_SIZE = len(FRAME_PARAMETERS)
+AXIS_MODES = {"insertion": 0, "free": 1, "known": 2}
+SOLVERS = ("trust-region", "gauss-newton")
+_GROSS_RESIDUAL = 1.0  # radians: a point whose ray misses the bowl
+
+
+def edge_angle(setup: Setup) -> float:
+    """The edge model's half-angle, radians: ``instrument.edge_half_angle_deg`` or its default.
+
+    The default is the half-light angle of a Cycles spot of the nominal half-angle
+    with Blender's default blend 0.15 (:func:`spotnav.geometry.edge_angle_of_blend`).
+    """
+    instrument = setup.instrument
+    if instrument.edge_half_angle_deg is not None:
+        return float(np.radians(instrument.edge_half_angle_deg))
+    return edge_angle_of_blend(instrument.beam_half_angle, DEFAULT_BLEND)
+
+
+def _shared_scales(
+    camera: Camera,
+    *,
+    edge_deg: float,
+    light_mm: float,
+    radius_mm: float,
+    rotation_deg: float,
+    position_mm: float,
+    focal_percent: float,
+    principal_px: float,
+    distortion_px: float,
+    insertion_mm: float,
+) -> np.ndarray:
+    """Amounts of each kind of change as values of the shared parameters, engine units, shape (SHARED_SIZE,).
+
+    A distortion's displacement at the middle of the image's edge (``r``, in
+    normalized coordinates) becomes a coefficient: ``px / (f r^3)`` for ``k1``;
+    the higher radial terms and the tangential ones, smaller in real lenses,
+    get a share of it (:data:`_K2_SHARE`, :data:`_K3_SHARE`,
+    :data:`_TANGENTIAL_SHARE`): ``r^5`` for ``k2``, ``r^7`` for ``k3``,
+    ``r^2`` for ``p1`` and ``p2``.
+    """
+    focal = camera.focal_px
+    edge = 0.5 * max(camera.width_px, camera.height_px) / focal
+    distortion = distortion_px / focal
+    values = np.array(
+        [
+            edge_deg,
+            light_mm,
+            radius_mm,
+            *[rotation_deg] * 3,
+            *[position_mm] * 3,
+            focal_percent,
+            principal_px,
+            principal_px,
+            distortion / edge**3,
+            _K2_SHARE * distortion / edge**5,
+            _TANGENTIAL_SHARE * distortion / edge**2,
+            _TANGENTIAL_SHARE * distortion / edge**2,
+            _K3_SHARE * distortion / edge**7,
+            *[insertion_mm] * 3,
+        ]
+    )
+    return values * _TO_ENGINE
+
+
+def prior_sigmas(setup: Setup) -> np.ndarray:
+    """The ``[uncertainty]`` section as 1-sigma values of the shared parameters, engine units, shape (SHARED_SIZE,)."""
+    uncertainty, camera = setup.uncertainty, setup.camera
+    return _shared_scales(
+        camera,
+        edge_deg=uncertainty.edge_half_angle_deg,
+        light_mm=uncertainty.light_radius_mm,
+        radius_mm=uncertainty.eye_radius_mm,
+        rotation_deg=uncertainty.camera_rotation_deg,
+        position_mm=uncertainty.camera_position_mm,
+        focal_percent=uncertainty.focal_length_percent,
+        principal_px=uncertainty.principal_point_percent / 100.0 * camera.width_px,
+        distortion_px=uncertainty.distortion_px,
+        insertion_mm=uncertainty.insertion_point_mm,
+    )
+
+
+def _difference_steps(camera: Camera) -> np.ndarray:
+    """Forward-difference steps of the shared parameters, engine units: a hundred-thousandth of a small change."""
+    small = _shared_scales(
+        camera,
+        edge_deg=0.1,
+        light_mm=0.01,
+        radius_mm=0.1,
+        rotation_deg=0.1,
+        position_mm=0.1,
+        focal_percent=0.1,
+        principal_px=1.0,
+        distortion_px=1.0,
+        insertion_mm=0.1,
+    )
+    return 1e-5 * small
+
+
+def geometry_values(setup: Setup) -> np.ndarray:
+    """The setup's geometry in the units of :data:`GEOMETRY_PARAMETERS`, shape (SHARED_SIZE,).
+
+    The values that the changes add to: the edge angle (deg), light and eye
+    radii, the camera's centre in the eye frame, its principal point and
+    distortion coefficients, the insertion point; 0 for the rotation and the
+    focal length's percentage (changes only).
+    """
+    camera = setup.camera
+    values = np.zeros(SHARED_SIZE)
+    values[_EDGE] = np.degrees(edge_angle(setup))
+    values[_LIGHT] = setup.instrument.light_radius_mm
+    values[_RADIUS] = setup.eye.radius_mm
+    values[_CAMERA + 3 : _CAMERA + 6] = camera.center_in_eye
+    values[_CAMERA + 7 : _CAMERA + 9] = camera.principal_point_px
+    values[_CAMERA + 9 : _CAMERA_END] = camera.distortion_coefficients[:5]
+    values[_INSERTION:] = setup.instrument.insertion_in_eye
+    return values
+
+
+def setup_with_geometry(setup: Setup, shared: np.ndarray) -> Setup:
+    """The setup with the geometry's changes ``shared`` (SHARED_SIZE,), engine units, in place.
+
+    A changed camera is written as a calibrated one (OpenCV's terms); a light
+    radius fitted below zero is a point (0).
+    """
+    shared = np.asarray(shared, dtype=float)
+    camera = setup.camera
+    if np.any(shared[_CAMERA:_CAMERA_END] != 0.0):
+        camera = camera_of_model(camera, perturbed_model(camera_model(camera), shared[_CAMERA:_CAMERA_END]))
+    instrument = replace(
+        setup.instrument,
+        edge_half_angle_deg=float(np.degrees(edge_angle(setup) + shared[_EDGE])),
+        light_radius_mm=max(float(setup.instrument.light_radius_mm + shared[_LIGHT]), 0.0),
+        insertion_point_mm=tuple(float(v) for v in setup.instrument.insertion_in_eye + shared[_INSERTION:]),
+    )
+    eye = replace(setup.eye, radius_mm=float(setup.eye.radius_mm + shared[_RADIUS]))
+    return replace(setup, camera=camera, eye=eye, instrument=instrument)
+
+
+def geometry_to_file_units(values: np.ndarray) -> np.ndarray:
+    """Shared parameters (..., SHARED_SIZE) from engine units to those of :data:`GEOMETRY_PARAMETERS`."""
+    return np.asarray(values, dtype=float) / _TO_ENGINE
+
+
+def geometry_covariance(setup: Setup) -> np.ndarray:
+    """How well the setup's geometry is known: the shared parameters' covariance, engine units, (SHARED_SIZE,)*2.
+
+    ``[calibration]``'s covariance for the parameters it lists, ``[uncertainty]``
+    for the others, and always the edge model's error in one frame: the one
+    the calibration measured, at least :data:`EDGE_MODEL_SIGMA`.
+    """
+    covariance = np.diag(prior_sigmas(setup) ** 2)
+    record = setup.calibration
+    if record.parameters:
+        index = [GEOMETRY_PARAMETERS.index(name) for name in record.parameters]
+        scale = _TO_ENGINE[index]
+        block = np.array(record.covariance, dtype=float) * np.outer(scale, scale)
+        covariance[index, :] = 0.0
+        covariance[:, index] = 0.0
+        covariance[np.ix_(index, index)] = block
+    covariance[_EDGE, _EDGE] += max(EDGE_MODEL_SIGMA, np.radians(record.frame_edge_sigma_deg)) ** 2
+    return covariance
+
+
+@dataclass(frozen=True)
+class EdgePoints:
+    """Which edge points came from which spot, beam and frame.
+
+    Attributes
+    ----------
+    pixels : ndarray, shape (N, 2)
+        ``(u, v)`` as detected (distorted), in order around each spot.
+    frame : ndarray of int, shape (N,)
+        The frame of each point, 0 to F - 1, nondecreasing.
+    beam : ndarray of int, shape (N,)
+        The beam that made each point's spot.
+    spot : ndarray of int, shape (N,)
+        Which spot (contour) each point lies on, numbered over all frames.
+    """
+
+    pixels: np.ndarray
+    frame: np.ndarray
+    beam: np.ndarray
+    spot: np.ndarray
+
+    def __post_init__(self) -> None:
+        pixels = np.ascontiguousarray(self.pixels, dtype=float).reshape(-1, 2)
+        count = len(pixels)
+        for name in ("frame", "beam", "spot"):
+            values = np.ascontiguousarray(getattr(self, name), dtype=np.int64)
+            if values.shape != (count,):
+                raise ValueError(f"{name} must have shape ({count},), got {values.shape}")
+            object.__setattr__(self, name, values)
+        if count and np.any(np.diff(self.frame) < 0):
+            raise ValueError("edge points must be in frame order")
+        object.__setattr__(self, "pixels", pixels)
+
+    @classmethod
+    def of_frames(cls, spots_px: Sequence[Sequence[np.ndarray]], beams: Sequence[Sequence[int]]) -> EdgePoints:
+        """Points from each frame's spots' edges (``spots_px[f][k]``, shape (N_k, 2)) and their beams."""
+        pixels, frame, beam, spot = [np.zeros((0, 2))], [], [], []
+        count = 0
+        for f, (edges, frame_beams) in enumerate(zip(spots_px, beams, strict=True)):
+            for edge, b in zip(edges, frame_beams, strict=True):
+                pixels.append(np.asarray(edge, dtype=float).reshape(-1, 2))
+                frame.append(np.full(len(pixels[-1]), f))
+                beam.append(np.full(len(pixels[-1]), b))
+                spot.append(np.full(len(pixels[-1]), count))
+                count += 1
+        empty = np.zeros(0, dtype=np.int64)
+        return cls(np.concatenate(pixels), *(np.concatenate(v) if v else empty for v in (frame, beam, spot)))
+
+    def subset(self, keep: np.ndarray) -> EdgePoints:
+        """The points where ``keep`` (N,) is true, in order."""
+        return EdgePoints(self.pixels[keep], self.frame[keep], self.beam[keep], self.spot[keep])
+
+
+@dataclass(frozen=True)
+class ConeProblem:
+    """A cone fit: the edge points, the geometry they are seen in, the start, and what is free.
+
+    Build it with :func:`cone_problem`.
+
+    Attributes
+    ----------
+    model : ndarray, shape (MODEL_SIZE,)
+        The setup's camera (:func:`spotnav.camera.camera_model`).
+    base : ndarray, shape (6,)
+        The setup's edge angle (rad), light radius, eye radius and insertion point (mm).
+    beam_count : int
+    tilt : float
+        Beam tilt, radians.
+    points : EdgePoints
+    frames : ndarray, shape (F, 6)
+        Each frame's start: tip (mm), axis angles about y and z (rad, see
+        :func:`spotnav.geometry.axis_rotations`) and roll (rad).
+    axis_mode : ndarray of int, shape (F,)
+        :data:`AXIS_MODES`: through the insertion point, free, or known.
+    known_axes : ndarray, shape (F, 3)
+        The known axes (used where the mode is ``known``).
+    shared : ndarray, shape (SHARED_SIZE,)
+        Start (or fixed value) of the geometry's changes, engine units.
+    free_shared : tuple of int
+        Shared parameters to fit.
+    free_frame : tuple of int
+        Per-frame parameters to fit (indices of :data:`FRAME_PARAMETERS`), the same for every frame.
+    prior : ndarray, shape (SHARED_SIZE, SHARED_SIZE)
+        The geometry's covariance (:func:`geometry_covariance`): what the fixed
+        shared parameters add to the fit's covariance.
+    steps : ndarray, shape (SHARED_SIZE,)
+        Forward-difference steps of the shared parameters, engine units.
+    """
+
+    model: np.ndarray
+    base: np.ndarray
+    beam_count: int
+    tilt: float
+    points: EdgePoints
+    frames: np.ndarray
+    axis_mode: np.ndarray
+    known_axes: np.ndarray
+    shared: np.ndarray
+    free_shared: tuple[int, ...]
+    free_frame: tuple[int, ...]
+    prior: np.ndarray
+    steps: np.ndarray
+    _arrays: tuple = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        frames = np.ascontiguousarray(self.frames, dtype=float).reshape(-1, _FRAME_SIZE)
+        count = len(frames)
+        shared_index = np.full(SHARED_SIZE, -1, dtype=np.int64)
+        shared_index[list(self.free_shared)] = np.arange(len(self.free_shared))
+        frame_index = np.full((count, _FRAME_SIZE), -1, dtype=np.int64)
+        offset = len(self.free_shared)
+        for f in range(count):
+            for k in self.free_frame:
+                frame_index[f, k] = offset
+                offset += 1
+        starts = np.searchsorted(self.points.frame, np.arange(count + 1)).astype(np.int64)
+        camera_free = any(_RADIUS <= i < _CAMERA_END for i in self.free_shared)
+        model = perturbed_model(self.model, self.shared[_CAMERA:_CAMERA_END])
+        cached = _sphere_points(model, self.points.pixels, self.base[_RADIUS] + self.shared[_RADIUS])
+        arrays = (
+            np.ascontiguousarray(self.model, dtype=float),
+            np.ascontiguousarray(self.base, dtype=float),
+            int(self.beam_count),
+            float(self.tilt),
+            np.ascontiguousarray(self.shared, dtype=float),
+            shared_index,
+            frames,
+            frame_index,
+            np.ascontiguousarray(self.axis_mode, dtype=np.int64),
+            np.ascontiguousarray(self.known_axes, dtype=float).reshape(-1, 3),
+            self.points.pixels,
+            starts,
+            self.points.beam,
+            cached,
+            camera_free,
+            self.steps,
+        )
+        object.__setattr__(self, "frames", frames)
+        object.__setattr__(self, "_arrays", arrays)
+
+    @property
+    def size(self) -> int:
+        """Number of free parameters."""
+        return len(self.free_shared) + len(self.free_frame) * len(self.frames)
+
+    @property
+    def points_in_eye(self) -> np.ndarray:
+        """The points on the retina at the start's camera and eye radius, shape (N, 3), mm (NaN off the bowl)."""
+        return self._arrays[13]
+
+    @property
+    def start(self) -> np.ndarray:
+        """The free parameters' start, shape (size,)."""
+        frame_index = self._arrays[7]
+        x = np.empty(self.size)
+        x[: len(self.free_shared)] = self.shared[list(self.free_shared)]
+        free = frame_index >= 0
+        x[frame_index[free]] = self.frames[free]
+        return x
+
+    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The shared (SHARED_SIZE,) and per-frame (F, 6) values at the free parameters ``x``."""
+        return _unpack(np.asarray(x, dtype=float), *self._arrays[4:8])
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """Each point's angle from its edge cone at ``x``, radians, shape (N,)."""
+        return _residuals(np.asarray(x, dtype=float), self._arrays)
+
+    def jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals' Jacobian at ``x`` as rows of ``(values, columns)``, each shape (N, W).
+
+        Row ``n`` has its nonzero entries ``values[n]`` in the columns
+        ``columns[n]``: the free shared parameters, then its frame's own.
+        """
+        x = np.asarray(x, dtype=float)
+        shared_ids = np.array(self.free_shared, dtype=np.int64)
+        shared_columns = _shared_columns(x, self._arrays, shared_ids)
+        values, columns = _frame_columns(x, self._arrays, len(self.free_frame))
+        shared_positions = np.broadcast_to(np.arange(len(shared_ids)), shared_columns.shape)
+        return np.hstack([shared_columns, values]), np.hstack([shared_positions, columns])
+
+    def jacobian_matrix(self, x: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray | csr_matrix:
+        """The Jacobian at ``x`` (of the ``rows`` kept), dense when small, else sparse (CSR)."""
+        values, columns = self.jacobian(x)
+        if rows is not None:
+            values, columns = values[rows], columns[rows]
+        return _as_matrix(values, columns, self.size)
+
+    def shared_sensitivity(self, x: np.ndarray, ids: Sequence[int]) -> np.ndarray:
+        """The residuals' derivatives with respect to shared parameters ``ids`` at ``x``, shape (N, len(ids))."""
+        return _shared_columns(np.asarray(x, dtype=float), self._arrays, np.asarray(ids, dtype=np.int64))
+
+
+def _as_matrix(values: np.ndarray, columns: np.ndarray, size: int) -> np.ndarray | csr_matrix:
+    count, width = values.shape
+    if width == 0:
+        return np.zeros((count, size))
+    matrix = csr_matrix((values.ravel(), columns.ravel(), np.arange(0, count * width + 1, width)), shape=(count, size))
+    if count * size <= 4_000_000:
+        return matrix.toarray()
+    return matrix
+
+
+def cone_problem(
+    setup: Setup,
+    points: EdgePoints,
+    tips_in_eye: np.ndarray,
+    axes: np.ndarray,
+    rolls: np.ndarray | None = None,
+    *,
+    axis: str = "insertion",
+    free_tips: bool = True,
+    free_shared: Sequence[int] = (),
+    shared: np.ndarray | None = None,
+) -> ConeProblem:
+    """A cone fit in ``setup``'s geometry.
+
+    Parameters
+    ----------
+    setup : Setup
+        The camera, eye and instrument (its edge model, beams and insertion
+        point) and how well they are known (:func:`geometry_covariance`).
+    points : EdgePoints
+    tips_in_eye : ndarray, shape (F, 3)
+        Each frame's tip: the start, or the known tip when ``free_tips`` is false.
+    axes : ndarray, shape (F, 3)
+        Each frame's instrument axis: the start (``free``) or the known axis (``known``).
+    rolls : ndarray, shape (F,), optional
+        Each frame's starting roll (three beams), radians; default 0.
+    axis : str
+        ``insertion`` (the axis runs from the insertion point to the tip),
+        ``free`` (two angles per frame) or ``known``.
+    free_tips : bool
+        Fit the tips (else they are known).
+    free_shared : sequence of int
+        Shared parameters to fit (indices of :data:`spotnav.config.GEOMETRY_PARAMETERS`).
+    shared : ndarray, shape (SHARED_SIZE,), optional
+        Start of the shared changes, engine units (default 0: the setup's values).
+    """
+    if axis not in AXIS_MODES:
+        raise ValueError(f"axis must be one of {', '.join(AXIS_MODES)}, got {axis!r}")
+    instrument = setup.instrument
+    tips = np.asarray(tips_in_eye, dtype=float).reshape(-1, 3)
+    axes = normalize(np.asarray(axes, dtype=float).reshape(-1, 3))
+    count = len(tips)
+    rolls = np.zeros(count) if rolls is None else np.asarray(rolls, dtype=float).reshape(count)
+    frames = np.column_stack([tips, axis_rotations(axes), rolls])
+    free_frame = [0, 1, 2] if free_tips else []
+    free_frame += [3, 4] if axis == "free" else []
+    free_frame += [5] if instrument.beam_count > 1 else []
+    base = np.array([edge_angle(setup), instrument.light_radius_mm, setup.eye.radius_mm, *instrument.insertion_in_eye])
+    return ConeProblem(
+        model=camera_model(setup.camera),
+        base=base,
+        beam_count=instrument.beam_count,
+        tilt=instrument.beam_tilt,
+        points=points,
+        frames=frames,
+        axis_mode=np.full(count, AXIS_MODES[axis]),
+        known_axes=axes,
+        shared=np.zeros(SHARED_SIZE) if shared is None else np.asarray(shared, dtype=float),
+        free_shared=tuple(int(i) for i in free_shared),
+        free_frame=tuple(free_frame),
+        prior=geometry_covariance(setup),
+        steps=_difference_steps(setup.camera),
+    )
+
+
+# --- the compiled model ---------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _sphere_points(model: np.ndarray, pixels: np.ndarray, radius: float) -> np.ndarray:
+    """Each pixel's point on the retina's bowl (N, 3), NaN off it."""
+    points = np.empty((len(pixels), 3))
+    for n in range(len(pixels)):
+        points[n, 0], points[n, 1], points[n, 2] = sphere_point(model, pixels[n, 0], pixels[n, 1], radius)
+    return points
+
+
+@njit(cache=True)
+def _unpack(
+    x: np.ndarray, shared0: np.ndarray, shared_index: np.ndarray, frames0: np.ndarray, frame_index: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    shared = shared0.copy()
+    for i in range(len(shared)):
+        if shared_index[i] >= 0:
+            shared[i] = x[shared_index[i]]
+    frames = frames0.copy()
+    for f in range(frames.shape[0]):
+        for k in range(frames.shape[1]):
+            if frame_index[f, k] >= 0:
+                frames[f, k] = x[frame_index[f, k]]
+    return shared, frames
+
+
+@njit(cache=True)
+def _instrument_axis(
+    frame: np.ndarray, mode: int, insertion: np.ndarray, known_axis: np.ndarray
+) -> tuple[float, float, float]:
+    """The instrument axis of one frame's parameters (6,): through the insertion point, free or known."""
+    if mode == 0:
+        dx, dy, dz = frame[0] - insertion[0], frame[1] - insertion[1], frame[2] - insertion[2]
+        norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+        return dx / norm, dy / norm, dz / norm
+    if mode == 1:
+        about_y, about_z = frame[3], frame[4]
+        # rotation_about_z(about_z) @ rotation_about_y(about_y) @ (0, 0, -1)
+        return -np.sin(about_y) * np.cos(about_z), -np.sin(about_y) * np.sin(about_z), -np.cos(about_y)
+    return known_axis[0], known_axis[1], known_axis[2]
+
+
+@njit(cache=True)
+def _frame_residuals(
+    out: np.ndarray, points: np.ndarray, f: int, frames: np.ndarray, shared: np.ndarray, arrays: tuple
+) -> None:
+    """Residuals of frame ``f``'s points (written into ``out``) for the values ``shared`` and ``frames``."""
+    base, beam_count, tilt = arrays[1], arrays[2], arrays[3]
+    axis_mode, known_axes, starts, beam_of = arrays[8], arrays[9], arrays[11], arrays[12]
+    insertion = np.empty(3)
+    for i in range(3):
+        insertion[i] = base[3 + i] + shared[_INSERTION + i]
+    axis = np.empty(3)
+    axis[0], axis[1], axis[2] = _instrument_axis(frames[f], axis_mode[f], insertion, known_axes[f])
+    beams = _beam_axes(axis, beam_count, tilt, frames[f, 5])
+    edge, light = base[0] + shared[_EDGE], base[1] + shared[_LIGHT]
+    tx, ty, tz = frames[f, 0], frames[f, 1], frames[f, 2]
+    for n in range(starts[f], starts[f + 1]):
+        b = beam_of[n]
+        x, y, z = points[n, 0] - tx, points[n, 1] - ty, points[n, 2] - tz
+        if not np.isfinite(x + y + z):
+            out[n] = _GROSS_RESIDUAL
+            continue
+        along = x * beams[b, 0] + y * beams[b, 1] + z * beams[b, 2]
+        across = np.sqrt(max(x * x + y * y + z * z - along * along, 0.0))
+        out[n] = np.arctan2(across - light, along) - edge
+
+
+@njit(cache=True)
+def _points_at(shared: np.ndarray, arrays: tuple) -> np.ndarray:
+    """The points on the sphere for the shared values (the cached ones when the camera and eye are fixed)."""
+    if not arrays[14]:
+        return arrays[13]
+    model = perturbed_model(arrays[0], shared[_CAMERA:_CAMERA_END])
+    return _sphere_points(model, arrays[10], arrays[1][_RADIUS] + shared[_RADIUS])
+
+
+@njit(cache=True)
+def _all_residuals(points: np.ndarray, frames: np.ndarray, shared: np.ndarray, arrays: tuple) -> np.ndarray:
+    out = np.empty(len(points))
+    for f in range(frames.shape[0]):
+        _frame_residuals(out, points, f, frames, shared, arrays)
+    return out
+
+
+@njit(cache=True)
+def _residuals(x: np.ndarray, arrays: tuple) -> np.ndarray:
+    shared, frames = _unpack(x, arrays[4], arrays[5], arrays[6], arrays[7])
+    return _all_residuals(_points_at(shared, arrays), frames, shared, arrays)
+
+
+@njit(cache=True)
+def _shared_columns(x: np.ndarray, arrays: tuple, ids: np.ndarray) -> np.ndarray:
+    """Forward-difference derivatives (N, len(ids)) of the residuals with respect to shared parameters ``ids``."""
+    shared, frames = _unpack(x, arrays[4], arrays[5], arrays[6], arrays[7])
+    points = _points_at(shared, arrays)
+    residuals = _all_residuals(points, frames, shared, arrays)
+    columns = np.empty((len(points), len(ids)))
+    for j in range(len(ids)):
+        i = ids[j]
+        moved = shared.copy()
+        step = arrays[15][i]
+        moved[i] += step
+        if _RADIUS <= i < _CAMERA_END:
+            model = perturbed_model(arrays[0], moved[_CAMERA:_CAMERA_END])
+            moved_points = _sphere_points(model, arrays[10], arrays[1][_RADIUS] + moved[_RADIUS])
+        else:
+            moved_points = points
+        changed = _all_residuals(moved_points, frames, moved, arrays)
+        for n in range(len(points)):
+            columns[n, j] = (changed[n] - residuals[n]) / step
+    return columns
+
+
+@njit(cache=True)
+def _frame_columns(x: np.ndarray, arrays: tuple, per_frame: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's derivatives with respect to its own frame's ``per_frame`` free parameters, and their columns."""
+    shared, frames = _unpack(x, arrays[4], arrays[5], arrays[6], arrays[7])
+    frame_index, starts = arrays[7], arrays[11]
+    points = _points_at(shared, arrays)
+    residuals = _all_residuals(points, frames, shared, arrays)
+    values = np.zeros((len(points), per_frame))
+    columns = np.zeros((len(points), per_frame), dtype=np.int64)
+    changed = np.empty(len(points))
+    for f in range(frames.shape[0]):
+        j = 0
+        for k in range(frames.shape[1]):
+            if frame_index[f, k] < 0:
+                continue
+            step = 1e-7 * max(abs(frames[f, k]), 1.0)
+            moved = frames.copy()
+            moved[f, k] += step
+            _frame_residuals(changed, points, f, moved, shared, arrays)
+            for n in range(starts[f], starts[f + 1]):
+                values[n, j] = (changed[n] - residuals[n]) / step
+                columns[n, j] = frame_index[f, k]
+            j += 1
+    return values, columns
+
+
+# --- the fit ---------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def robust_sigma(values: np.ndarray, centred: bool) -> float:
+    """1.4826 times the median absolute value of ``values`` (N,), less their median if ``centred``.
+
+    The standard deviation of normally distributed values, robust to outliers.
+    """
+    centre = np.median(values) if centred else 0.0
+    return 1.4826 * np.median(np.abs(values - centre))
+
+
+@njit(cache=True)
+def _normal_equations(
+    values: np.ndarray, columns: np.ndarray, residuals: np.ndarray, size: int, scale: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``J^T W J`` (P, P) and ``J^T W r`` (P,) of a Jacobian given as rows (N, W) of values and columns.
+
+    The weights ``W`` are 1, or with ``scale`` > 0 those of the soft-L1 loss (iteratively reweighted least squares).
+    """
+    normal, gradient = np.zeros((size, size)), np.zeros(size)
+    for n in range(len(residuals)):
+        weight = 1.0 if scale <= 0.0 else 1.0 / np.sqrt(1.0 + (residuals[n] / scale) ** 2)
+        for a in range(values.shape[1]):
+            i = columns[n, a]
+            gradient[i] += weight * values[n, a] * residuals[n]
+            for b in range(values.shape[1]):
+                normal[i, columns[n, b]] += weight * values[n, a] * values[n, b]
+    return normal, gradient
+
+
+@njit(cache=True)
+def correlation_inflation(residuals: np.ndarray, groups: np.ndarray) -> float:
+    """Variance inflation ``(1 + rho) / (1 - rho)`` for the lag-1 correlation of neighbouring residuals.
+
+    Parameters
+    ----------
+    residuals : ndarray, shape (N,)
+        In order along each contour.
+    groups : ndarray, shape (N,), int
+        Which contour (0, 1, ...) each residual belongs to (neighbours are taken within one).
+    """
+    if len(residuals) == 0:
+        return 1.0
+    sums, counts = np.zeros(groups.max() + 1), np.zeros(groups.max() + 1)
+    for n in range(len(residuals)):
+        sums[groups[n]] += residuals[n]
+        counts[groups[n]] += 1.0
+    products, squares = 0.0, 0.0
+    for n in range(len(residuals)):
+        r = residuals[n] - sums[groups[n]] / counts[groups[n]]
+        squares += r * r
+        if n > 0 and groups[n] == groups[n - 1]:
+            products += r * (residuals[n - 1] - sums[groups[n - 1]] / counts[groups[n - 1]])
+    rho = min(max(products / squares, 0.0), 0.9) if squares > 0 else 0.0
+    return (1.0 + rho) / (1.0 - rho)
+
+
+@dataclass(frozen=True)
+class ConeSolution:
+    """A fitted cone problem.
+
+    Attributes
+    ----------
+    problem : ConeProblem
+    x : ndarray, shape (P,)
+        The free parameters.
+    shared : ndarray, shape (SHARED_SIZE,)
+        The geometry's changes, engine units.
+    frames : ndarray, shape (F, 6)
+        Each frame's tip, axis angles and roll.
+    residuals : ndarray, shape (N,)
+        Each point's angle from its cone, radians.
+    inliers : ndarray of bool, shape (N,)
+        Points the least-squares fit kept.
+    covariance : ndarray, shape (P, P)
+        The free parameters' covariance: the points' scatter, each spot's
+        whole-edge shift, and the fixed geometry's uncertainty.
+    data_covariance : ndarray, shape (P, P)
+        The same without the fixed geometry's part.
+    geometry_gain : ndarray, shape (P, G)
+        How the free parameters move with the fixed geometry's parameters
+        ``geometry_ids`` (``M`` of ``covariance = ... + M C M^T``).
+    geometry_ids : tuple of int
+        The fixed shared parameters whose uncertainty the covariance carries.
+    """
+
+    problem: ConeProblem
+    x: np.ndarray
+    shared: np.ndarray
+    frames: np.ndarray
+    residuals: np.ndarray
+    inliers: np.ndarray
+    covariance: np.ndarray
+    data_covariance: np.ndarray
+    geometry_gain: np.ndarray
+    geometry_ids: tuple[int, ...]
+
+    def tip(self, frame: int = 0) -> np.ndarray:
+        """Fitted tip of ``frame``, shape (3,), mm."""
+        return self.frames[frame, :3].copy()
+
+    @property
+    def insertion_in_eye(self) -> np.ndarray:
+        """The fitted (or fixed) insertion point, shape (3,), mm."""
+        return self.problem.base[3:6] + self.shared[_INSERTION:]
+
+    def axis(self, frame: int = 0) -> np.ndarray:
+        """Fitted instrument axis of ``frame``, unit, shape (3,)."""
+        problem = self.problem
+        mode = int(problem.axis_mode[frame])
+        return np.array(_instrument_axis(self.frames[frame], mode, self.insertion_in_eye, problem.known_axes[frame]))
+
+    def roll(self, frame: int = 0) -> float:
+        """Fitted roll of ``frame``, radians (0 for one beam)."""
+        return float(self.frames[frame, 5]) if self.problem.beam_count > 1 else 0.0
+
+    def frame_covariance(self, which: Sequence[int], frame: int = 0, *, geometry: bool = True) -> np.ndarray:
+        """Covariance of ``frame``'s parameters ``which`` (:data:`FRAME_PARAMETERS` indices), with or without
+        the fixed geometry's part; zero for parameters that were not fitted."""
+        index = self.problem._arrays[7][frame, list(which)]
+        covariance = self.covariance if geometry else self.data_covariance
+        block = np.zeros((len(index), len(index)))
+        fitted = index >= 0
+        block[np.ix_(fitted, fitted)] = covariance[np.ix_(index[fitted], index[fitted])]
+        return block
+
+    def tip_covariance(self, frame: int = 0, *, geometry: bool = True) -> np.ndarray:
+        """Covariance of ``frame``'s tip, (3, 3), mm^2, with or without the fixed geometry's part."""
+        return self.frame_covariance((0, 1, 2), frame, geometry=geometry)
+
+    def tip_sigma_mm(self, frame: int = 0, *, geometry: bool = True) -> float:
+        """1-sigma tip uncertainty per axis: the root of a third of the covariance's trace, mm."""
+        return float(np.sqrt(np.trace(self.tip_covariance(frame, geometry=geometry)) / 3))
+
+    def frame_solution(self, frame: int) -> ConeSolution:
+        """One frame of a joint fit as a one-frame solution: its points, its block of the covariance.
+
+        The points are seen in the fitted geometry; the block carries the
+        shared parameters' uncertainty through its correlations.
+        """
+        problem = self.problem
+        rows = problem.points.frame == frame
+        points = problem.points.subset(rows)
+        one = replace(
+            problem,
+            points=EdgePoints(points.pixels, np.zeros(len(points.pixels)), points.beam, points.spot),
+            frames=self.frames[frame : frame + 1],
+            axis_mode=problem.axis_mode[frame : frame + 1],
+            known_axes=problem.known_axes[frame : frame + 1],
+            shared=self.shared,
+            free_shared=(),
+        )
+        index = problem._arrays[7][frame]
+        index = index[index >= 0]
+        return ConeSolution(
+            problem=one,
+            x=self.x[index],
+            shared=self.shared,
+            frames=self.frames[frame : frame + 1],
+            residuals=self.residuals[rows],
+            inliers=self.inliers[rows],
+            covariance=self.covariance[np.ix_(index, index)],
+            data_covariance=self.data_covariance[np.ix_(index, index)],
+            geometry_gain=self.geometry_gain[index],
+            geometry_ids=self.geometry_ids,
+        )
+
+    def geometry_share(self, frame: int = 0) -> np.ndarray:
+        """Each fixed geometry parameter's share of ``frame``'s tip variance (G,), mm^2, in ``geometry_ids`` order."""
+        index = self.problem._arrays[7][frame, :3]
+        if not self.geometry_ids or np.any(index < 0):
+            return np.zeros(len(self.geometry_ids))
+        gain = self.geometry_gain[index]
+        prior = self.problem.prior[np.ix_(self.geometry_ids, self.geometry_ids)]
+        return np.sum(gain * (gain @ prior), axis=0)
+
+
+def _solve(
+    problem: ConeProblem,
+    x: np.ndarray,
+    rows: np.ndarray,
+    scale: float | None,
+    bounds: tuple[np.ndarray, np.ndarray],
+    priors: np.ndarray | None,
+) -> np.ndarray:
+    """SciPy's trust-region least squares on the points ``rows`` from ``x``; with ``scale``, soft-L1.
+
+    ``priors`` (P,): 1-sigma of a zero-mean Gaussian prior on each free parameter (inf: none), weighed
+    against the points at the robust scale of their residuals at ``x``.
+    """
+    if priors is not None:
+        spread = max(robust_sigma(problem.residuals(x)[rows], False), 1e-7)
+    weight = None if priors is None else spread / priors
+    penalised = None if weight is None else np.isfinite(priors)
+
+    def fun(values: np.ndarray) -> np.ndarray:
+        residuals = problem.residuals(values)[rows]
+        if weight is None:
+            return residuals
+        return np.concatenate([residuals, weight[penalised] * values[penalised]])
+
+    def jac(values: np.ndarray) -> np.ndarray | csr_matrix:
+        matrix = problem.jacobian_matrix(values, rows)
+        if weight is None:
+            return matrix
+        extra = np.zeros((int(penalised.sum()), problem.size))
+        extra[np.arange(len(extra)), np.flatnonzero(penalised)] = weight[penalised]
+        return np.vstack([matrix, extra]) if isinstance(matrix, np.ndarray) else _stack_sparse(matrix, extra)
+
+    dense = problem.size * int(np.sum(rows) if rows.dtype == bool else len(rows)) <= 4_000_000
+    result = least_squares(
+        fun,
+        np.clip(x, bounds[0], bounds[1]),
+        jac=jac,
+        bounds=bounds,
+        loss="linear" if scale is None else "soft_l1",
+        f_scale=1.0 if scale is None else scale,
+        x_scale="jac",
+        tr_solver="exact" if dense else "lsmr",
+    )
+    return result.x
+
+
+def _stack_sparse(matrix: csr_matrix, extra: np.ndarray) -> csr_matrix:
+    from scipy.sparse import vstack
+
+    return vstack([matrix, csr_matrix(extra)]).tocsr()
+
+
+@njit(cache=True)
+def _gauss_newton(
+    x: np.ndarray, residuals: np.ndarray, values: np.ndarray, columns: np.ndarray, scale: float
+) -> np.ndarray:
+    """One Gauss-Newton step from ``x``; with ``scale`` > 0, reweighted for the soft-L1 loss."""
+    normal, gradient = _normal_equations(values, columns, residuals, len(x), scale)
+    return x - np.linalg.solve(normal, gradient)
+
+
+def fit_cones(
+    problem: ConeProblem,
+    *,
+    solver: str = "trust-region",
+    max_tip_move_mm: float = 2.0,
+    contour_sigma: float = EDGE_CONTOUR_SIGMA,
+    priors: np.ndarray | None = None,
+) -> ConeSolution:
+    """Fit a cone problem: the one robust recipe (see the module's docstring).
+
+    Parameters
+    ----------
+    problem : ConeProblem
+    solver : str
+        ``trust-region`` (SciPy's, for any start) or ``gauss-newton`` (a few
+        fixed steps, iteratively reweighted: fast, for a start close to the
+        answer, as in tracking).
+    max_tip_move_mm : float
+        The tips may not wander further than this from their start: a short arc
+        of edge also fits a narrow far cone (with the axis through the
+        insertion point, one whose apex sits at that point).
+    contour_sigma : float
+        Uncertainty of each spot's edge as a whole, radians: a shift of one
+        spot's whole edge (texture and vessels under it) that its own points
+        cannot show, independent between spots.
+    priors : ndarray, shape (P,), optional
+        1-sigma of a zero-mean prior on each free parameter (inf: none), in
+        the fit and its covariance (``trust-region`` only).
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    x = problem.start
+    every = np.ones(len(problem.points.pixels), dtype=bool)
+    residuals = problem.residuals(x)
+    scale = max(robust_sigma(residuals, True), 1e-6)
+    low, high = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
+    tip_index = problem._arrays[7][:, :3]
+    tip_index = tip_index[tip_index >= 0]
+    low[tip_index], high[tip_index] = x[tip_index] - max_tip_move_mm, x[tip_index] + max_tip_move_mm
+    if solver == "trust-region":
+        x = _solve(problem, x, every, scale, (low, high), priors)
+        residuals = problem.residuals(x)
+    else:
+        for _ in range(2):
+            values, columns = problem.jacobian(x)
+            x = _gauss_newton(x, residuals, values, columns, scale)
+            residuals = problem.residuals(x)
+    spread = max(robust_sigma(residuals, False), 1e-7)
+    inliers = np.abs(residuals) < 3.0 * spread
+    if solver == "trust-region":
+        x = _solve(problem, x, inliers, None, (low, high), priors)
+    else:
+        values, columns = problem.jacobian(x)
+        x = _gauss_newton(x, residuals[inliers], values[inliers], columns[inliers], 0.0)
+    residuals = problem.residuals(x)
+    return _solution(problem, x, residuals, inliers, contour_sigma, priors)
+
+
+def scatter_covariance(
+    jacobian: np.ndarray | csr_matrix,
+    residuals: np.ndarray,
+    spots: np.ndarray,
+    contour_sigma: float,
+    size: int,
+    prior_information: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The covariance (P, P) of a least-squares fit's parameters, and their response to the residuals (P, P).
+
+    The points' information ``J^T J / v``, ``v`` the residuals' variance (over
+    ``N - size`` degrees of freedom, inflated for the correlation of
+    neighbours along each spot, :func:`correlation_inflation`), plus the
+    parameters' prior information, inverted; plus the shift of each spot's
+    whole edge by ``contour_sigma``, independent between spots. The response
+    ``R`` maps ``J^T`` of a change of the residuals to the parameters' change
+    (``(J^T J)^-1`` without priors): one spot's shift d moves the parameters by
+    ``R J_s^T 1 d``.
+
+    Parameters
+    ----------
+    jacobian : ndarray or csr_matrix, shape (N, P)
+    residuals : ndarray, shape (N,)
+    spots : ndarray of int, shape (N,)
+        The spot of each point, in order along each spot.
+    contour_sigma : float
+        Radians.
+    size : int
+        Parameters fitted (for the degrees of freedom; at least P).
+    prior_information : ndarray, shape (P,), optional
+        ``1 / sigma^2`` of each parameter's prior (0: none).
+    """
+    normal = jacobian.T @ jacobian
+    normal = normal.toarray() if not isinstance(normal, np.ndarray) else normal
+    variance = float(np.sum(residuals**2)) / max(len(residuals) - size, 1)
+    variance = max(variance * correlation_inflation(residuals, spots), 1e-30)
+    information = normal / variance
+    if prior_information is not None:
+        information = information + np.diag(prior_information)
+    # Columns of very different sizes (a rotation's and k3's differ by 10^10): invert the scaled matrix.
+    scale = np.sqrt(np.maximum(np.diag(information), 1e-300))
+    covariance = np.linalg.pinv(information / np.outer(scale, scale)) / np.outer(scale, scale)
+    response = covariance / variance
+    labels, which = np.unique(spots, return_inverse=True)
+    indicator = csr_matrix((np.ones(len(spots)), (which, np.arange(len(spots)))), shape=(len(labels), len(spots)))
+    sums = indicator @ jacobian  # J_s^T 1 of each spot
+    shifts = np.asarray(sums.toarray() if not isinstance(sums, np.ndarray) else sums) @ response
+    return covariance + contour_sigma**2 * shifts.T @ shifts, response
+
+
+def _solution(
+    problem: ConeProblem,
+    x: np.ndarray,
+    residuals: np.ndarray,
+    inliers: np.ndarray,
+    contour_sigma: float,
+    priors: np.ndarray | None,
+) -> ConeSolution:
+    """The fit at ``x`` with its covariance (see :class:`ConeSolution`)."""
+    jacobian = problem.jacobian_matrix(x, inliers)
+    information = None if priors is None else 1.0 / np.asarray(priors, dtype=float) ** 2
+    data, response = scatter_covariance(
+        jacobian, residuals[inliers], problem.points.spot[inliers], contour_sigma, problem.size, information
+    )
+    variances = np.diag(problem.prior)
+    geometry_ids = tuple(i for i in range(SHARED_SIZE) if variances[i] > 0 and i not in problem.free_shared)
+    gain = np.zeros((problem.size, len(geometry_ids)))
+    covariance = data
+    if geometry_ids:
+        sensitivity = problem.shared_sensitivity(x, geometry_ids)[inliers]
+        gain = response @ np.asarray(jacobian.T @ sensitivity)
+        covariance = data + gain @ problem.prior[np.ix_(geometry_ids, geometry_ids)] @ gain.T
+    shared, frames = problem.unpack(x)
+    return ConeSolution(problem, x, shared, frames, residuals, inliers, covariance, data, gain, geometry_ids)

@@ -1,0 +1,104 @@
+"""One frame's answer: a pose with its uncertainty, or a status that says why there is none.
+
+Statuses
+--------
+``ok``
+    A pose was found.
+``no_spot``
+    No spot stands out from the background.
+``ambiguous``
+    More spots than beams, spots that match no beam order, or (``precise-free``,
+    one beam) a cone and its mirror image that fit alike.
+``too_few_spots``
+    Fewer whole spots than the method needs (three beams need two).
+``clipped``
+    A spot reaches the image's border or leaves the retina.
+``occluded``
+    The instrument's shaft hides too much of a spot's edge.
+``wrong_size``
+    The image is not the camera's size.
+``unreliable``
+    A fit was found but fails a consistency check (see ``detail``).
+``uncalibrated``
+    A fit was found, but the setup's geometry is known too poorly to back it:
+    its uncertainty alone puts the tip's ``sigma_mm`` over the limit (calibrate).
+``miscalibrated``
+    The edges contradict the setup's geometry (three beams: the axis they show
+    misses the insertion point).
+``unreadable``
+    The image file could not be read.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["STATUSES", "PoseEstimate"]
+
+STATUSES = (
+    "ok",
+    "no_spot",
+    "ambiguous",
+    "too_few_spots",
+    "clipped",
+    "occluded",
+    "wrong_size",
+    "unreliable",
+    "uncalibrated",
+    "miscalibrated",
+    "unreadable",
+)
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """One frame's answer.
+
+    Attributes
+    ----------
+    status : str
+        One of :data:`STATUSES`.
+    tip_in_eye : ndarray, shape (3,), or None
+        Estimated tip, mm; ``None`` unless ``status == "ok"``.
+    axis : ndarray, shape (3,), or None
+        Estimated instrument axis (unit, insertion point toward tip).
+    spots : int
+        Number of spots used.
+    detail : str
+        Human-readable reason for a status other than ``ok``, or a remark.
+    sigma_mm : float
+        1-sigma tip uncertainty per axis (the root of a third of the tip
+        covariance's trace), mm (precise method; NaN otherwise).
+    rms_px : float
+        RMS distance of the edge points from the fitted cones, pixels
+        (approximate: the angular residual times the range over the pixel size).
+    other_axis : ndarray, shape (3,), or None
+        The precise method's cross-check: the axis fitted without the insertion
+        point (or with it, when the pose was fitted without).
+    roll : float
+        Three beams: the fitted roll of beam 0 about the axis from the
+        contract's zero roll, radians (0 for one beam and the thesis method).
+    """
+
+    status: str
+    tip_in_eye: np.ndarray | None = None
+    axis: np.ndarray | None = None
+    spots: int = 0
+    detail: str = ""
+    sigma_mm: float = float("nan")
+    rms_px: float = float("nan")
+    other_axis: np.ndarray | None = None
+    roll: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"status must be one of {STATUSES}, got {self.status!r}")
+        if (self.status == "ok") != (self.tip_in_eye is not None and self.axis is not None):
+            raise ValueError("a pose is given exactly when status is 'ok'")
+
+    @property
+    def ok(self) -> bool:
+        """Whether a pose was found."""
+        return self.status == "ok"

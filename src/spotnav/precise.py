@@ -1,0 +1,321 @@
+"""spotnav's precise method: sub-pixel edges and one fit of the light cones on the sphere (``docs/methods.md``).
+
+The thesis's closed form (:mod:`spotnav.thesis`) finds the spots, which beam
+made each and a starting pose. Each spot's edge is then located to a fraction
+of a pixel (:func:`spotnav.detect.detect_edge_subpixel`), and one instrument
+pose is fitted to every edge point through the camera and the edge model
+(:mod:`spotnav.conefit`), leaving out what the shaft hides
+(:mod:`spotnav.shaft`). The estimate carries its 1-sigma tip uncertainty,
+the setup's geometry uncertainty included, and is judged by
+:func:`spotnav.checks.judge_fit`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from spotnav.camera import camera_depth_mm
+from spotnav.checks import check_image_size, edge_problem, judge_fit
+from spotnav.conefit import (
+    PARAMETER_GROUPS,
+    ConeProblem,
+    ConeSolution,
+    EdgePoints,
+    cone_problem,
+    edge_angle,
+    fit_cones,
+)
+from spotnav.config import Setup
+from spotnav.detect import SpotDetection, detect_edge_subpixel, detect_spots_otsu, outer_boundary
+from spotnav.estimate import PoseEstimate
+from spotnav.geometry import angles_between, assign_beams, normalize
+from spotnav.shaft import hidden_by_shaft, visible_edge_points
+from spotnav.thesis import ThesisSolution, solve_thesis
+
+__all__ = [
+    "EdgeFrame",
+    "localize_precise",
+    "localize_precise_with_edges",
+    "pose_problem",
+    "prepare_edges",
+    "smallest_spot_area_px",
+]
+
+_PRECISE_CONTRAST_SIGMA = 4.0
+_MAX_CLUTTER_AREA = 0.25
+_MIN_TIP_HEIGHT_MM = 1.0  # the lowest tip considered: its spot is the smallest
+_MIRROR_RESIDUAL_RATIO = 1.1
+_MIRROR_DISTANCE_MM = 0.1
+_SHAFT_MARGINS_MM = (0.05, 0.2)  # edge points this close to the shaft's outline are left out too
+_SHAFT_PASSES = 3
+# Three beams show the axis: refused when it misses the insertion line by this many sigmas (and this many degrees).
+_MISCALIBRATION_SIGMAS = 5.0
+_MIN_MISCALIBRATION_DEG = 1.0  # a free axis errs by up to 0.6 deg on the thesis world at 1024 px
+
+
+@dataclass(frozen=True)
+class EdgeFrame:
+    """One frame's material for the precise fit: sub-pixel edges per spot, the beam of each, a start.
+
+    Attributes
+    ----------
+    edges_px : tuple of ndarray, shape (N_k, 2)
+        Each spot's sub-pixel edge points, in order around the spot.
+    beams : list of int
+        The beam that made each spot.
+    start : PoseEstimate
+        The thesis's closed form (``ok``).
+    axis : ndarray, shape (3,)
+        Starting instrument axis.
+    roll : float
+        Starting roll, radians.
+    solution : ThesisSolution
+        The thesis's reconstruction it started from.
+    """
+
+    edges_px: tuple[np.ndarray, ...]
+    beams: list[int]
+    start: PoseEstimate
+    axis: np.ndarray
+    roll: float
+    solution: ThesisSolution
+
+
+def smallest_spot_area_px(setup: Setup) -> float:
+    """Area of the smallest spot a beam makes with the tip ``_MIN_TIP_HEIGHT_MM`` above the retina, pixels.
+
+    A bright region this large may be a spot: it is never dismissed as clutter.
+    """
+    camera = setup.camera
+    depth = float(camera_depth_mm(camera, np.zeros(3)))
+    radius_px = _MIN_TIP_HEIGHT_MM * np.tan(setup.instrument.beam_half_angle) * camera.focal_px / depth
+    return float(np.pi * radius_px**2)
+
+
+def pose_problem(
+    setup: Setup,
+    edges_px: Sequence[np.ndarray],
+    beams: Sequence[int],
+    tip_in_eye: np.ndarray,
+    axis: np.ndarray,
+    roll: float,
+    *,
+    through_insertion: bool = True,
+) -> ConeProblem:
+    """One frame's pose as a cone problem: its spots' edges, a start, the axis through the insertion point or free."""
+    points = EdgePoints.of_frames([edges_px], [beams])
+    return cone_problem(
+        setup,
+        points,
+        np.asarray(tip_in_eye, dtype=float)[None],
+        np.asarray(axis, dtype=float)[None],
+        np.array([roll]),
+        axis="insertion" if through_insertion else "free",
+    )
+
+
+def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PoseEstimate:
+    """spotnav's precise method (see :func:`localize_precise_with_edges`)."""
+    return localize_precise_with_edges(image, setup, through_insertion=through_insertion)[0]
+
+
+def localize_precise_with_edges(
+    image: np.ndarray, setup: Setup, *, through_insertion: bool = True
+) -> tuple[PoseEstimate, EdgeFrame | None]:
+    """spotnav's precise method (the module's docstring), and the edges it fitted.
+
+    The coarse detection accepts fainter spots than the thesis's; more bright
+    regions than beams are ``ambiguous`` unless the extra ones are less than a
+    quarter of the size of the smallest spot kept and smaller than any spot
+    can be (:func:`smallest_spot_area_px`): clutter such as glints.
+
+    Parameters
+    ----------
+    image : ndarray
+        Camera frame, sRGB-encoded, 8 or 16 bits.
+    setup : Setup
+        Only ``eye``, ``camera``, ``instrument`` and how well they are known are used.
+    through_insertion : bool
+        Constrain the axis through the insertion point (3 unknowns for one
+        beam, 4 with the roll for three); ``False`` fits the axis too.
+
+    Returns
+    -------
+    estimate : PoseEstimate
+    edges : EdgeFrame or None
+        What the fit started from (for joint fits over frames); None when the
+        frame gave no edges to fit.
+    """
+    wrong = check_image_size(image, setup)
+    if wrong is not None:
+        return wrong, None
+    detection = detect_spots_otsu(image, min_contrast_sigma=_PRECISE_CONTRAST_SIGMA)
+    beams = setup.instrument.beam_count
+    spots = detection.spots
+    if len(spots) > beams:
+        extra = spots[beams].area_px
+        if extra > _MAX_CLUTTER_AREA * spots[beams - 1].area_px or extra >= smallest_spot_area_px(setup):
+            return PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}"), None
+        detection = replace(detection, spots=spots[:beams])
+    prepared = prepare_edges(image, detection, setup, through_insertion)
+    if isinstance(prepared, PoseEstimate):
+        return prepared, None
+    estimate = _fit_precise(prepared, setup, through_insertion)
+    if estimate.ok and len(spots) > beams:
+        ignored = f"{len(spots) - beams} much smaller bright regions ignored"
+        estimate = replace(estimate, detail="; ".join(filter(None, [estimate.detail, ignored])))
+    return estimate, prepared
+
+
+def prepare_edges(
+    image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool
+) -> EdgeFrame | PoseEstimate:
+    """The precise method up to its fit: spots, beams, starting pose and sub-pixel edges.
+
+    Returns the reason (a :class:`PoseEstimate` that is not ``ok``) when the frame cannot be used.
+    """
+    plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
+    # Start from the spots' convex outlines: the shaft or a vessel in front of a spot carves into it.
+    detection = replace(detection, spots=tuple(outer_boundary(spot) for spot in detection.spots))
+    solution = solve_thesis(detection, plain)
+    start = solution.estimate
+    if not start.ok:
+        return start
+    assert start.tip_in_eye is not None and start.axis is not None
+    axis = start.axis
+    chosen_axes = np.array([c.cone_axes[i] for c, i in zip(solution.candidates, solution.chosen, strict=True)])
+    if not through_insertion and len(solution.candidates) == 3:
+        # Three symmetric beam axes sum along the instrument's axis, wherever the insertion point is.
+        axis = normalize(chosen_axes.sum(axis=0))
+    assignment = ([0], 0.0) if setup.instrument.beam_count == 1 else assign_beams(chosen_axes, axis)
+    if assignment is None:
+        return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
+    beams, roll = assignment
+    spot_edges = [detect_edge_subpixel(image, spot) for spot in solution.spots]
+    radii_px = [np.sqrt(spot.area_px / np.pi) for spot in solution.spots]
+    angle = edge_angle(setup)
+    problems = [p for p in (edge_problem(e, setup, r, angle) for e, r in zip(spot_edges, radii_px, strict=True)) if p]
+    if problems:
+        return PoseEstimate("unreliable", spots=start.spots, detail=problems[0])
+    return EdgeFrame(tuple(e.pixels for e in spot_edges), beams, start, axis, roll, solution)
+
+
+def _fit_unhidden(
+    prepared: EdgeFrame, setup: Setup, margin_mm: float
+) -> tuple[ConeSolution, list[np.ndarray]] | PoseEstimate:
+    """The fit through the insertion point to the edge the shaft leaves visible, and that edge (pixels).
+
+    Which points the shaft hides depends on the pose: they are found again at
+    each fitted pose until they stop changing (at most ``_SHAFT_PASSES``
+    fits; the first fit uses every point if the start's shaft would hide too
+    many). ``occluded`` when the shaft hides too much of a spot's edge at a
+    fitted pose.
+    """
+    start = prepared.start
+    assert start.tip_in_eye is not None and start.axis is not None
+    tip, axis, roll = start.tip_in_eye, start.axis, prepared.roll
+    hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
+    visible = visible_edge_points(setup, prepared.edges_px, hidden)
+    if isinstance(visible, PoseEstimate):  # judge the shaft at a fitted pose instead
+        hidden = [np.zeros(len(edge), dtype=bool) for edge in prepared.edges_px]
+        visible = visible_edge_points(setup, prepared.edges_px, hidden)
+    for _ in range(_SHAFT_PASSES):
+        if isinstance(visible, PoseEstimate):
+            return visible
+        used = visible
+        fit = fit_cones(pose_problem(setup, used, prepared.beams, tip, axis, roll))
+        tip, axis, roll = fit.tip(), fit.axis(), fit.roll()
+        now_hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
+        if all(np.array_equal(a, b) for a, b in zip(hidden, now_hidden, strict=True)):
+            break
+        hidden = now_hidden
+        visible = visible_edge_points(setup, prepared.edges_px, hidden)
+    return fit, used
+
+
+def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> PoseEstimate:
+    start, beams = prepared.start, prepared.beams
+    assert start.tip_in_eye is not None
+    # Leave out the edge the shaft hides; if the fit fails its checks, leave out a wider band around it.
+    for margin_mm in _SHAFT_MARGINS_MM:
+        unhidden = _fit_unhidden(prepared, setup, margin_mm)
+        if isinstance(unhidden, PoseEstimate):
+            return unhidden
+        constrained, visible = unhidden
+        if judge_fit(constrained, setup, spots=start.spots).status != "unreliable":
+            break
+    # The cross-check continues from the constrained fit.
+    tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
+    free = fit_cones(pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False))
+    if through_insertion:
+        estimate = judge_fit(constrained, setup, spots=start.spots, detail=start.detail, other_axis=free.axis())
+        return _check_insertion(estimate, constrained, free, setup)
+    return _fit_free(prepared, setup, constrained, free)
+
+
+def _fit_free(prepared: EdgeFrame, setup: Setup, constrained: ConeSolution, free: ConeSolution) -> PoseEstimate:
+    """``precise-free``: the axis fitted too, from the free fit and (one beam) both mirror-image starts.
+
+    A cone and its mirror image fit one contour almost equally; ``ambiguous`` when they do.
+    """
+    start, beams = prepared.start, prepared.beams
+    assert start.tip_in_eye is not None
+    # The shaft runs along the free axis (which the constrained fit does not know, off the insertion line).
+    hidden = hidden_by_shaft(setup, prepared.edges_px, free.tip(), free.axis())
+    visible = visible_edge_points(setup, prepared.edges_px, hidden)
+    if isinstance(visible, PoseEstimate):
+        return visible
+    starts = [(free.tip(), free.axis(), free.roll())]
+    if setup.instrument.beam_count == 1:
+        candidates = prepared.solution.candidates[0]
+        mirrors = zip(candidates.apexes, candidates.cone_axes, strict=True)
+        starts += [(apex, cone_axis, 0.0) for apex, cone_axis in mirrors]
+    else:
+        starts.append((start.tip_in_eye, prepared.axis, prepared.roll))
+    fits = [
+        fit_cones(pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False))
+        for tip, axis, roll in starts
+    ]
+    inside = sorted(
+        (f for f in fits if setup.contains_point(f.tip())), key=lambda f: float(np.mean(np.abs(f.residuals)))
+    )
+    if not inside:
+        return PoseEstimate("unreliable", spots=start.spots, detail="every fitted tip lies outside the eye")
+    best = inside[0]
+    for other in inside[1:]:
+        close_fit = np.mean(np.abs(other.residuals)) < _MIRROR_RESIDUAL_RATIO * np.mean(np.abs(best.residuals))
+        if close_fit and np.linalg.norm(other.tip() - best.tip()) > _MIRROR_DISTANCE_MM:
+            detail = "a cone and its mirror image fit alike: fix the axis by the insertion point (method precise)"
+            return PoseEstimate("ambiguous", spots=start.spots, detail=detail)
+    return judge_fit(best, setup, spots=start.spots, detail=start.detail, other_axis=constrained.axis())
+
+
+def _check_insertion(
+    estimate: PoseEstimate, constrained: ConeSolution, free: ConeSolution, setup: Setup
+) -> PoseEstimate:
+    """``miscalibrated`` when three beams show an axis that misses the insertion line by more than its uncertainty.
+
+    The free axis's uncertainty comes from its fit (angles about ``y`` and
+    ``z``); the constrained axis's from the tip's and the insertion point's.
+    """
+    if not estimate.ok or setup.instrument.beam_count == 1:
+        return estimate
+    angle = float(angles_between(free.axis(), constrained.axis()))
+    about = free.frame_covariance((3, 4))
+    free_variance = about[0, 0] + np.sin(free.frames[0, 3]) ** 2 * about[1, 1]
+    insertion = PARAMETER_GROUPS["insertion-point"]
+    insertion_variance = np.trace(constrained.problem.prior[np.ix_(insertion, insertion)])
+    length = float(np.linalg.norm(constrained.tip() - constrained.insertion_in_eye))
+    line_variance = (np.trace(constrained.tip_covariance()) + insertion_variance) / 3.0 / length**2
+    sigma = float(np.sqrt(free_variance + line_variance))
+    if angle > max(_MISCALIBRATION_SIGMAS * sigma, np.radians(_MIN_MISCALIBRATION_DEG)):
+        detail = (
+            f"the beams show an axis {np.degrees(angle):.2f} deg from the line through the insertion point "
+            f"({np.degrees(angle) / max(np.degrees(sigma), 1e-9):.0f} sigma): the insertion point or the camera "
+            "is not where the setup says (calibrate)"
+        )
+        return replace(estimate, status="miscalibrated", tip_in_eye=None, axis=None, other_axis=None, detail=detail)
+    return estimate

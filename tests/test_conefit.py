@@ -1,0 +1,246 @@
+"""The cone-fit engine: the model's residual and Jacobian, the robust fit, its covariance, the geometry's parameters."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from spotnav.camera import camera_model, perturbed_model, project_points
+from spotnav.conefit import (
+    EDGE_MODEL_SIGMA,
+    PARAMETER_GROUPS,
+    SHARED_SIZE,
+    EdgePoints,
+    cone_problem,
+    correlation_inflation,
+    edge_angle,
+    fit_cones,
+    geometry_covariance,
+    prior_sigmas,
+    robust_sigma,
+    scatter_covariance,
+    setup_with_geometry,
+)
+from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Camera, Instrument, Setup, Uncertainty
+from spotnav.geometry import InstrumentPose, angles_between, beam_axes, cone_sphere_curve, edge_angle_of_blend
+
+CENTER = np.array([0.0, 0.0, 12.5])
+EXACT = Setup(camera=Camera(width_px=1024, height_px=1024), uncertainty=Uncertainty.exact())
+
+
+def _tilted(setup: Setup, rotation_deg: tuple[float, float, float], distortion: tuple[float, ...]) -> Setup:
+    """The setup's camera turned about its own centre and given a lens (a calibrated camera)."""
+    change = np.zeros(14)
+    change[:3] = np.radians(rotation_deg)
+    model = perturbed_model(camera_model(setup.camera), change)
+    rotation = model[18:27].reshape(3, 3)
+    camera = Camera.calibrated(
+        setup.camera.width_px,
+        setup.camera.height_px,
+        setup.camera.matrix_px,
+        distortion,
+        rotation,
+        -rotation @ setup.camera.center_in_eye,
+    )
+    return replace(setup, camera=camera)
+
+
+def _edges_px(setup: Setup, pose: InstrumentPose, roll: float = 0.0, count: int = 200) -> list[np.ndarray]:
+    """Each beam's exact edge curve (the edge cone widened by the light's radius), projected to pixels."""
+    instrument = setup.instrument
+    angle = edge_angle(setup)
+    axes = beam_axes(pose.axis, instrument.beam_count, instrument.beam_tilt, roll)
+    behind = instrument.light_radius_mm / np.tan(angle)
+    radius = setup.eye.radius_mm
+    centre = np.array([0.0, 0.0, radius])
+    return [
+        project_points(setup.camera, cone_sphere_curve(pose.tip_in_eye - behind * a, a, angle, centre, radius, count))
+        for a in axes
+    ]
+
+
+def _one_frame(setup: Setup, edges: list[np.ndarray], tip: np.ndarray, direction: np.ndarray, roll: float, **options):
+    points = EdgePoints.of_frames([edges], [list(range(len(edges)))])
+    return cone_problem(setup, points, tip[None], direction[None], np.array([roll]), **options)
+
+
+@settings(max_examples=20)
+@given(
+    x=st.floats(-2.5, 2.5),
+    y=st.floats(-2.5, 2.5),
+    z=st.floats(3, 6),
+    roll=st.floats(-np.pi, np.pi),
+    beams=st.sampled_from([1, 3]),
+    light=st.sampled_from([0.0, 0.02, 0.1]),
+    lens=st.booleans(),
+)
+def test_the_fit_recovers_the_pose_from_exact_curves(
+    x: float, y: float, z: float, roll: float, beams: int, light: float, lens: bool
+) -> None:
+    # Points on the exact cone-sphere curves, seen through the ideal camera or a tilted one with a lens, a
+    # start 0.1 mm off: the fit lands on the truth.
+    setup = replace(EXACT, instrument=Instrument(beam_count=beams, light_radius_mm=light))
+    if lens:
+        setup = _tilted(setup, (0.3, -0.2, 0.4), (-3.0, 0.5, 0.001, -0.002, 0.0))
+    pose = InstrumentPose.through_insertion([x, y, z], setup.instrument.insertion_in_eye)
+    roll = roll if beams == 3 else 0.0
+    edges = _edges_px(setup, pose, roll)
+    start = pose.tip_in_eye + np.array([0.05, -0.05, 0.08])
+    problem = _one_frame(setup, edges, start, pose.axis, roll + 0.05 * (beams > 1))
+    fit = fit_cones(problem, contour_sigma=0.0)
+    np.testing.assert_allclose(fit.tip(), pose.tip_in_eye, atol=1e-6)
+    np.testing.assert_allclose(fit.axis(), pose.axis, atol=1e-6)
+    assert fit.inliers.all()
+    assert fit.tip_sigma_mm(geometry=False) < 1e-6
+
+
+def test_a_free_axis_is_fitted_within_its_uncertainty() -> None:
+    setup = EXACT
+    pose = InstrumentPose([1.0, -0.5, 4.5], [0.2, -0.1, -1.0])  # not through the insertion point
+    (edge,) = _edges_px(setup, pose, count=300)
+    noisy = edge + np.random.default_rng(0).normal(0.0, 0.1, edge.shape)
+    problem = _one_frame(setup, [noisy], pose.tip_in_eye + 0.05, pose.axis, 0.0, axis="free")
+    fit = fit_cones(problem)
+    assert np.linalg.norm(fit.tip() - pose.tip_in_eye) < 3 * fit.tip_sigma_mm()
+    assert angles_between(fit.axis(), pose.axis) < np.radians(1.0)
+
+
+def test_the_geometry_adds_its_uncertainty_to_the_tip() -> None:
+    # The same points fitted in a setup known exactly and in one known as well as a real microscope: the
+    # points' part of sigma is the same, the geometry's part comes on top, mostly from the camera's tilt.
+    pose = InstrumentPose.through_insertion([1.0, -0.5, 4.0], EXACT.instrument.insertion_in_eye)
+    (edge,) = _edges_px(EXACT, pose)
+    noisy = edge + np.random.default_rng(1).normal(0.0, 0.1, edge.shape)
+    exact = fit_cones(_one_frame(EXACT, [noisy], pose.tip_in_eye, pose.axis, 0.0))
+    real = fit_cones(_one_frame(replace(EXACT, uncertainty=Uncertainty()), [noisy], pose.tip_in_eye, pose.axis, 0.0))
+    np.testing.assert_allclose(real.tip(), exact.tip())
+    assert real.tip_sigma_mm(geometry=False) == pytest.approx(exact.tip_sigma_mm(geometry=False))
+    assert real.tip_sigma_mm() > 10 * exact.tip_sigma_mm()
+    shares = dict(zip(real.geometry_ids, real.geometry_share(), strict=True))
+    tilt = sum(shares[i] for i in PARAMETER_GROUPS["camera-rotation"])
+    assert tilt == max(sum(shares.get(i, 0.0) for i in ids) for ids in PARAMETER_GROUPS.values())
+    # A camera tilted by 0.5 deg sees the world 0.96 mm aside: that is the tip's uncertainty.
+    assert real.tip_sigma_mm() == pytest.approx(np.radians(0.5) * 110.0 * np.sqrt(2 / 3), rel=0.3)
+
+
+@settings(max_examples=10)
+@given(seed=st.integers(0, 2**16), beams=st.sampled_from([1, 3]))
+def test_the_jacobian_is_the_residuals_derivative(seed: int, beams: int) -> None:
+    # Every shared parameter free and the tips free, at a random point: forward differences inside the
+    # engine agree with central differences of its residual.
+    rng = np.random.default_rng(seed)
+    setup = _tilted(replace(EXACT, instrument=Instrument(beam_count=beams)), (0.2, 0.1, -0.3), (-2.0, 0, 0, 0, 0))
+    tips = np.array([[0.5, -0.5, 4.0], [-1.0, 1.0, 5.0]])
+    axes = tips - setup.instrument.insertion_in_eye
+    edges = [_edges_px(setup, InstrumentPose(t, a), 0.3) for t, a in zip(tips, axes, strict=True)]
+    points = EdgePoints.of_frames(edges, [list(range(beams))] * 2)
+    shared = rng.normal(0.0, 0.2, SHARED_SIZE) * prior_sigmas(replace(setup, uncertainty=Uncertainty()))
+    problem = cone_problem(setup, points, tips, axes, [0.3, 0.3], free_shared=range(SHARED_SIZE), shared=shared)
+    x = problem.start + rng.normal(0.0, 1e-3, problem.size) * (np.arange(problem.size) >= SHARED_SIZE)
+    jacobian = problem.jacobian_matrix(x)
+    scales = np.concatenate([problem.steps, np.full(problem.size - SHARED_SIZE, 1e-7)]) * 100
+    for column in range(problem.size):
+        step = np.zeros(problem.size)
+        step[column] = scales[column]
+        numeric = (problem.residuals(x + step) - problem.residuals(x - step)) / (2 * scales[column])
+        np.testing.assert_allclose(jacobian[:, column], numeric, rtol=1e-3, atol=1e-3 * np.abs(numeric).max() + 1e-12)
+
+
+def test_known_poses_recover_a_tilted_camera_with_a_lens() -> None:
+    # Exact edges of eight known poses (tips and axes) seen through the true camera: tilted, 0.5 % longer,
+    # with k1 = -3. The nominal setup with those parameters free finds them.
+    truth = np.zeros(SHARED_SIZE)
+    truth[3:6] = np.radians([0.3, -0.2, 0.4])
+    truth[9] = 0.005
+    truth[12] = -3.0
+    truth[0] = np.radians(-0.1)
+    world = setup_with_geometry(EXACT, truth)
+    rng = np.random.default_rng(4)
+    tips = np.column_stack([rng.uniform(-2.5, 2.5, 8), rng.uniform(-2.5, 2.5, 8), rng.uniform(3, 6, 8)])
+    axes = tips - EXACT.instrument.insertion_in_eye
+    edges = [_edges_px(world, InstrumentPose(t, a)) for t, a in zip(tips, axes, strict=True)]
+    points = EdgePoints.of_frames(edges, [[0]] * 8)
+    free = [0, 3, 4, 5, 9, 12]
+    problem = cone_problem(EXACT, points, tips, axes, axis="known", free_tips=False, free_shared=free)
+    fit = fit_cones(problem)
+    np.testing.assert_allclose(fit.shared[free], truth[free], rtol=1e-4, atol=1e-9)
+
+
+def test_scatter_covariance_is_the_textbook_formula() -> None:
+    rng = np.random.default_rng(3)
+    jacobian, residuals = rng.normal(size=(50, 4)), rng.normal(size=50)
+    spots = np.repeat(np.arange(5), 10)
+    covariance, response = scatter_covariance(jacobian, residuals, spots, 0.0, 4)
+    variance = np.sum(residuals**2) / 46 * correlation_inflation(residuals, spots)
+    np.testing.assert_allclose(covariance, variance * np.linalg.inv(jacobian.T @ jacobian), rtol=1e-9)
+    np.testing.assert_allclose(response, np.linalg.inv(jacobian.T @ jacobian), rtol=1e-9)
+    # A prior adds its information; a spot's shift moves the parameters by R J_s^T 1.
+    prior = np.array([1.0, 0.0, 4.0, 0.0])
+    with_prior, _ = scatter_covariance(jacobian, residuals, spots, 0.0, 4, prior)
+    np.testing.assert_allclose(with_prior, np.linalg.inv(jacobian.T @ jacobian / variance + np.diag(prior)))
+    shifted, _ = scatter_covariance(jacobian, residuals, spots, 0.1, 4)
+    sums = np.array([jacobian[spots == s].sum(axis=0) for s in range(5)]) @ response
+    np.testing.assert_allclose(shifted - covariance, 0.01 * sums.T @ sums, rtol=1e-9, atol=1e-15)
+
+
+def test_correlation_inflation_of_known_sequences() -> None:
+    groups = np.zeros(40, dtype=np.int64)
+    assert correlation_inflation(np.tile([1.0, -1.0], 20), groups) == 1.0  # anti-correlated: no inflation
+    assert correlation_inflation(np.linspace(-1, 1, 40), groups) == pytest.approx(19.0)  # rho capped at 0.9
+    # Neighbours are taken within a group only: two groups, each alternating about its own mean.
+    two = np.concatenate([np.tile([5.0, 3.0], 10), np.tile([-2.0, -4.0], 10)])
+    assert correlation_inflation(two, np.repeat([0, 1], 20)) == 1.0
+    assert correlation_inflation(np.empty(0), np.empty(0, dtype=np.int64)) == 1.0
+
+
+def test_robust_sigma_ignores_outliers() -> None:
+    values = np.random.default_rng(3).normal(2.0, 0.5, 20001)
+    values[:2000] = 1e6  # 10 % gross outliers
+    # 10 % of the values off the scale widen the robust sigma by 14 % (0.5 sigma: 1.14 x 0.5); a plain
+    # standard deviation would be 3e5.
+    assert robust_sigma(values, True) == pytest.approx(0.5 * 1.14, rel=0.02)
+    assert robust_sigma(values - np.median(values), False) == pytest.approx(robust_sigma(values, True))
+
+
+def test_geometry_covariance_takes_the_calibration_over_the_uncertainty() -> None:
+    setup = Setup(camera=Camera(width_px=1024, height_px=1024))
+    default = geometry_covariance(setup)
+    sigmas = prior_sigmas(setup)
+    np.testing.assert_allclose(np.sqrt(np.diag(default))[1:], sigmas[1:])
+    assert default[0, 0] == pytest.approx(sigmas[0] ** 2 + EDGE_MODEL_SIGMA**2)
+    assert sigmas[3] == pytest.approx(np.radians(0.5)) and sigmas[9] == pytest.approx(0.01)
+    # k1's default moves the middle of the image's edge by 5 px.
+    half = 512.0 / setup.camera.focal_px
+    assert sigmas[12] * half**3 * setup.camera.focal_px == pytest.approx(5.0)
+    names = ("edge_half_angle_deg", "camera_x_mm")
+    record = CalibrationRecord(names, ((0.01**2, 1e-5), (1e-5, 0.02**2)), names, 0.02, 8, 0.015)
+    calibrated = geometry_covariance(replace(setup, calibration=record))
+    assert calibrated[0, 0] == pytest.approx(np.radians(0.01) ** 2 + np.radians(0.015) ** 2)
+    x = GEOMETRY_PARAMETERS.index("camera_x_mm")
+    assert calibrated[x, x] == pytest.approx(0.02**2) and calibrated[0, x] == pytest.approx(np.radians(1e-5))
+    assert calibrated[1, 1] == default[1, 1]  # not in the calibration: its [uncertainty]
+
+
+def test_edge_angle_default_and_override() -> None:
+    setup = Setup()
+    assert edge_angle(setup) == pytest.approx(edge_angle_of_blend(np.radians(9.0), 0.15))
+    assert np.degrees(edge_angle(setup)) == pytest.approx(8.6555, abs=1e-3)
+    given_angle = replace(setup, instrument=replace(setup.instrument, edge_half_angle_deg=8.5))
+    assert np.degrees(edge_angle(given_angle)) == pytest.approx(8.5)
+
+
+def test_setup_with_geometry_is_the_perturbed_camera() -> None:
+    change = np.zeros(SHARED_SIZE)
+    change[[0, 1, 2]] = np.radians(0.1), 0.02, 0.1
+    change[3:17] = [1e-3, -2e-3, 3e-3, 0.1, -0.2, 0.3, 0.004, 2.0, -1.0, -2.5, 10.0, 1e-3, -1e-3, 0.0]
+    change[17:] = [0.1, -0.1, 0.2]
+    setup = setup_with_geometry(EXACT, change)
+    np.testing.assert_allclose(camera_model(setup.camera), perturbed_model(camera_model(EXACT.camera), change[3:17]))
+    assert setup.eye.radius_mm == pytest.approx(12.6) and setup.instrument.light_radius_mm == pytest.approx(0.02)
+    assert setup.instrument.edge_half_angle_deg == pytest.approx(np.degrees(edge_angle(EXACT)) + 0.1)
+    np.testing.assert_allclose(setup.instrument.insertion_point_mm, [0.1, 5.9, 20.2])
+    assert setup_with_geometry(EXACT, np.zeros(SHARED_SIZE)).camera == EXACT.camera  # unchanged stays ideal
