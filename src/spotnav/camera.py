@@ -35,6 +35,7 @@ __all__ = [
     "project_point",
     "project_points",
     "sphere_point",
+    "sphere_points",
     "unproject_pixels_to_plane",
     "unproject_pixels_to_sphere",
 ]
@@ -204,7 +205,8 @@ def _ray_rows(model: np.ndarray, pixels: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _sphere_rows(model: np.ndarray, pixels: np.ndarray, radius: float) -> np.ndarray:
+def sphere_points(model: np.ndarray, pixels: np.ndarray, radius: float) -> np.ndarray:
+    """:func:`sphere_point` of each pixel (N, 2): points (N, 3) on the retina's bowl, NaN off it."""
     points = np.empty((len(pixels), 3))
     for n in range(len(pixels)):
         points[n, 0], points[n, 1], points[n, 2] = sphere_point(model, pixels[n, 0], pixels[n, 1], radius)
@@ -281,7 +283,7 @@ def unproject_pixels_to_sphere(camera: Camera, pixels: np.ndarray, radius_mm: fl
     """
     pixels = _check_last_axis("pixels", pixels, 2)
     rows = np.ascontiguousarray(pixels.reshape(-1, 2))
-    return _sphere_rows(camera_model(camera), rows, float(radius_mm)).reshape(*pixels.shape[:-1], 3)
+    return sphere_points(camera_model(camera), rows, float(radius_mm)).reshape(*pixels.shape[:-1], 3)
 
 
 def unproject_pixels_to_plane(camera: Camera, pixels: np.ndarray, height_mm: float = 0.0) -> np.ndarray:

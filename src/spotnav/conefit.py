@@ -37,7 +37,7 @@ from numba import njit
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
-from spotnav.camera import CHANGE_SIZE, camera_model, camera_of_model, perturbed_model, sphere_point
+from spotnav.camera import CHANGE_SIZE, camera_model, camera_of_model, perturbed_model, sphere_points
 from spotnav.config import GEOMETRY_PARAMETERS, Camera, Setup
 from spotnav.geometry import _beam_axes, axis_rotations, edge_angle_of_blend, normalize
 
@@ -384,7 +384,7 @@ class ConeProblem:
         starts = np.searchsorted(self.points.frame, np.arange(count + 1)).astype(np.int64)
         camera_free = any(_RADIUS <= i < _CAMERA_END for i in self.free_shared)
         model = perturbed_model(self.model, self.shared[_CAMERA:_CAMERA_END])
-        cached = _sphere_points(model, self.points.pixels, self.base[_RADIUS] + self.shared[_RADIUS])
+        cached = sphere_points(model, self.points.pixels, self.base[_RADIUS] + self.shared[_RADIUS])
         arrays = (
             np.ascontiguousarray(self.model, dtype=float),
             np.ascontiguousarray(self.base, dtype=float),
@@ -538,15 +538,6 @@ def cone_problem(
 
 
 @njit(cache=True)
-def _sphere_points(model: np.ndarray, pixels: np.ndarray, radius: float) -> np.ndarray:
-    """Each pixel's point on the retina's bowl (N, 3), NaN off it."""
-    points = np.empty((len(pixels), 3))
-    for n in range(len(pixels)):
-        points[n, 0], points[n, 1], points[n, 2] = sphere_point(model, pixels[n, 0], pixels[n, 1], radius)
-    return points
-
-
-@njit(cache=True)
 def _unpack(
     x: np.ndarray, shared0: np.ndarray, shared_index: np.ndarray, frames0: np.ndarray, frame_index: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -610,7 +601,7 @@ def _points_at(shared: np.ndarray, arrays: tuple) -> np.ndarray:
     if not arrays[14]:
         return arrays[13]
     model = perturbed_model(arrays[0], shared[_CAMERA:_CAMERA_END])
-    return _sphere_points(model, arrays[10], arrays[1][_RADIUS] + shared[_RADIUS])
+    return sphere_points(model, arrays[10], arrays[1][_RADIUS] + shared[_RADIUS])
 
 
 @njit(cache=True)
@@ -641,7 +632,7 @@ def _shared_columns(x: np.ndarray, arrays: tuple, ids: np.ndarray) -> np.ndarray
         moved[i] += step
         if _RADIUS <= i < _CAMERA_END:
             model = perturbed_model(arrays[0], moved[_CAMERA:_CAMERA_END])
-            moved_points = _sphere_points(model, arrays[10], arrays[1][_RADIUS] + moved[_RADIUS])
+            moved_points = sphere_points(model, arrays[10], arrays[1][_RADIUS] + moved[_RADIUS])
         else:
             moved_points = points
         changed = _all_residuals(moved_points, frames, moved, arrays)

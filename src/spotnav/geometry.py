@@ -351,23 +351,6 @@ def axis_rotations(axes: np.ndarray) -> np.ndarray:
     return np.stack([about_y, about_z], axis=-1)
 
 
-def angles_from_cone_axes(rays: np.ndarray, axes: np.ndarray, light_radius: float = 0.0) -> np.ndarray:
-    """Angle of points from their cones' axes, the cones widened by ``light_radius``, radians.
-
-    Parameters
-    ----------
-    rays : ndarray, shape (..., 3)
-        From each cone's tip to the point, mm.
-    axes : ndarray, shape (..., 3)
-        Unit cone axes.
-    light_radius : float
-        Radius of the light's emitting face, mm: the point's distance from the
-        axis less this, against its distance along the axis.
-    """
-    across = np.linalg.norm(np.cross(rays, axes), axis=-1)
-    return np.arctan2(across - light_radius, np.sum(rays * axes, axis=-1))
-
-
 def angles_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle between directions, shape of the broadcast leading axes, radians (robust near 0)."""
     a, b = normalize(np.asarray(a, dtype=float)), normalize(np.asarray(b, dtype=float))

@@ -309,7 +309,7 @@ def apply_parameters(base: Setup, point: Mapping[str, float | int]) -> Setup:
     setup = base
     for name, value in point.items():
         if name == "size_px":
-            setup = replace(setup, camera=replace(setup.camera, width_px=int(value), height_px=int(value)))
+            setup = replace(setup, camera=setup.camera.resized(int(value), int(value)))
         else:
             section, key = name.split(".")
             setup = replace(setup, **{section: replace(getattr(setup, section), **{key: value})})
