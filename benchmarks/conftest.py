@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from spotnav.config import Setup
-from spotnav.experiments.chapter6 import thesis_world
+from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.render import Renderer
 
@@ -20,9 +20,9 @@ SIZES = [int(s) for s in os.environ.get("SPOTNAV_BENCH_SIZES", "1024,2048,5000")
 
 @pytest.fixture(scope="module", params=SIZES, ids=lambda size: f"{size}px")
 def scene(request: pytest.FixtureRequest) -> tuple[Setup, Renderer, list[np.ndarray]]:
-    """A setup, its renderer and two consecutive frames of a 300-frame helix."""
+    """A setup (known exactly, as the simulation knows it), its renderer and two frames of a 300-frame helix."""
     size = request.param
-    setup = thesis_world(size, beams=1)
+    setup = with_true_edge(thesis_world(size, beams=1))
     renderer = Renderer(setup)
     poses = poses_through_insertion(helix_tips(300)[:2], setup.instrument.insertion_in_eye)
     return setup, renderer, [renderer.render(pose, seed=i) for i, pose in enumerate(poses)]

@@ -8,7 +8,8 @@ import numpy as np
 
 from spotnav.config import Setup
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
-from spotnav.localize import localize, localize_precise
+from spotnav.localize import localize
+from spotnav.precise import localize_precise
 from spotnav.render import Renderer
 from spotnav.track import track_frame
 

@@ -34,8 +34,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from spotnav.camera import camera_depth_mm, unproject_pixels_to_sphere
-from spotnav.checks import MAX_RMS_DEG, MAX_RMS_PX, check_image_size, judge_fit
+from spotnav.camera import unproject_pixels_to_sphere
+from spotnav.checks import MAX_RMS_DEG, MAX_RMS_PX, check_image_size, judge_fit, residuals_px
 from spotnav.conefit import (
     EDGE_CONTOUR_SIGMA,
     PARAMETER_GROUPS,
@@ -45,10 +45,10 @@ from spotnav.conefit import (
     EdgePoints,
     cone_problem,
     fit_cones,
+    geometry_covariance,
     geometry_to_file_units,
     geometry_values,
     group_of,
-    prior_sigmas,
     scatter_covariance,
     setup_with_geometry,
 )
@@ -62,6 +62,7 @@ from spotnav.thesis import fit_height_correction
 __all__ = [
     "DETERMINED_RATIO",
     "MIN_FRAMES",
+    "MIN_FRAMES_FOR_SELF_CALIBRATION",
     "PRIORITY",
     "Calibration",
     "HeightCorrection",
@@ -69,6 +70,7 @@ __all__ = [
     "RadiusSelfCalibration",
     "calibrate",
     "calibrate_height_correction",
+    "insertion_from_axes",
     "prepare_self_calibration",
     "self_calibrate_radius",
 ]
@@ -91,6 +93,7 @@ PRIORITY: tuple[int, ...] = (
     *PARAMETER_GROUPS["distortion"][1:],
 )
 _CONTRAST_SIGMA = 4.0
+_MAX_AXES_CONDITION = 1e6  # the known axes' lines must cross at an angle (1e6: some 0.1 deg apart)
 _MIN_INLIER_FRACTION = 0.5
 
 
@@ -219,6 +222,8 @@ def insertion_from_axes(tips_in_eye: np.ndarray, axes: np.ndarray) -> tuple[np.n
     axes = normalize(axes)
     projectors = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
     normal = projectors.sum(axis=0)
+    if np.linalg.cond(normal) > _MAX_AXES_CONDITION:
+        raise ValueError("the known axes are (nearly) parallel: they do not fix the insertion point")
     point = np.linalg.solve(normal, np.einsum("fij,fj->i", projectors, tips_in_eye))
     offsets = np.einsum("fij,fj->fi", projectors, point - tips_in_eye)
     squares = float(np.sum(offsets**2))
@@ -229,6 +234,7 @@ def insertion_from_axes(tips_in_eye: np.ndarray, axes: np.ndarray) -> tuple[np.n
 def _problem(
     setup: Setup, frames: list[_FrameEdges], axis: str, free: Sequence[int], shared: np.ndarray
 ) -> ConeProblem:
+    """The frames' edges as one cone problem: the tips known, the rolls free, the shared ``free`` too."""
     points = EdgePoints.of_frames([f.edges_px for f in frames], [f.beams for f in frames])
     return cone_problem(
         setup,
@@ -240,6 +246,7 @@ def _problem(
         free_tips=False,
         free_shared=free,
         shared=shared,
+        one_frame=False,
     )
 
 
@@ -314,8 +321,9 @@ def calibrate(
     ------
     ValueError
         Unknown group names; fewer than :data:`MIN_FRAMES` usable frames; a
-        forced group the frames cannot determine; or a calibrated model whose
-        edge points still miss their cones (RMS over 0.1 deg and 1 px).
+        forced group the frames cannot determine; known axes that are
+        (nearly) parallel; or a calibrated model whose edge points still miss
+        their cones (RMS over 0.1 deg and 1 px).
     """
     for name in (*fit, *fix):
         if name not in PARAMETER_GROUPS:
@@ -331,14 +339,17 @@ def calibrate(
         reasons = "; ".join(skipped) if skipped else "none given"
         raise ValueError(f"calibration needs at least {MIN_FRAMES} usable frames, got {len(edges)} ({reasons})")
     reasons = {i: "fixed (--fix)" for name in fix for i in PARAMETER_GROUPS[name]}
-    prior = prior_sigmas(setup)
+    prior = np.sqrt(np.diag(geometry_covariance(setup, one_frame=False)))
     reasons.update({i: "known exactly ([uncertainty] 0)" for i in range(SHARED_SIZE) if prior[i] == 0})
-    known_axes = all(frame.axis is not None for frame in frames) and "insertion-point" not in fix
+    known_axes = all(frame.axis is not None for frame in frames)
     lines = None
     if known_axes:
-        lines = insertion_from_axes(np.array([e.tip for e in edges]), np.array([e.axis for e in edges]))
-        setup = replace(setup, instrument=replace(setup.instrument, insertion_point_mm=tuple(lines[0])))
-        reasons.update({i: "where the known axes meet" for i in PARAMETER_GROUPS["insertion-point"]})
+        if "insertion-point" in fit:
+            raise ValueError("with known axes the insertion point is where they meet: it cannot be --fit")
+        if "insertion-point" not in fix:
+            lines = insertion_from_axes(np.array([e.tip for e in edges]), np.array([e.axis for e in edges]))
+            setup = replace(setup, instrument=replace(setup.instrument, insertion_point_mm=tuple(lines[0])))
+        reasons.update({i: reasons.get(i, "where the known axes meet") for i in PARAMETER_GROUPS["insertion-point"]})
     axis_mode = "known" if known_axes else "insertion"
     forced = [i for name in fit for i in PARAMETER_GROUPS[name]]
     candidates = [i for i in PRIORITY if i in forced or i not in reasons]
@@ -416,14 +427,9 @@ def _calibration(
     problem, inliers = solution.problem, solution.inliers
     rms_after = _rms(solution.residuals, inliers)
     calibrated = setup_with_geometry(setup, solution.shared)
-    # The residuals in pixels: each point's distance from its tip over its depth, times the focal length.
-    at_calibrated = cone_problem(
-        calibrated, problem.points, problem.frames[:, :3], problem.known_axes, problem.frames[:, 5], free_tips=False
-    )
-    points, camera = at_calibrated.points_in_eye, calibrated.camera
-    distance = np.linalg.norm(points - problem.frames[problem.points.frame, :3], axis=1)
-    scale_px = distance * camera.focal_px / camera_depth_mm(camera, points)
-    rms_px = float(np.sqrt(np.mean((solution.residuals * scale_px)[inliers] ** 2)))
+    points = unproject_pixels_to_sphere(calibrated.camera, problem.points.pixels, calibrated.eye.radius_mm)
+    tips = problem.frames[problem.points.frame, :3]
+    rms_px = float(np.sqrt(np.mean(residuals_px(calibrated.camera, points, tips, solution.residuals)[inliers] ** 2)))
     if inliers.mean() < _MIN_INLIER_FRACTION or (np.degrees(rms_after) > MAX_RMS_DEG and rms_px > MAX_RMS_PX):
         raise ValueError(
             f"the calibrated model does not fit the frames: RMS {np.degrees(rms_after):.3f} deg ({rms_px:.2f} px) "
@@ -464,9 +470,10 @@ def _geometry_covariance(solution: ConeSolution, insertion_covariance: np.ndarra
     """The calibrated geometry's error covariance over every shared parameter, file units, (SHARED_SIZE,)*2.
 
     The fitted ones: the fit's covariance, which carries the fixed ones'
-    uncertainty; the fixed ones: their prior; between them ``-M C``, where ``M``
-    is how the fit followed the fixed ones. An insertion point from the known
-    axes' lines brings its own covariance.
+    uncertainty; the fixed ones: their prior ``C``; between them ``-M C``,
+    ``M`` the fit's geometry gain (a true value ``d`` away from a fixed one
+    moves the fitted ones by ``M d``, while the fixed one's error is ``-d``).
+    An insertion point from the known axes' lines brings its own covariance.
     """
     problem = solution.problem
     chosen, fixed = list(problem.free_shared), list(solution.geometry_ids)
@@ -601,8 +608,9 @@ def self_calibrate_radius(
     )
     solution = fit_cones(problem)
     radius = float(setup.eye.radius_mm + solution.shared[PARAMETER_GROUPS["eye-radius"][0]])
+    fitted = replace(setup, eye=replace(setup.eye, radius_mm=radius))
     for f, index in enumerate(used):
-        judged = judge_fit(solution.frame_solution(f), setup, spots=len(prepared[f].edges_px))  # type: ignore[union-attr]
+        judged = judge_fit(solution.frame_solution(f), fitted, spots=len(prepared[f].edges_px))  # type: ignore[union-attr]
         estimates[index] = replace(judged, detail=f"eye radius fitted over {len(used)} frames: {radius:.3f} mm")
     sigma = float(np.sqrt(solution.covariance[0, 0]))
     return RadiusSelfCalibration(radius, sigma, estimates, len(used))

@@ -12,12 +12,12 @@ import numpy as np
 
 from spotnav.camera import camera_depth_mm
 from spotnav.conefit import DEFAULT_BLEND, ConeSolution, group_of
-from spotnav.config import Setup
+from spotnav.config import Camera, Setup
 from spotnav.detect import SpotEdge
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import edge_angle_of_blend
 
-__all__ = ["MAX_SIGMA_MM", "MIN_EDGE_POINTS", "check_image_size", "edge_problem", "judge_fit"]
+__all__ = ["MAX_SIGMA_MM", "MIN_EDGE_POINTS", "check_image_size", "edge_problem", "judge_fit", "residuals_px"]
 
 MIN_EDGE_POINTS = 20
 _MIN_INLIER_FRACTION = 0.5
@@ -72,6 +72,25 @@ def edge_problem(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: flo
     return None
 
 
+def residuals_px(
+    camera: Camera, points_in_eye: np.ndarray, tips_in_eye: np.ndarray, residuals: np.ndarray
+) -> np.ndarray:
+    """Angular residuals (N,) as pixels: each point's distance from its tip over its depth, times the focal length.
+
+    Parameters
+    ----------
+    camera : Camera
+    points_in_eye : ndarray, shape (N, 3)
+        The edge points on the retina, mm.
+    tips_in_eye : ndarray, shape (N, 3) or (3,)
+        The tip of each point's frame, mm.
+    residuals : ndarray, shape (N,)
+        Radians.
+    """
+    distance = np.linalg.norm(points_in_eye - tips_in_eye, axis=-1)
+    return residuals * distance * camera.focal_px / camera_depth_mm(camera, points_in_eye)
+
+
 def judge_fit(
     solution: ConeSolution,
     setup: Setup,
@@ -102,11 +121,8 @@ def judge_fit(
     other_axis : ndarray, shape (3,), optional
         The cross-check axis.
     """
-    points = solution.problem.points_in_eye
     tip = solution.tip()
-    camera = setup.camera
-    distance = np.linalg.norm(points - tip, axis=1)
-    residual_px = solution.residuals * distance * camera.focal_px / camera_depth_mm(camera, points)
+    residual_px = residuals_px(setup.camera, solution.problem.points_in_eye, tip, solution.residuals)
     inliers = solution.inliers
     rms_px = float(np.sqrt(np.mean(residual_px[inliers] ** 2)))
     rms_deg = float(np.degrees(np.sqrt(np.mean(solution.residuals[inliers] ** 2))))
@@ -120,6 +136,8 @@ def judge_fit(
         problems.append(f"tip uncertainty {own_sigma:.3f} mm")
     if not setup.contains_point(tip):
         problems.append("the fitted tip lies outside the eye")
+    if not solution.settled:
+        problems.append("the fitted tip is held at the edge of its 2 mm box")
     common = {"spots": spots, "sigma_mm": sigma, "rms_px": rms_px}
     if sigma > MAX_SIGMA_MM >= own_sigma:  # a geometry this uncertain may also explain any other problem
         return PoseEstimate("uncalibrated", detail="; ".join([_geometry_blame(solution, sigma), *problems]), **common)

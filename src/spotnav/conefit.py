@@ -35,7 +35,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
-from scipy.sparse import csr_matrix
+from scipy.sparse import csr_matrix, vstack
 
 from spotnav.camera import CHANGE_SIZE, camera_model, camera_of_model, perturbed_model, sphere_points
 from spotnav.config import GEOMETRY_PARAMETERS, Camera, Setup
@@ -75,8 +75,8 @@ EDGE_MODEL_SIGMA = float(np.radians(0.003))
 EDGE_CONTOUR_SIGMA = float(np.radians(0.007))
 
 SHARED_SIZE = len(GEOMETRY_PARAMETERS)
-_EDGE, _LIGHT, _RADIUS, _CAMERA, _INSERTION = 0, 1, 2, 3, 17  # where each part of the shared vector starts
-_CAMERA_END = _CAMERA + CHANGE_SIZE
+_EDGE, _LIGHT, _RADIUS, _CAMERA = 0, 1, 2, 3  # where each part of the shared vector starts
+_CAMERA_END = _INSERTION = _CAMERA + CHANGE_SIZE
 # File units (degrees, per cent) to the engine's (radians, fractions), per shared parameter.
 _TO_ENGINE = np.ones(SHARED_SIZE)
 _TO_ENGINE[[_EDGE, _CAMERA, _CAMERA + 1, _CAMERA + 2]] = np.pi / 180.0
@@ -246,12 +246,13 @@ def geometry_to_file_units(values: np.ndarray) -> np.ndarray:
     return np.asarray(values, dtype=float) / _TO_ENGINE
 
 
-def geometry_covariance(setup: Setup) -> np.ndarray:
+def geometry_covariance(setup: Setup, *, one_frame: bool = True) -> np.ndarray:
     """How well the setup's geometry is known: the shared parameters' covariance, engine units, (SHARED_SIZE,)*2.
 
     ``[calibration]``'s covariance for the parameters it lists, ``[uncertainty]``
-    for the others, and always the edge model's error in one frame: the one
-    the calibration measured, at least :data:`EDGE_MODEL_SIGMA`.
+    for the others, and with ``one_frame`` the edge model's error in one
+    frame: the one the calibration measured, at least :data:`EDGE_MODEL_SIGMA`
+    (a pose's; a calibration over many frames measures that error itself).
     """
     covariance = np.diag(prior_sigmas(setup) ** 2)
     record = setup.calibration
@@ -262,7 +263,8 @@ def geometry_covariance(setup: Setup) -> np.ndarray:
         covariance[index, :] = 0.0
         covariance[:, index] = 0.0
         covariance[np.ix_(index, index)] = block
-    covariance[_EDGE, _EDGE] += max(EDGE_MODEL_SIGMA, np.radians(record.frame_edge_sigma_deg)) ** 2
+    if one_frame:
+        covariance[_EDGE, _EDGE] += max(EDGE_MODEL_SIGMA, np.radians(record.frame_edge_sigma_deg)) ** 2
     return covariance
 
 
@@ -480,6 +482,7 @@ def cone_problem(
     free_tips: bool = True,
     free_shared: Sequence[int] = (),
     shared: np.ndarray | None = None,
+    one_frame: bool = True,
 ) -> ConeProblem:
     """A cone fit in ``setup``'s geometry.
 
@@ -504,6 +507,9 @@ def cone_problem(
         Shared parameters to fit (indices of :data:`spotnav.config.GEOMETRY_PARAMETERS`).
     shared : ndarray, shape (SHARED_SIZE,), optional
         Start of the shared changes, engine units (default 0: the setup's values).
+    one_frame : bool
+        The geometry's covariance carries the edge model's error in one frame
+        (:func:`geometry_covariance`): false for a fit over many frames.
     """
     if axis not in AXIS_MODES:
         raise ValueError(f"axis must be one of {', '.join(AXIS_MODES)}, got {axis!r}")
@@ -529,7 +535,7 @@ def cone_problem(
         shared=np.zeros(SHARED_SIZE) if shared is None else np.asarray(shared, dtype=float),
         free_shared=tuple(int(i) for i in free_shared),
         free_frame=tuple(free_frame),
-        prior=geometry_covariance(setup),
+        prior=geometry_covariance(setup, one_frame=one_frame),
         steps=_difference_steps(setup.camera),
     )
 
@@ -749,10 +755,14 @@ class ConeSolution:
     data_covariance : ndarray, shape (P, P)
         The same without the fixed geometry's part.
     geometry_gain : ndarray, shape (P, G)
-        How the free parameters move with the fixed geometry's parameters
-        ``geometry_ids`` (``M`` of ``covariance = ... + M C M^T``).
+        ``M`` of ``covariance = ... + M C M^T``: a true geometry ``d`` (per
+        unit of ``geometry_ids``) away from the assumed one moves the fitted
+        parameters by ``M d``.
     geometry_ids : tuple of int
         The fixed shared parameters whose uncertainty the covariance carries.
+    settled : bool
+        Whether the fit settled inside its box: a tip held at its edge
+        (``max_tip_move_mm`` from its start) is a fit the box decided.
     """
 
     problem: ConeProblem
@@ -765,6 +775,7 @@ class ConeSolution:
     data_covariance: np.ndarray
     geometry_gain: np.ndarray
     geometry_ids: tuple[int, ...]
+    settled: bool = True
 
     def tip(self, frame: int = 0) -> np.ndarray:
         """Fitted tip of ``frame``, shape (3,), mm."""
@@ -834,6 +845,7 @@ class ConeSolution:
             data_covariance=self.data_covariance[np.ix_(index, index)],
             geometry_gain=self.geometry_gain[index],
             geometry_ids=self.geometry_ids,
+            settled=self.settled,
         )
 
     def geometry_share(self, frame: int = 0) -> np.ndarray:
@@ -893,8 +905,6 @@ def _solve(
 
 
 def _stack_sparse(matrix: csr_matrix, extra: np.ndarray) -> csr_matrix:
-    from scipy.sparse import vstack
-
     return vstack([matrix, csr_matrix(extra)]).tocsr()
 
 
@@ -923,7 +933,7 @@ def fit_cones(
     solver : str
         ``trust-region`` (SciPy's, for any start) or ``gauss-newton`` (a few
         fixed steps, iteratively reweighted: fast, for a start close to the
-        answer, as in tracking).
+        answer, as in tracking; it has no box and takes no priors).
     max_tip_move_mm : float
         The tips may not wander further than this from their start: a short arc
         of edge also fits a narrow far cone (with the axis through the
@@ -962,7 +972,9 @@ def fit_cones(
         values, columns = problem.jacobian(x)
         x = _gauss_newton(x, residuals[inliers], values[inliers], columns[inliers], 0.0)
     residuals = problem.residuals(x)
-    return _solution(problem, x, residuals, inliers, contour_sigma, priors)
+    solution = _solution(problem, x, residuals, inliers, contour_sigma, priors)
+    boxed = np.any(np.isclose(x[tip_index], low[tip_index]) | np.isclose(x[tip_index], high[tip_index]))
+    return replace(solution, settled=not boxed)
 
 
 def scatter_covariance(

@@ -299,7 +299,7 @@ def _check_insertion(
     """``miscalibrated`` when three beams show an axis that misses the insertion line by more than its uncertainty.
 
     The free axis's uncertainty comes from its fit (angles about ``y`` and
-    ``z``); the constrained axis's from the tip's and the insertion point's.
+    ``z``); the constrained axis's from the tip's own and the insertion point's.
     """
     if not estimate.ok or setup.instrument.beam_count == 1:
         return estimate
@@ -309,7 +309,9 @@ def _check_insertion(
     insertion = PARAMETER_GROUPS["insertion-point"]
     insertion_variance = np.trace(constrained.problem.prior[np.ix_(insertion, insertion)])
     length = float(np.linalg.norm(constrained.tip() - constrained.insertion_in_eye))
-    line_variance = (np.trace(constrained.tip_covariance()) + insertion_variance) / 3.0 / length**2
+    # Two of each point's three directions turn the line: the angle's variance over both components.
+    tip_variance = np.trace(constrained.tip_covariance(geometry=False))
+    line_variance = 2.0 / 3.0 * (tip_variance + insertion_variance) / length**2
     sigma = float(np.sqrt(free_variance + line_variance))
     if angle > max(_MISCALIBRATION_SIGMAS * sigma, np.radians(_MIN_MISCALIBRATION_DEG)):
         detail = (

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spotnav.camera import project_points
+from spotnav.camera import camera_depth_mm, project_points
 from spotnav.config import Bump, Camera, Instrument, Light, Render, Setup, Uncertainty, World
 from spotnav.detect import detect_spots_otsu
 from spotnav.estimate import PoseEstimate
@@ -576,7 +576,7 @@ def _power_gallery(options: Options) -> dict[str, np.ndarray]:
     frames = options.runner.map(render_frame, [FrameJob(w, pose, 5, ()) for w in worlds], "power gallery")
     camera = worlds[0].camera
     u, v = project_points(camera, np.zeros(3))
-    half = round(1.8 * camera.focal_px / camera.distance_mm)  # the spot's radius is 1.27 mm
+    half = round(1.8 * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3))))  # the spot's radius: 1.27 mm
     return {
         f"{p:g} W": frame[max(int(v) - half, 0) : int(v) + half, max(int(u) - half, 0) : int(u) + half].copy()
         for p, frame in zip(POWERS_W, frames, strict=True)

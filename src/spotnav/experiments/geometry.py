@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spotnav.conefit import SHARED_SIZE, setup_with_geometry
+from spotnav.conefit import PARAMETER_GROUPS, SHARED_SIZE, setup_with_geometry
 from spotnav.config import Setup, Uncertainty, World
 from spotnav.experiments.calibration import known_calibration
 from spotnav.experiments.chapter6 import (
@@ -71,11 +71,11 @@ def _camera(**values: float) -> Callable[[Setup], Setup]:
 
     def change(world: Setup) -> Setup:
         shared = np.zeros(SHARED_SIZE)
-        shared[4] = np.radians(values.get("rotation_deg", 0.0))
-        shared[6:9] = values.get("centre_mm", (0.0, 0.0, 0.0))
-        shared[9] = values.get("focal", 0.0)
-        shared[10] = values.get("principal_px", 0.0) * world.camera.width_px / 2048
-        shared[12] = values.get("k1", 0.0)
+        shared[PARAMETER_GROUPS["camera-rotation"][1]] = np.radians(values.get("rotation_deg", 0.0))
+        shared[list(PARAMETER_GROUPS["camera-position"])] = values.get("centre_mm", (0.0, 0.0, 0.0))
+        shared[PARAMETER_GROUPS["focal-length"][0]] = values.get("focal", 0.0)
+        shared[PARAMETER_GROUPS["principal-point"][0]] = values.get("principal_px", 0.0) * world.camera.width_px / 2048
+        shared[PARAMETER_GROUPS["distortion"][0]] = values.get("k1", 0.0)
         camera = setup_with_geometry(world, shared).camera
         return replace(world, camera=camera)
 
