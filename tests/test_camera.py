@@ -6,6 +6,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from spotnav.camera import (
+    decode_values,
+    decoding_table,
+    encode_light,
     pixel_rays,
     pixels_behind_segment,
     project_points,
@@ -169,3 +172,22 @@ def test_a_resized_camera_sees_the_same_field() -> None:
     half = camera.resized(512, 512)
     points = np.random.default_rng(1).uniform([-3, -3, 0], [3, 3, 6], (20, 3))
     np.testing.assert_allclose((project_points(half, points) + 0.5) * 2, project_points(camera, points) + 0.5)
+
+
+@given(
+    light=st.floats(1e-3, 0.99),
+    response=st.sampled_from(["srgb", "linear", "agx", 0.45, 1.8, 2.6]),
+)
+def test_decoding_inverts_encoding(light: float, response: str | float) -> None:
+    # Every response of the contract ("The frames' encoding") round-trips light, and increases with it.
+    value = encode_light(np.array([light, light * 1.01]), response)
+    assert value[1] > value[0]
+    assert decode_values(value[:1], response)[0] == pytest.approx(light, rel=1e-3)
+
+
+@pytest.mark.parametrize("response", ["srgb", "linear", "agx", 2.2])
+def test_decoding_tables_are_monotonic_from_black_to_full_scale(response: str | float) -> None:
+    for bits in (8, 16):
+        table = decoding_table(response, bits)
+        assert table.shape == (2**bits,) and table[0] == pytest.approx(0.0, abs=1e-4) and table[-1] == 1.0
+        assert np.all(np.diff(table) >= 0)

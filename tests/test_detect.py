@@ -11,11 +11,14 @@ from spotnav.camera import unproject_pixels_to_sphere
 from spotnav.config import Setup
 from spotnav.detect import (
     _SMOOTHING,
+    SpotDetection,
     _smooth,
     detect_edge_along_rays,
     detect_edge_subpixel,
     detect_spots_otsu,
+    group_fragments,
     linear_luminance,
+    outer_boundary,
     rays_through_curve,
     to_gray8,
 )
@@ -142,3 +145,43 @@ def test_aligned_rays_find_a_disc_that_moved_since_the_prediction(offset_px: tup
     assert len(edge.pixels) >= 0.95 * edge.rays
     rim = np.hypot(*(edge.pixels - centre).T)
     assert np.abs(rim - radius).max() < 0.15
+
+
+def _fragments_of(image: np.ndarray, gap_px: float = 12.0, whole_area_px: float = 1500.0) -> SpotDetection:
+    return group_fragments(detect_spots_otsu(image, min_area_fraction=0.005), image.shape[:2], gap_px, whole_area_px)
+
+
+def test_a_spot_cut_by_vessels_is_one_spot() -> None:
+    # Three dark lines across one disc leave six fragments; their outer boundaries lie on one circle.
+    image = disc_image([(200, 200)], radius=60)
+    for angle in (0.3, 1.4, 2.5):
+        direction = 90 * np.array([np.cos(angle), np.sin(angle)])
+        cv2.line(image, tuple((200 - direction).astype(int)), tuple((200 + direction).astype(int)), (15,) * 3, 6)
+    assert len(detect_spots_otsu(image, min_area_fraction=0.005).spots) == 6
+    grouped = _fragments_of(image)
+    assert len(grouped.spots) == 1 and grouped.fragments == 6 and grouped.regions == "6 bright regions in 1 spot"
+    distances = np.hypot(*(grouped.spots[0].contour_px - 200).T)  # whole pixels of a blurred, thresholded disc
+    assert np.abs(distances.mean() - 60) < 1.0 and np.abs(distances - 60).max() < 3.0
+    assert grouped.spots[0].area_px == pytest.approx(np.pi * 60**2, rel=0.05)
+
+
+def test_separate_spots_and_a_glint_beside_a_spot_stay_apart() -> None:
+    # Two whole discs 10 px apart (closer than the gap) are two spots; a glint beside one is not part of it.
+    image = disc_image([(140, 200), (240, 200)], radius=45)
+    cv2.circle(image, (200, 120), 5, (255, 255, 255), -1)
+    grouped = _fragments_of(image, whole_area_px=1000.0)
+    assert [round(s.area_px / (np.pi * 45**2), 1) for s in grouped.spots[:2]] == [1.0, 1.0]
+    assert len(grouped.spots) == 2  # the glint is clutter beside them
+
+
+def test_edge_points_where_vessels_cross_the_edge_are_left_out() -> None:
+    # Two dark vessels cross a disc's edge obliquely: the rays on them and beside them are left out (and
+    # counted), and the edge points found lie on the circle (cv2's disc is jagged by half a pixel; the
+    # vessels' corners pull points in by up to 7 px when the rays beside them are kept).
+    image = disc_image([(200, 200)], radius=60)
+    for start, end in (((150, 150), (290, 230)), ((120, 260), (230, 110))):
+        cv2.line(image, start, end, (15, 15, 15), 7)
+    edge = detect_edge_subpixel(image, outer_boundary(_fragments_of(image).spots[0]))
+    assert edge.dark_rays > 0.04 * edge.rays
+    off = np.abs(np.hypot(*(edge.pixels - 200).T) - 60)
+    assert np.percentile(off, 95) < 1.0 and off.max() < 2.0

@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
+from spotnav import precise
+from spotnav.camera import camera_depth_mm
 from spotnav.config import Light, Setup
 from spotnav.estimate import STATUSES
 from spotnav.experiments import helix_tips, working_volume_tips
@@ -190,3 +192,57 @@ def test_16_bit_grey_and_rgba_frames_localize_like_8_bit_rgb(renderer_512: Rende
     assert reference.ok and estimate.ok, estimate.detail
     assert np.linalg.norm(reference.tip_in_eye - pose.tip_in_eye) < 0.02
     assert np.linalg.norm(estimate.tip_in_eye - reference.tip_in_eye) < 0.02
+
+
+def test_a_vessel_cutting_the_spot_in_two_leaves_one_cone() -> None:
+    # A black vessel 0.1 mm wide across the spot's middle: two bright pieces, one spot, one cone, and the
+    # tip within 0.01 mm of the uncut frame's.
+    world = small_setup(1024)
+    setup = with_true_edge(world)
+    pose = InstrumentPose.through_insertion([0.8, -0.6, 4.5], world.instrument.insertion_in_eye)
+    whole = Renderer(world).render(pose, seed=4)
+    cut = whole.copy()
+    spot = precise.detect_spots(whole, setup).spots[0]
+    centre = spot.contour_px.mean(axis=0)
+    width_px = 0.1 * world.camera.focal_px / float(camera_depth_mm(world.camera, np.zeros(3)))
+    ends = (centre - np.array([200, 60]), centre + np.array([200, 60]))
+    cv2.line(cut, *(tuple(np.round(e).astype(int)) for e in ends), (2, 1, 1), round(width_px))
+    detection = precise.detect_spots(cut, setup)
+    assert detection.fragments == 2 and len(detection.spots) == 1, detection.regions
+    before, after = localize(whole, setup, "precise"), localize(cut, setup, "precise")
+    assert before.ok and after.ok, after.detail
+    assert np.linalg.norm(after.tip_in_eye - before.tip_in_eye) < 0.01
+    assert np.linalg.norm(after.tip_in_eye - pose.tip_in_eye) < 3 * after.sigma_mm + 0.005
+
+
+@pytest.mark.parametrize(("response", "bits"), [("linear", 16), (1.8, 8), ("agx", 8)])
+def test_frames_in_the_camera_s_response_localize_like_srgb(response: str | float, bits: int) -> None:
+    # The renderer writes the stated encoding; every method reads it through camera.response.
+    srgb_world = small_setup(1024)
+    world = replace(
+        srgb_world,
+        camera=replace(srgb_world.camera, response=response),
+        render=replace(srgb_world.render, bit_depth=bits),
+    )
+    pose = InstrumentPose.through_insertion([-0.5, 1.0, 4.0], world.instrument.insertion_in_eye)
+    frame = Renderer(world).render(pose, seed=2)
+    assert frame.dtype == (np.uint16 if bits == 16 else np.uint8)
+    reference = localize(Renderer(srgb_world).render(pose, seed=2), with_true_edge(srgb_world), "precise")
+    estimate = localize(frame, with_true_edge(world), "precise")
+    assert reference.ok and estimate.ok, estimate.detail
+    assert np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < max(0.02, 3 * estimate.sigma_mm)
+    # Read as sRGB, the same frame's edge moves (or is refused): the response matters.
+    wrong = localize(frame, with_true_edge(srgb_world), "precise")
+    assert not wrong.ok or np.linalg.norm(wrong.tip_in_eye - estimate.tip_in_eye) > 0.005
+
+
+@pytest.mark.parametrize("size_px", [768, 1536])
+def test_a_frame_blurred_after_its_encoding_is_refused_whatever_the_spot_s_size(size_px: int) -> None:
+    # A codec's smoothing of 3 px moves the edge by some 0.1 mm: refused as blurred, small spots and large.
+    world = small_setup(size_px)
+    setup = with_true_edge(world)
+    for tip in ([0.5, 0.5, 3.0], [0.0, -1.0, 6.0]):
+        pose = InstrumentPose.through_insertion(tip, world.instrument.insertion_in_eye)
+        frame = cv2.GaussianBlur(Renderer(world).render(pose, seed=1), (0, 0), 3.0 * size_px / 1024)
+        estimate = localize(frame, setup, "precise")
+        assert estimate.status == "blurred", estimate

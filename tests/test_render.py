@@ -158,3 +158,31 @@ def test_a_tip_outside_the_eye_is_a_clear_error(tip: tuple[float, float, float])
     with pytest.raises(ValueError, match=r"lies outside the eye \(radius 12.5 mm") as error:
         Renderer(small_setup(64)).render(InstrumentPose(list(tip), [0.0, 0.0, -1.0]))
     assert "\n" not in str(error.value)
+
+
+def _faulted(**faults: object) -> tuple[np.ndarray, np.ndarray]:
+    """A 512 px frame without and with ``faults`` (same pose and seed)."""
+    world = small_setup(512)
+    pose = InstrumentPose.through_insertion([0.0, 0.5, 4.5], world.instrument.insertion_in_eye)
+    disturbed = replace(world, faults=replace(world.faults, **faults))
+    return Renderer(world).render(pose, seed=3), Renderer(disturbed).render(pose, seed=3)
+
+
+def test_a_glow_brightens_a_broad_part_of_the_frame() -> None:
+    # 5 % of full scale over a third of the frame: many pixels brighter, none darker beyond the noise.
+    plain, glowing = _faulted(glow=0.05)
+    gain = glowing.astype(float).mean(axis=2) - plain.astype(float).mean(axis=2)
+    assert np.mean(gain > 10) > 0.05 and np.mean(gain < -3) < 0.01
+
+
+def test_a_dark_patch_darkens_part_of_the_spot_s_edge_only() -> None:
+    plain, patched = _faulted(dark_patch=0.5)
+    loss = plain.astype(float).mean(axis=2) - patched.astype(float).mean(axis=2)
+    assert 50 < np.count_nonzero(loss > 20) < 0.5 * np.count_nonzero(plain.mean(axis=2) > 60)
+
+
+@pytest.mark.parametrize("kind", ["defocus_px", "frame_blur_px"])
+def test_blur_in_light_or_after_encoding_softens_the_edge(kind: str) -> None:
+    plain, blurred = _faulted(**{kind: 3.0})
+    steepest = [np.abs(np.diff(f.astype(float).mean(axis=2), axis=1)).max() for f in (plain, blurred)]
+    assert steepest[1] < 0.6 * steepest[0]

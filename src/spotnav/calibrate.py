@@ -53,10 +53,10 @@ from spotnav.conefit import (
     setup_with_geometry,
 )
 from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup
-from spotnav.detect import detect_edge_subpixel, detect_spots_otsu
+from spotnav.detect import detect_edge_subpixel
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import assign_beams, normalize
-from spotnav.precise import EdgeFrame, localize_precise_with_edges
+from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges
 from spotnav.thesis import fit_height_correction
 
 __all__ = [
@@ -92,7 +92,6 @@ PRIORITY: tuple[int, ...] = (
     *PARAMETER_GROUPS["principal-point"],
     *PARAMETER_GROUPS["distortion"][1:],
 )
-_CONTRAST_SIGMA = 4.0
 _MAX_AXES_CONDITION = 1e6  # the known axes' lines must cross at an angle (1e6: some 0.1 deg apart)
 _MIN_INLIER_FRACTION = 0.5
 
@@ -178,18 +177,18 @@ class _FrameEdges:
 
 def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
     """The frame's spots' edges, the beam of each and the starting roll, or why the frame cannot be used."""
-    instrument = setup.instrument
+    instrument, response = setup.instrument, setup.camera.pixel_response
     wrong = check_image_size(frame.image, setup)
     if wrong is not None:
         return f"{frame.name}: {wrong.detail}"
-    spots = detect_spots_otsu(frame.image, min_contrast_sigma=_CONTRAST_SIGMA).spots
+    spots = detect_spots(frame.image, setup).spots
     whole = [spot for spot in spots if not spot.touches_border]
     if len(spots) != instrument.beam_count or len(whole) != len(spots):
         cut = f", {len(spots) - len(whole)} cut by the border" if len(whole) != len(spots) else ""
         return f"{frame.name}: {len(spots)} bright regions{cut}, {instrument.beam_count} beams"
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
-    edges = [detect_edge_subpixel(frame.image, spot).pixels for spot in spots]
+    edges = [detect_edge_subpixel(frame.image, spot, response).pixels for spot in spots]
     beams, roll = [0], 0.0
     if len(spots) > 1:
         centres = np.array(
@@ -597,7 +596,11 @@ def self_calibrate_radius(
         )
     prepared = [shares[i][1] for i in used]
     starts = [estimates[i] for i in used]
-    points = EdgePoints.of_frames([p.edges_px for p in prepared], [p.beams for p in prepared])  # type: ignore[union-attr]
+    points = EdgePoints.of_frames(
+        [p.edges_px for p in prepared],  # type: ignore[union-attr]
+        [p.beams for p in prepared],  # type: ignore[union-attr]
+        [p.edge_sigmas for p in prepared],  # type: ignore[union-attr]
+    )
     problem = cone_problem(
         setup,
         points,

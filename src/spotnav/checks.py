@@ -2,24 +2,34 @@
 
 A frame is refused (a :class:`~spotnav.estimate.PoseEstimate` that is not
 ``ok``) when it is the wrong size, when a spot's edge cannot be trusted
-(:func:`edge_problem`), or when the fit fails a consistency check or the
+(:func:`judge_edge`), or when the fit fails a consistency check or the
 setup's geometry cannot back it (:func:`judge_fit`).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
-from spotnav.camera import camera_depth_mm
-from spotnav.conefit import DEFAULT_BLEND, ConeSolution, group_of
+from spotnav.camera import camera_depth_mm, decode_values, encode_light
+from spotnav.conefit import DEFAULT_BLEND, PARAMETER_GROUPS, ConeSolution, geometry_covariance, group_of
 from spotnav.config import Camera, Setup
-from spotnav.detect import SpotEdge
+from spotnav.detect import EDGE_SMOOTHING_PX, SpotEdge
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import edge_angle_of_blend
 
-__all__ = ["MAX_SIGMA_MM", "MIN_EDGE_POINTS", "check_image_size", "edge_problem", "judge_fit", "residuals_px"]
+__all__ = [
+    "MAX_SIGMA_MM",
+    "MIN_EDGE_POINTS",
+    "blur_shift_px",
+    "check_image_size",
+    "judge_edge",
+    "judge_fit",
+    "residuals_px",
+]
 
 MIN_EDGE_POINTS = 20
+_MIN_EDGE_FRACTION = 0.15  # of the rays: a spot with less of its edge found (vessels, glints) is not trusted
 _MIN_INLIER_FRACTION = 0.5
 # A fit is poor when its edge points lie both this far in angle (some 0.015 deg on a textured retina at 1 W)
 # and this far in pixels (some 0.3 px from noise; at most 0.75 px on the frames the fault study accepts at
@@ -27,7 +37,13 @@ _MIN_INLIER_FRACTION = 0.5
 MAX_RMS_DEG = 0.1
 MAX_RMS_PX = 1.0
 _MIN_CONTRAST_TO_NOISE = 20.0  # measured: 60-500 on good frames, 5-10 where heavy noise biased the edge by 0.1 mm
-_EDGE_WIDTH_SLACK_PX = 4.0  # measured: widths at most 0.86 of band + 4 px unblurred, 1.1-2 with a 1.5 % motion blur
+_MODEL_STEP_PX = 0.05
+_OWN_BLUR_PX = 0.5  # sigma of every camera's own blur in light: the pixels' footprint, the rays' bilinear sampling
+_BISECTIONS = 10
+_WIDTH_TOLERANCE_PX = 0.4  # measured: unblurred edges 2.7-3.2 px wide at 256 px where the model says 2.7
+_BAND_SLACK = 0.15  # measured: unblurred edges up to 14 % wider than the band's (rays cross ellipses obliquely)
+_EDGE_REACH = 2.0
+_MAX_BLUR_MM = 0.03  # a blur that may have moved the tip by more than this (height) is refused
 _MAX_CLIPPED_FRACTION = 0.5  # measured: 0.9-1.0 at +4 stops (edge 0.08-0.1 mm off), mostly under 0.1 at +2 stops
 MAX_SIGMA_MM = 0.03  # a pose more uncertain than this is refused: 3 sigma stays within a silent failure's 0.1 mm
 
@@ -44,32 +60,115 @@ def check_image_size(image: np.ndarray, setup: Setup) -> PoseEstimate | None:
     return None
 
 
-def edge_problem(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float) -> str | None:
-    """Why a spot's edge cannot be trusted, or None.
+def blur_shift_px(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float) -> float:
+    """How far the edge would lie from its midpoint in light if its blur had acted on the encoded frame, pixels.
 
-    Too few points; noise that biases the halfway level (contrast under
-    ``_MIN_CONTRAST_TO_NOISE`` times the noise); a plateau clipped at full
-    scale in every channel (over ``_MAX_CLIPPED_FRACTION`` of it), which lowers
-    that level and moves the edge outward; or an edge wider than the beam's
-    soft band (``2 (beta - edge_angle)`` of the spot's radius ``radius_px``,
-    at least the default edge model's) plus ``_EDGE_WIDTH_SLACK_PX``: motion
-    blur or defocus, which the edge model does not know.
+    A blur in light (defocus, the lens) leaves the midpoint in light where it
+    was; a blur of the encoded frame (a camera's or codec's smoothing) moves
+    it, the more the brighter the spot against the background. Which one acted
+    the edge does not tell, so this is its uncertainty. The blur is the
+    Gaussian that, acting on the encoded model edge (:func:`_seen_edge`),
+    makes it as wide as the edge measured (less ``_WIDTH_TOLERANCE_PX``, how
+    well a width is measured); the shift is that model's. 0 for an edge no
+    wider than the unblurred model's.
     """
-    if len(edge.pixels) < MIN_EDGE_POINTS:
-        return "too few edge points"
-    if not edge.contrast_to_noise >= _MIN_CONTRAST_TO_NOISE:
-        return (
-            f"the edge's contrast is {edge.contrast_to_noise:.0f} times the noise, under {_MIN_CONTRAST_TO_NOISE:.0f}"
-        )
-    if edge.clipped_fraction > _MAX_CLIPPED_FRACTION:
-        return f"{100 * edge.clipped_fraction:.0f} % of the spot inside its edge is at full scale in every channel"
+    band = _soft_band_px(setup, radius_px, edge_angle) * (1.0 + _BAND_SLACK)
+    if not np.isfinite(edge.plateau + edge.background) or not edge.plateau > edge.background:
+        return 0.0
+    levels, response = (edge.plateau, edge.background), setup.camera.pixel_response
+    width = edge.width_px - _WIDTH_TOLERANCE_PX
+    if not width > _seen_edge(levels, band, 0.0, response)[0]:
+        return 0.0
+    low, high = 0.0, max(width, 1.0)
+    if _seen_edge(levels, band, high, response)[0] < width:
+        return float("inf")
+    for _ in range(_BISECTIONS):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if _seen_edge(levels, band, middle, response)[0] < width else (low, middle)
+    return abs(_seen_edge(levels, band, high, response)[1])
+
+
+def _seen_edge(
+    levels: tuple[float, float], band_px: float, blur_px: float, response: str | float
+) -> tuple[float, float]:
+    """The model edge as the detector measures it: its width and where its midpoint in light lies, pixels.
+
+    The beam's soft band (a smoothstep ``band_px`` wide, from the plateau to
+    the background ``levels``, linear light), blurred in light by the
+    camera's own ``_OWN_BLUR_PX``, is encoded by ``response``,
+    blurred by a Gaussian of ``blur_px`` (sigma), decoded and smoothed as the
+    detector smooths (:data:`spotnav.detect.EDGE_SMOOTHING_PX`). Returns the
+    full width at half maximum of its slope and the signed distance of its
+    half-light crossing from the band's middle (outward positive).
+    """
+    plateau, background = levels
+    reach = 0.5 * band_px + 5.0 * (blur_px + EDGE_SMOOTHING_PX + _OWN_BLUR_PX) + 1.0
+    x = np.arange(-reach, reach, _MODEL_STEP_PX)  # outward
+    t = np.clip(0.5 - x / max(band_px, _MODEL_STEP_PX), 0.0, 1.0)
+    light = background + (plateau - background) * t * t * (3.0 - 2.0 * t)
+    light = gaussian_filter1d(light, _OWN_BLUR_PX / _MODEL_STEP_PX, mode="nearest")
+    if blur_px > 0:
+        encoded = gaussian_filter1d(encode_light(light, response), blur_px / _MODEL_STEP_PX, mode="nearest")
+        light = decode_values(encoded, response)
+    seen = gaussian_filter1d(light, EDGE_SMOOTHING_PX / _MODEL_STEP_PX, mode="nearest")
+    slope = -np.gradient(seen)
+    width = np.count_nonzero(slope >= 0.5 * slope.max()) * _MODEL_STEP_PX
+    below = np.flatnonzero(seen <= 0.5 * (plateau + background))
+    return float(width), float(x[below[0]]) if len(below) else float("inf")
+
+
+def _soft_band_px(setup: Setup, radius_px: float, edge_angle: float) -> float:
+    """The widest soft band the beam may have, pixels.
+
+    ``2 (beta - edge)`` of the spot's radius, with the edge as far inside as
+    its uncertainty allows (``_EDGE_REACH`` sigma: a beam known to 0.3 deg may
+    be that much softer), and at least the default edge model's (a
+    calibrated edge may lie beyond beta).
+    """
     beta = setup.instrument.beam_half_angle
-    # The soft band is 2 (beta - edge) wide, at least the default model's: a calibrated edge may lie beyond beta.
-    soft = max(beta - edge_angle, beta - edge_angle_of_blend(beta, DEFAULT_BLEND))
-    band_px = 2.0 * soft / beta * radius_px
-    if edge.width_px > band_px + _EDGE_WIDTH_SLACK_PX:
-        return f"the edge is {edge.width_px:.1f} px wide, the beam's {band_px:.1f} px: blurred"
-    return None
+    (edge,) = PARAMETER_GROUPS["edge-angle"]
+    inner = edge_angle - _EDGE_REACH * np.sqrt(geometry_covariance(setup)[edge, edge])
+    soft = max(beta - inner, beta - edge_angle_of_blend(beta, DEFAULT_BLEND))
+    return 2.0 * soft / beta * radius_px
+
+
+def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float) -> tuple[str, str] | float:
+    """Why a spot's edge cannot be trusted, as a status and a reason; else its own whole-edge sigma, radians.
+
+    ``unreliable``: noise that biases the halfway level (contrast under
+    ``_MIN_CONTRAST_TO_NOISE`` times the noise); too few points (under
+    ``MIN_EDGE_POINTS`` or ``_MIN_EDGE_FRACTION`` of the rays); a plateau
+    clipped at full scale in every channel (over ``_MAX_CLIPPED_FRACTION`` of
+    it), which lowers that level and moves the edge outward. ``blurred``: a
+    blur whose unknown kind may have moved the edge by more than
+    ``_MAX_BLUR_MM`` of tip height (:func:`blur_shift_px`), whatever the
+    spot's size. A trusted edge's sigma is half the shift that blur may have
+    caused: a uniform shift of ``s`` pixels is an angle of about ``s`` over
+    the spot's radius times the edge angle.
+    """
+    if edge.contrast_to_noise < _MIN_CONTRAST_TO_NOISE:
+        ratio = f"{edge.contrast_to_noise:.0f} times the noise, under {_MIN_CONTRAST_TO_NOISE:.0f}"
+        return "unreliable", f"the edge's contrast is {ratio}"
+    if len(edge.pixels) < max(MIN_EDGE_POINTS, _MIN_EDGE_FRACTION * edge.rays):
+        left_out = f", {edge.dark_rays} left out (vessels, the shaft, glints)" if edge.dark_rays else ""
+        return "unreliable", f"too few edge points: {len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
+    if edge.clipped_fraction > _MAX_CLIPPED_FRACTION:
+        clipped = f"{100 * edge.clipped_fraction:.0f} %"
+        return "unreliable", f"{clipped} of the spot inside its edge is at full scale in every channel"
+    shift = blur_shift_px(edge, setup, radius_px, edge_angle)
+    height_mm = shift * _mm_per_px(setup) / (np.sin(edge_angle) * np.cos(edge_angle))
+    if height_mm > _MAX_BLUR_MM:
+        return "blurred", (
+            f"the edge is {edge.width_px:.1f} px wide, blurred: where the blur acted leaves it {shift:.2f} px "
+            f"({height_mm:.3f} mm of height) uncertain"
+        )
+    return 0.5 * shift * edge_angle / radius_px
+
+
+def _mm_per_px(setup: Setup) -> float:
+    """Millimetres on the retina per pixel near the pole."""
+    camera = setup.camera
+    return float(camera_depth_mm(camera, np.zeros(3))) / camera.focal_px
 
 
 def residuals_px(

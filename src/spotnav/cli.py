@@ -326,6 +326,11 @@ def _calibration_lines(result: Calibration) -> list[str]:
     )
     edge = result.setup.calibration.frame_edge_sigma_deg
     lines.append(f"one frame's edge strays from the model by {edge:.4f} deg (1 sigma, each frame left out in turn)")
+    if result.setup.camera.response is None:
+        lines.append(
+            "camera.response is not stated: the frames were read as sRGB (the edges cannot tell the response "
+            "apart; state it if the camera writes linear, gamma or tone-mapped values)"
+        )
     return lines
 
 

@@ -282,12 +282,16 @@ class EdgePoints:
         The beam that made each point's spot.
     spot : ndarray of int, shape (N,)
         Which spot (contour) each point lies on, numbered over all frames.
+    spot_sigma : ndarray, shape (at least max(spot) + 1,), or None
+        Each spot's own whole-edge uncertainty beyond the common one (a blur
+        of unknown kind), radians; None: none.
     """
 
     pixels: np.ndarray
     frame: np.ndarray
     beam: np.ndarray
     spot: np.ndarray
+    spot_sigma: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         pixels = np.ascontiguousarray(self.pixels, dtype=float).reshape(-1, 2)
@@ -300,10 +304,20 @@ class EdgePoints:
         if count and np.any(np.diff(self.frame) < 0):
             raise ValueError("edge points must be in frame order")
         object.__setattr__(self, "pixels", pixels)
+        spots = int(self.spot.max()) + 1 if count else 0
+        sigma = np.zeros(spots) if self.spot_sigma is None else np.asarray(self.spot_sigma, dtype=float)
+        if sigma.ndim != 1 or len(sigma) < spots:
+            raise ValueError(f"spot_sigma must have shape (at least {spots},), got {sigma.shape}")
+        object.__setattr__(self, "spot_sigma", sigma)
 
     @classmethod
-    def of_frames(cls, spots_px: Sequence[Sequence[np.ndarray]], beams: Sequence[Sequence[int]]) -> EdgePoints:
-        """Points from each frame's spots' edges (``spots_px[f][k]``, shape (N_k, 2)) and their beams."""
+    def of_frames(
+        cls,
+        spots_px: Sequence[Sequence[np.ndarray]],
+        beams: Sequence[Sequence[int]],
+        spot_sigma: Sequence[Sequence[float]] | None = None,
+    ) -> EdgePoints:
+        """Points from each frame's spots' edges (``spots_px[f][k]``, shape (N_k, 2)), their beams and own sigmas."""
         pixels, frame, beam, spot = [np.zeros((0, 2))], [], [], []
         count = 0
         for f, (edges, frame_beams) in enumerate(zip(spots_px, beams, strict=True)):
@@ -314,11 +328,13 @@ class EdgePoints:
                 spot.append(np.full(len(pixels[-1]), count))
                 count += 1
         empty = np.zeros(0, dtype=np.int64)
-        return cls(np.concatenate(pixels), *(np.concatenate(v) if v else empty for v in (frame, beam, spot)))
+        sigma = None if spot_sigma is None else np.concatenate([np.asarray(s, dtype=float) for s in spot_sigma])
+        arrays = (np.concatenate(v) if v else empty for v in (frame, beam, spot))
+        return cls(np.concatenate(pixels), *arrays, spot_sigma=sigma)
 
     def subset(self, keep: np.ndarray) -> EdgePoints:
-        """The points where ``keep`` (N,) is true, in order."""
-        return EdgePoints(self.pixels[keep], self.frame[keep], self.beam[keep], self.spot[keep])
+        """The points where ``keep`` (N,) is true, in order (the spots keep their numbers)."""
+        return EdgePoints(self.pixels[keep], self.frame[keep], self.beam[keep], self.spot[keep], self.spot_sigma)
 
 
 @dataclass(frozen=True)
@@ -823,9 +839,11 @@ class ConeSolution:
         problem = self.problem
         rows = problem.points.frame == frame
         points = problem.points.subset(rows)
+        spots, spot = np.unique(points.spot, return_inverse=True)
+        sigma = None if points.spot_sigma is None else points.spot_sigma[spots]
         one = replace(
             problem,
-            points=EdgePoints(points.pixels, np.zeros(len(points.pixels)), points.beam, points.spot),
+            points=EdgePoints(points.pixels, np.zeros(len(points.pixels)), points.beam, spot, sigma),
             frames=self.frames[frame : frame + 1],
             axis_mode=problem.axis_mode[frame : frame + 1],
             known_axes=problem.known_axes[frame : frame + 1],
@@ -981,7 +999,7 @@ def scatter_covariance(
     jacobian: np.ndarray | csr_matrix,
     residuals: np.ndarray,
     spots: np.ndarray,
-    contour_sigma: float,
+    contour_sigma: float | np.ndarray,
     size: int,
     prior_information: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1002,8 +1020,8 @@ def scatter_covariance(
     residuals : ndarray, shape (N,)
     spots : ndarray of int, shape (N,)
         The spot of each point, in order along each spot.
-    contour_sigma : float
-        Radians.
+    contour_sigma : float or ndarray
+        Radians: one for all spots, or one per spot number (indexed by ``spots``).
     size : int
         Parameters fitted (for the degrees of freedom; at least P).
     prior_information : ndarray, shape (P,), optional
@@ -1024,7 +1042,9 @@ def scatter_covariance(
     indicator = csr_matrix((np.ones(len(spots)), (which, np.arange(len(spots)))), shape=(len(labels), len(spots)))
     sums = indicator @ jacobian  # J_s^T 1 of each spot
     shifts = np.asarray(sums.toarray() if not isinstance(sums, np.ndarray) else sums) @ response
-    return covariance + contour_sigma**2 * shifts.T @ shifts, response
+    sigmas = np.broadcast_to(np.asarray(contour_sigma, dtype=float), (int(spots.max()) + 1,))[labels]
+    shifts *= sigmas[:, None]
+    return covariance + shifts.T @ shifts, response
 
 
 def _solution(
@@ -1038,9 +1058,9 @@ def _solution(
     """The fit at ``x`` with its covariance (see :class:`ConeSolution`)."""
     jacobian = problem.jacobian_matrix(x, inliers)
     information = None if priors is None else 1.0 / np.asarray(priors, dtype=float) ** 2
-    data, response = scatter_covariance(
-        jacobian, residuals[inliers], problem.points.spot[inliers], contour_sigma, problem.size, information
-    )
+    spots = problem.points.spot[inliers]
+    sigmas = np.hypot(contour_sigma, problem.points.spot_sigma)
+    data, response = scatter_covariance(jacobian, residuals[inliers], spots, sigmas, problem.size, information)
     variances = np.diag(problem.prior)
     geometry_ids = tuple(i for i in range(SHARED_SIZE) if variances[i] > 0 and i not in problem.free_shared)
     gain = np.zeros((problem.size, len(geometry_ids)))

@@ -105,6 +105,7 @@ class Eye:
         return np.array([0.0, 0.0, self.radius_mm])
 
 
+RESPONSES = ("srgb", "linear", "agx")  # besides a gamma number: how pixel values relate to light
 IDEAL_ROTATION = ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0))  # eye frame to the ideal camera's frame
 DISTORTION_COUNTS = (4, 5, 8, 12, 14)  # OpenCV's distortion vector lengths
 _CALIBRATED_KEYS = ("matrix", "distortion", "rotation", "translation_mm")
@@ -146,6 +147,13 @@ class Camera:
         ``R``, eye frame to OpenCV's camera frame (``x`` right, ``y`` down, ``z`` forward).
     translation_mm : tuple of 3 floats, or None
         ``t``: ``x_cam = R x_eye + t``, mm.
+    response : str, float or None
+        How pixel values relate to light (contract, "The frames' encoding"):
+        ``"srgb"`` (the sRGB curve), ``"linear"``, ``"agx"`` (an AgX-like tone
+        curve, :func:`spotnav.camera.encode_light`), or a number ``g``: values
+        proportional to light ``** (1 / g)``, ``g`` in [0.2, 5]. ``None``: not
+        stated; frames are read as sRGB (:attr:`pixel_response`) and
+        ``spotnav calibrate`` measures it.
     """
 
     width_px: int = 5000
@@ -157,11 +165,21 @@ class Camera:
     distortion: tuple[float, ...] | None = None
     rotation: tuple[tuple[float, float, float], ...] | None = None
     translation_mm: tuple[float, float, float] | None = None
+    response: str | float | None = None
 
     def __post_init__(self) -> None:
         for name in ("width_px", "height_px"):
             value = _integer(f"camera.{name}", getattr(self, name))
             _in_range(f"camera.{name}", value, 16, 20000)
+        if isinstance(self.response, str):
+            if self.response not in RESPONSES:
+                raise SetupError(
+                    f"camera.response = {self.response!r} is not allowed, "
+                    "allowed 'srgb', 'linear', 'agx' or a gamma number"
+                )
+        elif self.response is not None:
+            _in_range("camera.response", _number("camera.response", self.response), 0.2, 5.0)
+            object.__setattr__(self, "response", float(self.response))
         given = [name for name in _CALIBRATED_KEYS if getattr(self, name) is not None]
         if given:
             missing = [name for name in _CALIBRATED_KEYS if name not in given]
@@ -219,16 +237,23 @@ class Camera:
         distortion: np.ndarray,
         rotation: np.ndarray,
         translation_mm: np.ndarray,
+        response: str | float | None = None,
     ) -> Camera:
-        """A calibrated camera from arrays (OpenCV's ``K``, ``dist``, ``R``, ``t``)."""
+        """A calibrated camera from arrays (OpenCV's ``K``, ``dist``, ``R``, ``t``) and its response."""
         return cls(
             width_px=width_px,
             height_px=height_px,
+            response=response,
             matrix=tuple(tuple(float(v) for v in row) for row in np.asarray(matrix, dtype=float)),
             distortion=tuple(float(v) for v in np.asarray(distortion, dtype=float).ravel()),
             rotation=tuple(tuple(float(v) for v in row) for row in np.asarray(rotation, dtype=float)),
             translation_mm=tuple(float(v) for v in np.asarray(translation_mm, dtype=float).ravel()),
         )
+
+    @property
+    def pixel_response(self) -> str | float:
+        """The response frames are read with: :attr:`response`, or ``"srgb"`` when it is not stated."""
+        return "srgb" if self.response is None else self.response
 
     @property
     def is_calibrated(self) -> bool:
@@ -292,6 +317,7 @@ class Camera:
             self.distortion_coefficients[: len(self.distortion) if self.distortion is not None else 5],
             self.rotation_to_camera,
             self.translation_to_camera_mm,
+            self.response,
         )
 
     def resized(self, width_px: int, height_px: int) -> Camera:
@@ -309,6 +335,7 @@ class Camera:
             self.distortion_coefficients,
             self.rotation_to_camera,
             self.translation_to_camera_mm,
+            self.response,
         )
 
 
@@ -493,6 +520,12 @@ class Render:
         ``"retina"`` (procedural fundus) or ``"flat"`` (uniform albedo).
     texture_seed : int
         Seed of the procedural texture.
+    bit_depth : int
+        8 or 16 bits per channel.
+    tone : str
+        How light becomes pixel values: ``"camera"`` (the camera's
+        ``response``) or ``"agx"`` (a tone curve like Blender's AgX view
+        transform, which no response key describes: a sigmoid in log exposure).
     """
 
     exposure_stops: float = 0.0
@@ -502,6 +535,8 @@ class Render:
     supersampling: int = 4
     texture: str = "retina"
     texture_seed: int = 0
+    bit_depth: int = 8
+    tone: str = "camera"
 
     def __post_init__(self) -> None:
         _in_range("render.exposure_stops", _number("render.exposure_stops", self.exposure_stops), -20.0, 20.0)
@@ -512,6 +547,10 @@ class Render:
         if self.texture not in ("retina", "flat"):
             raise SetupError(f"render.texture = {self.texture!r} is not allowed, allowed 'retina' or 'flat'")
         _integer("render.texture_seed", self.texture_seed)
+        if _integer("render.bit_depth", self.bit_depth) not in (8, 16):
+            raise SetupError(f"render.bit_depth = {self.bit_depth} is not allowed, allowed 8 or 16")
+        if self.tone not in ("camera", "agx"):
+            raise SetupError(f"render.tone = {self.tone!r} is not allowed, allowed 'camera' or 'agx'")
 
 
 @dataclass(frozen=True)
@@ -537,6 +576,16 @@ class Faults:
         the spot, in full scales (above 1 it saturates); 0 = none.
     motion_blur_px : float
         Length of a linear motion blur of the spot, pixels, in a random direction.
+    dark_patch : float
+        A darker patch of fundus (pigment) under part of the spot's edge: the
+        fraction of albedo it lacks at its centre, in [0, 1]; 0 = none.
+    defocus_px : float
+        Gaussian blur of the light (defocus, before the camera's encoding), sigma in pixels.
+    frame_blur_px : float
+        Gaussian blur of the encoded frame (a camera's or codec's smoothing), sigma in pixels.
+    glow : float
+        An endo-illuminator's broad, uneven glow over about a third of the
+        frame: its peak, as a fraction of full scale on a white surface; 0 = none.
     """
 
     shaft: bool = False
@@ -545,6 +594,10 @@ class Faults:
     vessel_contrast: float = 0.8
     stray_light: float = 0.0
     motion_blur_px: float = 0.0
+    dark_patch: float = 0.0
+    defocus_px: float = 0.0
+    frame_blur_px: float = 0.0
+    glow: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.shaft, bool):
@@ -554,6 +607,10 @@ class Faults:
         _in_range("faults.vessel_contrast", _number("faults.vessel_contrast", self.vessel_contrast), 0.0, 1.0)
         _in_range("faults.stray_light", _number("faults.stray_light", self.stray_light), 0.0, 100.0)
         _in_range("faults.motion_blur_px", _number("faults.motion_blur_px", self.motion_blur_px), 0.0, 500.0)
+        _in_range("faults.dark_patch", _number("faults.dark_patch", self.dark_patch), 0.0, 1.0)
+        for name in ("defocus_px", "frame_blur_px"):
+            _in_range(f"faults.{name}", _number(f"faults.{name}", getattr(self, name)), 0.0, 100.0)
+        _in_range("faults.glow", _number("faults.glow", self.glow), 0.0, 10.0)
 
 
 GEOMETRY_PARAMETERS: tuple[str, ...] = (
@@ -873,6 +930,7 @@ height_px = 5000
 sensor_width_mm = 36.0
 focal_length_mm = 300.0
 distance_mm = 110.0           # height of the pinhole above the pole
+# response = "srgb"           # pixel values against light: "srgb" (assumed), "linear" or a gamma number
 # A calibrated camera replaces the three keys above with OpenCV's (spotnav scene --opencv FILE writes them):
 # matrix = [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]   # pixels
 # distortion = [k1, k2, p1, p2, k3]                          # 4, 5, 8, 12 or 14 values
@@ -923,6 +981,8 @@ read_noise_e = 8.0            # Gaussian read noise, electrons
 supersampling = 4             # sub-samples per pixel side along the cone's edge
 texture = "retina"            # "retina" (procedural fundus) or "flat"
 texture_seed = 0
+bit_depth = 8                 # 8 or 16 bits per channel
+tone = "camera"               # "camera" (encode by camera.response) or "agx" (a tone curve like Blender's AgX)
 
 [faults]                      # simulator only: disturbances, all off by default
 shaft = false                 # draw the shaft (instrument.shaft_diameter_mm) from the tip to the insertion point
@@ -931,4 +991,8 @@ vessels = 0                   # dark vessels drawn across the spot ...
 vessel_contrast = 0.8         # ... absorbing this fraction of the light
 stray_light = 0.0             # a second bright source beside the spot: peak in full scales (0 = none)
 motion_blur_px = 0.0          # linear motion blur of the spot, pixels
+dark_patch = 0.0              # a darker patch of fundus under part of the spot's edge: albedo it lacks (0 = none)
+defocus_px = 0.0              # Gaussian blur of the light (defocus), sigma in pixels
+frame_blur_px = 0.0           # Gaussian blur of the encoded frame (camera or codec), sigma in pixels
+glow = 0.0                    # an endo-illuminator's broad uneven glow: peak, fraction of full scale (0 = none)
 """

@@ -8,13 +8,17 @@ edge to a fraction of a pixel along rays (:func:`detect_edge_subpixel`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 from numba import njit
 
+from spotnav.camera import decoding_table, encoding_table
+
 __all__ = [
+    "EDGE_SMOOTHING_PX",
     "Spot",
     "SpotDetection",
     "SpotEdge",
@@ -22,6 +26,7 @@ __all__ = [
     "detect_edge_subpixel",
     "detect_spots_otsu",
     "edge_window_px",
+    "group_fragments",
     "linear_luminance",
     "outer_boundary",
     "rays_through_curve",
@@ -30,6 +35,12 @@ __all__ = [
 
 _MIN_CONTOUR_POINTS = 5
 _MIN_AREA_FRACTION = 0.1  # blobs smaller than this fraction of the largest are clutter
+_BACKGROUND_DISC_PX = 32  # the broad background is opened on a grid where its disc is about this wide
+_HULL_TOLERANCE_PX = 1.5  # a contour point this close to the convex hull is on the outer boundary
+_GROUP_RMS_PX = 1.5  # fragments whose outer boundaries an ellipse fits this well (or ...
+_GROUP_RMS_FRACTION = 0.03  # ... to this fraction of its radius) are one spot
+_MAX_FRAGMENTS = 32  # the largest regions grouped: 12 vessels cut a spot into some 20
+_SUSPECTS = 3  # a group that does not fit tries leaving out this many of its worst-fitting regions
 _MIN_CONTRAST_DN = 6.0
 
 
@@ -65,20 +76,35 @@ class SpotDetection:
     contrast : float
         Mean grey level of the largest region minus the background's median, in
         grey levels (0 when nothing was found).
+    fragments : int
+        How many bright regions made the spots (:func:`group_fragments`); 0:
+        one region per spot.
     """
 
     spots: tuple[Spot, ...]
     threshold: float
     contrast: float
+    fragments: int = 0
+
+    @property
+    def regions(self) -> str:
+        """What was seen, for messages: ``"4 bright regions in 3 spots"`` or ``"3 bright regions"``."""
+        regions = max(self.fragments, len(self.spots))
+        plural = "s" if regions != 1 else ""
+        spots = "" if regions == len(self.spots) else f" in {len(self.spots)} spot{'s' if len(self.spots) != 1 else ''}"
+        return f"{regions} bright region{plural}{spots}"
 
 
-def to_gray8(image: np.ndarray) -> np.ndarray:
-    """8-bit grey image from grey, RGB or RGBA, 8 or 16 bits.
+def to_gray8(image: np.ndarray, response: str | float = "srgb") -> np.ndarray:
+    """8-bit sRGB-encoded grey image (as a display shows it) from grey, RGB or RGBA, 8 or 16 bits.
 
     Parameters
     ----------
     image : ndarray, shape (H, W), (H, W, 3) or (H, W, 4), uint8 or uint16
         Colour images are RGB(A).
+    response : str or float
+        How the frame's values relate to light (``camera.response``): another
+        response than ``"srgb"`` is decoded and encoded again as sRGB.
 
     Returns
     -------
@@ -89,6 +115,9 @@ def to_gray8(image: np.ndarray) -> np.ndarray:
     ValueError
         For any other shape or dtype.
     """
+    if response != "srgb":
+        light = np.minimum(linear_luminance(image, response), 1.0)
+        return encoding_table("srgb", 8)[np.round(light * 65535.0).astype(np.uint16)]
     if image.dtype == np.uint16:
         image = (image.astype(np.float32) * (255.0 / 65535.0) + 0.5).astype(np.uint8)
     elif image.dtype != np.uint8:
@@ -108,7 +137,14 @@ def _histogram_median(histogram: np.ndarray) -> int:
     return int(np.searchsorted(cumulative, 0.5 * cumulative[-1]))
 
 
-def detect_spots_otsu(image: np.ndarray, blur_px: int = 5, min_contrast_sigma: float = 6.0) -> SpotDetection:
+def detect_spots_otsu(
+    image: np.ndarray,
+    blur_px: int = 5,
+    min_contrast_sigma: float = 6.0,
+    response: str | float = "srgb",
+    min_area_fraction: float = _MIN_AREA_FRACTION,
+    background_px: int = 0,
+) -> SpotDetection:
     """Find the bright spots as the thesis does.
 
     Parameters
@@ -120,12 +156,23 @@ def detect_spots_otsu(image: np.ndarray, blur_px: int = 5, min_contrast_sigma: f
     min_contrast_sigma : float
         A spot must stand out from the background's median by this many of the
         background's robust standard deviations (and by 6 grey levels).
+    response : str or float
+        How the frame's values relate to light (``camera.response``).
+    min_area_fraction : float
+        Regions smaller than this fraction of the largest are clutter (the
+        fragments of a spot that vessels cut need a smaller one).
+    background_px : int
+        When positive, a broad background (an endo-illuminator's glow) is
+        estimated and removed first: the grey image opened with a disc this
+        wide (wider than any spot), which keeps only what is broader.
 
     Returns
     -------
     SpotDetection
     """
-    gray = to_gray8(image)
+    gray = to_gray8(image, response)
+    if background_px > 0:
+        gray = cv2.subtract(gray, _broad_background(gray, background_px))
     blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
     threshold, binary = cv2.threshold(blurred, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
@@ -158,9 +205,167 @@ def detect_spots_otsu(image: np.ndarray, blur_px: int = 5, min_contrast_sigma: f
             ),
         )
         for i in order
-        if areas[i] >= _MIN_AREA_FRACTION * areas[largest]
+        if areas[i] >= min_area_fraction * areas[largest]
     )
     return SpotDetection(spots, float(threshold), contrast)
+
+
+def _broad_background(gray: np.ndarray, width_px: int) -> np.ndarray:
+    """What is broader than ``width_px`` in ``gray`` (uint8): its opening by a disc that wide, on a coarse grid."""
+    scale = max(1, width_px // _BACKGROUND_DISC_PX)
+    coarse = (max(gray.shape[1] // scale, 1), max(gray.shape[0] // scale, 1))
+    small = cv2.resize(gray, coarse, interpolation=cv2.INTER_AREA)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * (width_px // (2 * scale)) + 1,) * 2)
+    opened = cv2.GaussianBlur(cv2.morphologyEx(small, cv2.MORPH_OPEN, disc), (0, 0), width_px / (4.0 * scale))
+    return cv2.resize(opened, (gray.shape[1], gray.shape[0]), interpolation=cv2.INTER_LINEAR)
+
+
+def _near_hull(points_px: np.ndarray, tolerance_px: float) -> np.ndarray:
+    """Which of ``points_px`` (N, 2) lie within ``tolerance_px`` of their convex hull's boundary (N,)."""
+    hull = cv2.convexHull(points_px.astype(np.float32)).reshape(-1, 2).astype(float)
+    if len(hull) < 3:
+        return np.ones(len(points_px), dtype=bool)
+    sides = np.roll(hull, -1, axis=0) - hull
+    lengths = np.maximum(np.hypot(sides[:, 0], sides[:, 1]), 1e-9)
+    offsets = points_px[:, None, :] - hull[None, :, :]
+    # Every point lies inside the hull: its distance to the boundary is the least to a side's line.
+    distances = np.abs(sides[None, :, 0] * offsets[..., 1] - sides[None, :, 1] * offsets[..., 0]) / lengths
+    return distances.min(axis=1) <= tolerance_px
+
+
+def _ellipse_distances(points_px: np.ndarray, ellipse: tuple) -> np.ndarray:
+    """Approximate distances (N,) of ``points_px`` (N, 2) from an ellipse as ``cv2.fitEllipse`` gives it, pixels.
+
+    Along the ray from the ellipse's centre: ``(rho - 1) r / rho`` with ``rho``
+    the point's normalised radius and ``r`` its distance from the centre.
+    """
+    (cu, cv), (width, height), angle = ellipse
+    cos, sin = np.cos(np.radians(angle)), np.sin(np.radians(angle))
+    du, dv = points_px[:, 0] - cu, points_px[:, 1] - cv
+    x, y = cos * du + sin * dv, -sin * du + cos * dv
+    rho = np.hypot(x / max(width / 2.0, 1e-9), y / max(height / 2.0, 1e-9))
+    return (rho - 1.0) * np.hypot(x, y) / np.maximum(rho, 1e-9)
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values**2))) if len(values) else 0.0
+
+
+def group_fragments(
+    detection: SpotDetection, shape: tuple[int, int], gap_px: float, whole_area_px: float
+) -> SpotDetection:
+    """Bright regions grouped into spots: regions whose outer boundaries lie on one ellipse together are one spot.
+
+    A cone's spot is convex and close to an ellipse; dark vessels across it
+    cut it into fragments whose outer boundaries still lie on that ellipse,
+    while the boundaries of two spots (or of a spot and a glint beside it) do
+    not. Regions less than ``gap_px`` apart (a vessel's width) are one
+    cluster. A cluster is one spot when the ellipse fitted to its contour
+    points near its convex hull fits them within ``_GROUP_RMS_PX`` or
+    ``_GROUP_RMS_FRACTION`` of its mean radius (RMS), and at most one of its
+    regions is a whole spot by itself (:func:`_is_whole`); otherwise the region
+    whose removal fits best leaves it, until the rest fits, and the regions
+    that left are grouped alike. A grouped spot's contour is those points,
+    its area its convex hull's.
+
+    Parameters
+    ----------
+    detection : SpotDetection
+        Regions found with a small ``min_area_fraction`` (the fragments).
+    shape : tuple of int
+        The image's ``(height, width)``.
+    gap_px : float
+        The widest gap between two fragments of one spot, pixels.
+    whole_area_px : float
+        The smallest area a whole spot may have, pixels: a region this large
+        that an ellipse fits is a spot, never a fragment of one.
+
+    Returns
+    -------
+    SpotDetection
+        Spots largest first (made of the ``_MAX_FRAGMENTS`` largest regions;
+        those under ``_MIN_AREA_FRACTION`` of the largest dropped as clutter),
+        with ``fragments`` the regions found.
+    """
+    regions = detection.spots[:_MAX_FRAGMENTS]  # largest first: the rest (noise, dust) is clutter
+    if len(regions) < 2:
+        return replace(detection, fragments=len(detection.spots))
+    labels = np.zeros(shape, dtype=np.uint8)
+    for region in regions:
+        cv2.fillPoly(labels, [region.contour_px.astype(np.int32)], 255)
+    reach = max(int(np.ceil(gap_px / 2.0)), 1)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
+    _, clusters = cv2.connectedComponents(cv2.dilate(labels, kernel))
+    cluster_of = [int(clusters[int(r.contour_px[0, 1]), int(r.contour_px[0, 0])]) for r in regions]
+    spots: list[Spot] = []
+    for cluster in sorted(set(cluster_of)):
+        members = [r for r, c in zip(regions, cluster_of, strict=True) if c == cluster]
+        while members:
+            group, members = _ellipse_group(members, whole_area_px)
+            spots.append(group[0] if len(group) == 1 else _merged(group))
+    spots.sort(key=lambda spot: -spot.area_px)
+    kept = tuple(spot for spot in spots if spot.area_px >= _MIN_AREA_FRACTION * spots[0].area_px)
+    return replace(detection, spots=kept, fragments=len(detection.spots))
+
+
+def _is_whole(region: Spot, whole_area_px: float) -> bool:
+    """Whether a region is a whole spot by itself: at least ``whole_area_px`` large, and an ellipse fits its
+    whole contour (not only its outer points) within ``_GROUP_RMS_FRACTION`` of its radius, or a pixel."""
+    if region.area_px < whole_area_px or len(region.contour_px) < _MIN_CONTOUR_POINTS:
+        return False
+    ellipse = cv2.fitEllipseDirect(region.contour_px.astype(np.float32))
+    tolerance = max(1.0, _GROUP_RMS_FRACTION * 0.25 * (ellipse[1][0] + ellipse[1][1]))
+    return _rms(_ellipse_distances(region.contour_px.astype(float), ellipse)) <= tolerance
+
+
+def _ellipse_group(members: list[Spot], whole_area_px: float) -> tuple[list[Spot], list[Spot]]:
+    """The regions of ``members`` that make one spot (see :func:`group_fragments`), and the others."""
+    group, others = list(members), []
+    whole = [_is_whole(region, whole_area_px) for region in group]
+    while len(group) > 1:
+        errors = _ellipse_errors(group)
+        if errors.max() <= 1.0 and sum(whole) <= 1:
+            break
+        # Of the regions that fit worst (and the whole spots, when there are two), the one whose removal fits best.
+        suspects = set(np.argsort(-errors)[:_SUSPECTS].tolist()) | (
+            {i for i, w in enumerate(whole) if w} if sum(whole) > 1 else set()
+        )
+        worst = min(suspects, key=lambda i: _ellipse_errors(group[:i] + group[i + 1 :]).max())
+        others.append(group.pop(worst))
+        whole.pop(worst)
+    return group, others
+
+
+def _outer_points(group: Sequence[Spot]) -> tuple[np.ndarray, np.ndarray]:
+    """The group's contour points near its convex hull, and which region (index in ``group``) each came from."""
+    points = np.concatenate([spot.contour_px for spot in group]).astype(float)
+    owner = np.concatenate([np.full(len(spot.contour_px), i) for i, spot in enumerate(group)])
+    near = _near_hull(points, _HULL_TOLERANCE_PX)
+    return points[near], owner[near]
+
+
+def _ellipse_errors(group: Sequence[Spot]) -> np.ndarray:
+    """How far each region's outer points lie from the ellipse the group's fit, RMS over the tolerance (len(group),).
+
+    The tolerance is ``_GROUP_RMS_PX`` or ``_GROUP_RMS_FRACTION`` of the
+    ellipse's mean radius; a region with no outer point scores 0.
+    """
+    points, owner = _outer_points(group)
+    if len(points) < _MIN_CONTOUR_POINTS:
+        return np.full(len(group), np.inf)
+    ellipse = cv2.fitEllipseDirect(points.astype(np.float32))
+    tolerance = max(_GROUP_RMS_PX, _GROUP_RMS_FRACTION * 0.25 * (ellipse[1][0] + ellipse[1][1]))
+    distances = _ellipse_distances(points, ellipse)
+    return np.array([_rms(distances[owner == i]) for i in range(len(group))]) / tolerance
+
+
+def _merged(group: Sequence[Spot]) -> Spot:
+    """One spot from the fragments of ``group``: their outer boundary (in order around it), their hull's area."""
+    points, _ = _outer_points(group)
+    offsets = points - points.mean(axis=0)
+    points = points[np.argsort(np.arctan2(offsets[:, 1], offsets[:, 0]))]  # in order around the spot
+    hull = cv2.convexHull(points.astype(np.float32))
+    return Spot(points, float(cv2.contourArea(hull)), any(spot.touches_border for spot in group))
 
 
 def outer_boundary(spot: Spot, tolerance_px: float = 1.5) -> Spot:
@@ -190,39 +395,39 @@ def outer_boundary(spot: Spot, tolerance_px: float = 1.5) -> Spot:
     return replace(spot, contour_px=outer)
 
 
-def _srgb_to_linear(codes: np.ndarray) -> np.ndarray:
-    values = codes.astype(np.float64)
-    return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-_LINEAR_8 = _srgb_to_linear(np.arange(256) / 255.0)
-_LINEAR_16 = _srgb_to_linear(np.arange(65536) / 65535.0)
-# The LUTs are monotonic: clipping (linear >= 0.99) and brightness can be judged on the codes.
+# The decoding tables are monotonic: clipping (linear >= 0.99) and brightness can be judged on the codes.
 _FULL_SCALE_LINEAR = 0.99
-_FULL_SCALE_8 = int(np.searchsorted(_LINEAR_8, _FULL_SCALE_LINEAR))
-_FULL_SCALE_16 = int(np.searchsorted(_LINEAR_16, _FULL_SCALE_LINEAR))
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # Rec. 709, on linear values
 
 
-def linear_luminance(image: np.ndarray) -> np.ndarray:
-    """Linear luminance of an sRGB-encoded frame, full scale 1.
+def _decoding(image: np.ndarray, response: str | float) -> tuple[np.ndarray, int]:
+    """The frame's decoding table (linear light per code) and its first code at full scale."""
+    if image.dtype == np.uint8:
+        table = decoding_table(response, 8)
+    elif image.dtype == np.uint16:
+        table = decoding_table(response, 16)
+    else:
+        raise ValueError(f"image must be 8-bit or 16-bit, got {image.dtype}")
+    return table, int(np.searchsorted(table, _FULL_SCALE_LINEAR))
+
+
+def linear_luminance(image: np.ndarray, response: str | float = "srgb") -> np.ndarray:
+    """Linear luminance of a frame, full scale 1.
 
     Parameters
     ----------
     image : ndarray, shape (H, W), (H, W, 3) or (H, W, 4), uint8 or uint16
-        sRGB-encoded grey or RGB(A), as the built-in renderer and Blender's
-        standard view transform write.
+        Grey or RGB(A).
+    response : str or float
+        How its values relate to light (``camera.response``): ``"srgb"``, as
+        the built-in renderer and Blender's standard view transform write,
+        ``"linear"`` or a gamma.
 
     Returns
     -------
     ndarray, shape (H, W), float32
     """
-    if image.dtype == np.uint8:
-        linear = _LINEAR_8[image]
-    elif image.dtype == np.uint16:
-        linear = _LINEAR_16[image]
-    else:
-        raise ValueError(f"image must be 8-bit or 16-bit, got {image.dtype}")
+    linear = _decoding(image, response)[0][image]
     if linear.ndim == 2:
         return linear
     if linear.ndim == 3 and linear.shape[2] in (3, 4):
@@ -253,6 +458,12 @@ class SpotEdge:
         Fraction of the samples inside the edge, where the plateau's line is
         fitted, at full scale in the channel read: a clipped plateau lowers the
         halfway level and moves the edge outward.
+    plateau, background : float
+        The median profile's plateau and background at the edge, linear light
+        (full scale 1).
+    dark_rays : int
+        Rays on the image left out: no light's edge on them, or one that a
+        structure (a vessel, the shaft, a glint) shaped.
     """
 
     pixels: np.ndarray
@@ -262,6 +473,9 @@ class SpotEdge:
     rays: int
     contrast_to_noise: float = float("nan")
     clipped_fraction: float = 0.0
+    plateau: float = float("nan")
+    background: float = float("nan")
+    dark_rays: int = 0
 
 
 _STEP_PX = 0.5
@@ -270,20 +484,28 @@ _PROFILE_RAYS = 64  # the median profile is taken over about this many rays
 _COARSE_SAMPLES = 64
 _COARSE_RAY_STRIDE = 2
 _EDGE_MEDIAN_RAYS = 5  # coarse rays, about 9 rays
+_RAY_SPACING_PX = 1.0  # along the spot's outline: vessels leave short arcs of edge between them
+_HYSTERESIS = 0.1  # of the step: a fall through the halfway level runs from this far above it to this far below
+_LIT = 0.3  # a ray whose plateau is darker than this of the brightest rays' lies under a dark structure
+_DARK_DIP = 0.5  # of the contrast: a ray's profile that dips this deep near its edge was shaped by a dark structure
+_NEAR_DARK_WIDTHS = 0.5  # rays this many edge widths ...
+_NEAR_DARK_PX = 1.0  # ... and pixels along the edge from a dark structure's are left out
 
 
-def detect_edge_subpixel(image: np.ndarray, spot: Spot) -> SpotEdge:
+def detect_edge_subpixel(image: np.ndarray, spot: Spot, response: str | float = "srgb") -> SpotEdge:
     """Locate a spot's edge to a fraction of a pixel, independently of the light's power.
 
     Rays are cast from the centre of the spot's coarse (Otsu) boundary across
-    it, one per two pixels of perimeter (64 to 1024); see :func:`detect_edge_along_rays`.
+    it, one per ``_RAY_SPACING_PX`` of perimeter (64 to 2048); see :func:`detect_edge_along_rays`.
 
     Parameters
     ----------
     image : ndarray
-        The frame, sRGB-encoded (see :func:`linear_luminance`).
+        The frame (see :func:`linear_luminance`).
     spot : Spot
         The spot's coarse detection.
+    response : str or float
+        How the frame's values relate to light (``camera.response``).
 
     Returns
     -------
@@ -291,9 +513,9 @@ def detect_edge_subpixel(image: np.ndarray, spot: Spot) -> SpotEdge:
     """
     contour = spot.contour_px.astype(float)
     perimeter = float(cv2.arcLength(spot.contour_px.astype(np.float32).reshape(-1, 1, 2), True))
-    rays = int(np.clip(perimeter / 2.0, 64, 1024))
+    rays = int(np.clip(perimeter / _RAY_SPACING_PX, 64, 2048))
     centre, ray_angles, radii = rays_through_curve(contour, rays)
-    return detect_edge_along_rays(image, centre, ray_angles, radii)
+    return detect_edge_along_rays(image, centre, ray_angles, radii, response=response)
 
 
 def rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -324,7 +546,13 @@ def rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.
 
 
 def detect_edge_along_rays(
-    image: np.ndarray, centre: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, *, align: bool = False
+    image: np.ndarray,
+    centre: np.ndarray,
+    ray_angles: np.ndarray,
+    radii: np.ndarray,
+    *,
+    align: bool = False,
+    response: str | float = "srgb",
 ) -> SpotEdge:
     """Locate an edge to a fraction of a pixel on rays that cross it near ``radii``.
 
@@ -350,7 +578,7 @@ def detect_edge_along_rays(
     Parameters
     ----------
     image : ndarray
-        The frame, sRGB-encoded (see :func:`linear_luminance`).
+        The frame (see :func:`linear_luminance`).
     centre : ndarray, shape (2,)
         The rays' origin ``(u, v)``, pixels.
     ray_angles : ndarray, shape (R,)
@@ -360,12 +588,14 @@ def detect_edge_along_rays(
         rays are sampled within ``0.15 * mean(radii) + 8`` pixels of it.
     align : bool
         Find each ray's edge coarsely first (see above).
+    response : str or float
+        How the frame's values relate to light (``camera.response``).
 
     Returns
     -------
     SpotEdge
     """
-    crop = _linear_crop(image, centre, float(np.max(radii)) + edge_window_px(radii, align=align))
+    crop = _linear_crop(image, centre, float(np.max(radii)) + edge_window_px(radii, align=align), response)
     offset = np.asarray(centre, dtype=float) - crop.origin
     angles, radii = np.asarray(ray_angles, dtype=float), np.asarray(radii, dtype=float)
     if align:
@@ -374,11 +604,22 @@ def detect_edge_along_rays(
         wide = edge_window_px(radii, align=True)
         steps = _window_steps(wide, 2.0 * wide / _COARSE_SAMPLES)
         radii = _aligned_radii(crop.plane, offset, angles, radii, steps, wide - edge_window_px(radii))
-    edge_radii, valid, width, ratio, clipped = _read_edges(
+    edge_radii, valid, width, ratio, clipped, plateau, background, left_out = _read_edges(
         crop.plane, offset, angles, radii, _window_steps(edge_window_px(radii), _STEP_PX)
     )
     pixels = centre + edge_radii[valid, None] * np.column_stack([np.cos(angles[valid]), np.sin(angles[valid])])
-    return SpotEdge(pixels, angles[valid], width * _STEP_PX, crop.saturated, len(angles), ratio, clipped)
+    return SpotEdge(
+        pixels,
+        angles[valid],
+        width * _STEP_PX,
+        crop.saturated,
+        len(angles),
+        ratio,
+        clipped,
+        float(plateau),
+        float(background),
+        int(left_out),
+    )
 
 
 def _window_steps(half_window: float, step: float) -> np.ndarray:
@@ -394,6 +635,7 @@ def edge_window_px(radii: np.ndarray, *, align: bool = False) -> float:
 # The compiled kernels below read rays one sample at a time: a frame's few thousand samples cost
 # microseconds, where array calls would cost tens of microseconds each (tracking's budget is 5 ms).
 _SMOOTHING = cv2.getGaussianKernel(17, 2.0).ravel()  # Gaussian of 2 samples' sigma
+EDGE_SMOOTHING_PX = 2.0 * _STEP_PX  # that smoothing's sigma in pixels: every measured edge is this much wider
 
 
 @njit(cache=True)
@@ -471,8 +713,12 @@ def _fit_line(values: np.ndarray, start: float, stop: float) -> tuple[float, flo
 
 
 @njit(cache=True)
-def _full_width_at_half_maximum(values: np.ndarray) -> float:
-    """Width, in samples, of the region around the maximum above half of it."""
+def _full_width_at_half_maximum(values: np.ndarray) -> tuple[float, float]:
+    """Width, in samples, of the region around the maximum above half of it: counted, and its ends interpolated.
+
+    The count (the samples above half, the ends included) sets where the
+    edge's lines are fitted; the interpolated width measures the blur.
+    """
     peak = int(np.argmax(values))
     half = 0.5 * values[peak]
     left = peak
@@ -481,7 +727,12 @@ def _full_width_at_half_maximum(values: np.ndarray) -> float:
     right = peak
     while right < len(values) - 1 and values[right + 1] > half:
         right += 1
-    return float(right - left + 1)
+    width = float(right - left)
+    if left > 0 and values[left] > values[left - 1]:
+        width += (values[left] - half) / (values[left] - values[left - 1])
+    if right < len(values) - 1 and values[right] > values[right + 1]:
+        width += (values[right] - half) / (values[right] - values[right + 1])
+    return float(right - left + 1), width
 
 
 @njit(cache=True)
@@ -497,23 +748,108 @@ def _every_nth(selected: np.ndarray, n: int) -> np.ndarray:
 
 
 @njit(cache=True)
+def _crossing(
+    smooth: np.ndarray,
+    plateau: tuple[float, float],
+    background: tuple[float, float],
+    lo: int,
+    hi: int,
+    hysteresis: float,
+) -> tuple[float, bool]:
+    """Where ``smooth`` last falls through the level halfway between two lines, in samples [lo, hi].
+
+    The outermost fall: a dark vessel inside the spot makes a fall before the
+    light's edge, never after it. The fall runs from the last sample more
+    than ``hysteresis`` above the level to the first after it more than
+    ``hysteresis`` below; a line fitted to the samples between them crosses
+    the level at the edge (noise and texture that wiggle about the level move
+    it less than any one crossing). Returns the sample index (fractional) and
+    whether there was a fall.
+    """
+    above = -1
+    for i in range(lo, hi + 1):
+        if smooth[i] - 0.5 * (plateau[0] + background[0] + (plateau[1] + background[1]) * i) > hysteresis:
+            above = i
+    if above < 0:
+        return float(lo), False
+    below = -1
+    for i in range(above + 1, hi + 1):
+        if smooth[i] - 0.5 * (plateau[0] + background[0] + (plateau[1] + background[1]) * i) < -hysteresis:
+            below = i
+            break
+    if below < 0:
+        return float(lo), False
+    line = _fit_line(smooth, above, below)
+    slope = line[1] - 0.5 * (plateau[1] + background[1])
+    if not slope < 0:
+        return float(lo), False
+    where = (0.5 * (plateau[0] + background[0]) - line[0]) / slope
+    return min(max(where, float(above)), float(below)), True
+
+
+@njit(cache=True)
+def _deepest_dip(values: np.ndarray, start: int, bottom: int, stop: int) -> float:
+    """How deep ``values`` dips with its lowest point between samples ``bottom`` and ``stop``.
+
+    ``max_j min(max_{start<=i<=j} v_i - v_j, max_{j<=k<=stop} v_k - v_j)``
+    over ``j`` in [bottom, stop]: the most it falls and then rises again; a
+    light's edge falls without rising, a dark structure in front of it dips.
+    """
+    start, stop = max(start, 0), min(stop, len(values) - 1)
+    bottom = min(max(bottom, start), stop)
+    if stop <= start:
+        return 0.0
+    after = np.empty(stop - start + 1)
+    after[-1] = values[stop]
+    for j in range(stop - 1, start - 1, -1):
+        after[j - start] = max(after[j - start + 1], values[j])
+    before, deepest = values[start], 0.0
+    for j in range(start, stop + 1):
+        before = max(before, values[j])
+        if j >= bottom:
+            deepest = max(deepest, min(before, after[j - start]) - values[j])
+    return deepest
+
+
+@njit(cache=True)
+def _line_deviation(values: np.ndarray, line: tuple[float, float], start: float, stop: float) -> float:
+    """The largest distance of ``values`` from ``line`` (``a + b * index``) over the samples in [start, stop]."""
+    largest = 0.0
+    for i in range(max(int(np.ceil(start)), 0), min(int(np.floor(stop)), len(values) - 1) + 1):
+        largest = max(largest, abs(values[i] - line[0] - line[1] * i))
+    return largest
+
+
+@njit(cache=True)
 def _read_edges(
     plane: np.ndarray, offset: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, steps: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, float, float, float]:
+) -> tuple[np.ndarray, np.ndarray, float, float, float, float, float, int]:
     """The fine pass of :func:`detect_edge_along_rays` on rays sampled at ``steps`` (S,) around ``radii`` (R,).
 
     Returns each ray's edge distance from the centre (R,), whether it is valid
-    (R,), the edge's width in samples, the median contrast over the noise and
-    the clipped fraction of the plateau.
+    (R,), the edge's width in samples, the median contrast over the noise, the
+    clipped fraction of the plateau, the median profile's plateau and
+    background at the edge (linear light), and how many rays on the image
+    gave no edge: no fall through the halfway level, too little contrast, a
+    structure that shaped it (a plateau off its line or a dip where it falls,
+    by more than ``_DARK_DIP`` of the contrast and four noises), or next to a
+    ray under a dark structure.
     """
     rays, count = len(ray_angles), len(steps)
     profiles, finite = _sample_rays(plane, offset, ray_angles, radii, steps)
     edge_radii = np.full(rays, np.nan)
     valid = np.zeros(rays, dtype=np.bool_)
     if not finite.any():
-        return edge_radii, valid, np.nan, np.nan, 0.0
-    # The median profile, over about _PROFILE_RAYS rays, gives the edge's place and width in the window.
-    chosen = _every_nth(finite, 1 + finite.sum() // _PROFILE_RAYS)
+        return edge_radii, valid, np.nan, np.nan, 0.0, np.nan, np.nan, 0
+    # The median profile, over about _PROFILE_RAYS lit rays, gives the edge's place and width in the window: rays
+    # that vessels darken (the median of their inner half under half the brightest rays') would make it theirs,
+    # and a glint on a ray hardly moves that median.
+    inner = np.full(rays, np.nan)
+    for r in range(rays):
+        if finite[r]:
+            inner[r] = np.median(profiles[r, : count // 2])
+    lit = finite & (inner >= _LIT * np.nanpercentile(inner, 90.0))
+    chosen = _every_nth(lit, 1 + lit.sum() // _PROFILE_RAYS)
     column = np.empty(len(chosen))
     mean_profile = np.empty(count)
     for s in range(count):
@@ -525,9 +861,12 @@ def _read_edges(
     for s in range(1, count - 1):
         mean_slope[s] = 0.5 * (mean_smooth[s - 1] - mean_smooth[s + 1])
     mean_slope[0], mean_slope[-1] = mean_smooth[0] - mean_smooth[1], mean_smooth[-2] - mean_smooth[-1]
-    width = max(_full_width_at_half_maximum(mean_slope), 3.0)  # samples
+    counted, measured = _full_width_at_half_maximum(mean_slope)
+    width = max(counted, 3.0)  # samples
     middle = int(np.argmax(mean_slope))
     lo, hi = max(int(middle - width), 0), min(int(middle + width) + 1, count - 1)
+    mean_plateau = _fit_line(mean_smooth, middle - 2.5 * width, middle - 1.0 * width)
+    mean_background = _fit_line(mean_smooth, middle + 1.0 * width, middle + 2.5 * width)
     quiet = _every_nth(finite, 4)
     steps_between = np.empty(len(quiet) * (count - 1))
     for j in range(len(quiet)):
@@ -539,32 +878,44 @@ def _read_edges(
     needed = (max(int(np.floor(middle - 2.5 * width)) - 1, 0), int(np.ceil(middle + 2.5 * width)) + 2)
     for r in range(rays):
         smooth = _smooth(profiles[r], _SMOOTHING, needed[0], needed[1]) if finite[r] else mean_smooth
-        plateau_a, plateau_b = _fit_line(smooth, middle - 2.5 * width, middle - 1.0 * width)
-        background_a, background_b = _fit_line(smooth, middle + 1.0 * width, middle + 2.5 * width)
-        level_a, level_b = 0.5 * (plateau_a + background_a), 0.5 * (plateau_b + background_b)
-        # The first fall from above the halfway level to below it, searching outward within the edge.
-        first, has_fall = lo, False
-        for i in range(lo, hi):
-            if smooth[i] - level_a - level_b * i > 0 and smooth[i + 1] - level_a - level_b * (i + 1) <= 0:
-                first, has_fall = i, True
-                break
-        a = smooth[first] - level_a - level_b * first
-        b = smooth[first + 1] - level_a - level_b * (first + 1)
-        fraction = a / (a - b) if a - b > 0 else a
-        contrast[r] = (plateau_a - background_a) + (plateau_b - background_b) * first
+        plateau = _fit_line(smooth, middle - 2.5 * width, middle - 1.0 * width)
+        background = _fit_line(smooth, middle + 1.0 * width, middle + 2.5 * width)
+        step = (plateau[0] - background[0]) + (plateau[1] - background[1]) * middle
+        where, has_fall = _crossing(smooth, plateau, background, lo, hi, _HYSTERESIS * abs(step) + 2.0 * noise)
+        contrast[r] = (plateau[0] - background[0]) + (plateau[1] - background[1]) * where
         valid[r] = finite[r] and has_fall and contrast[r] > max(4.0 * noise, 1e-4)
-        edge_radii[r] = radii[r] + steps[0] + (first + fraction) * (steps[1] - steps[0])
+        # A plateau that is not flat where its line is fitted (either way: rejecting only the darker ones would
+        # keep the brighter), or a dip where the edge falls: a structure, not the light, shaped the edge.
+        allowed = _DARK_DIP * contrast[r] + 4.0 * noise
+        rough = _line_deviation(smooth, plateau, middle - 2.5 * width, middle - 1.0 * width) > allowed
+        if valid[r] and (rough or _deepest_dip(smooth, int(middle - 2.5 * width), int(lo), hi) > allowed):
+            valid[r] = False
+        edge_radii[r] = radii[r] + steps[0] + where * (steps[1] - steps[0])
+    # Next to a ray on the image without a light's edge (a vessel or the shaft over it) the edge is the dark
+    # structure's: the rays within _NEAR_DARK_WIDTHS edge widths and _NEAR_DARK_PX of it along the edge are left out.
+    spacing = 2.0 * np.pi * np.mean(radii) / rays
+    near = int(np.ceil((_NEAR_DARK_WIDTHS * width * (steps[1] - steps[0]) + _NEAR_DARK_PX) / spacing))
+    blocked = finite & ~lit
+    for r in range(rays):
+        if valid[r]:
+            for d in range(-near, near + 1):
+                if blocked[(r + d) % rays]:
+                    valid[r] = False
+                    break
     contrast_valid = contrast[_every_nth(valid, 1)]
     ratio = np.median(contrast_valid) / max(noise, 1e-6) if len(contrast_valid) else np.nan
-    plateau = range(max(int(middle - 2.5 * width), 0), min(max(int(middle - width), 1), count))
+    plateau_samples = range(max(int(middle - 2.5 * width), 0), min(max(int(middle - width), 1), count))
     clipped_samples, samples = 0, 0
     for r in range(rays):
         if finite[r]:
-            for s in plateau:
+            for s in plateau_samples:
                 clipped_samples += profiles[r, s] >= _FULL_SCALE_LINEAR
                 samples += 1
     clipped = clipped_samples / max(samples, 1)
-    return edge_radii, valid, width, ratio, clipped
+    plateau_level = mean_plateau[0] + mean_plateau[1] * middle
+    background_level = mean_background[0] + mean_background[1] * middle
+    left_out = int(np.sum(finite & ~valid))
+    return edge_radii, valid, measured, ratio, clipped, plateau_level, background_level, left_out
 
 
 @njit(cache=True)
@@ -618,7 +969,7 @@ class _LinearCrop:
     saturated: bool
 
 
-def _linear_crop(image: np.ndarray, centre: np.ndarray, reach: float) -> _LinearCrop:
+def _linear_crop(image: np.ndarray, centre: np.ndarray, reach: float, response: str | float) -> _LinearCrop:
     """Linearise the pixels within ``reach`` of ``centre`` (clipped to the image), in one channel.
 
     The channel is the brightest that never clips there (else the least
@@ -631,7 +982,7 @@ def _linear_crop(image: np.ndarray, centre: np.ndarray, reach: float) -> _Linear
     u1 = min(int(np.ceil(centre[0] + reach)) + 2, width)
     v1 = min(int(np.ceil(centre[1] + reach)) + 2, height)
     crop = image[v0:v1, u0:u1]
-    lut, full_scale = (_LINEAR_8, _FULL_SCALE_8) if image.dtype == np.uint8 else (_LINEAR_16, _FULL_SCALE_16)
+    lut, full_scale = _decoding(image, response)
     plane, saturated = _linear_channel(crop if crop.ndim == 3 else crop[:, :, None], lut, full_scale)
     return _LinearCrop(plane, (u0, v0), saturated)
 

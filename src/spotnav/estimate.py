@@ -19,6 +19,9 @@ Statuses
     The image is not the camera's size.
 ``unreliable``
     A fit was found but fails a consistency check (see ``detail``).
+``blurred``
+    A spot's edge is blurred so that where the blur acted (in light, or on
+    the encoded frame) leaves it too uncertain.
 ``uncalibrated``
     A fit was found, but the setup's geometry is known too poorly to back it:
     its uncertainty alone puts the tip's ``sigma_mm`` over the limit (calibrate).
@@ -46,6 +49,7 @@ STATUSES = (
     "occluded",
     "wrong_size",
     "unreliable",
+    "blurred",
     "uncalibrated",
     "miscalibrated",
     "unreadable",

@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from spotnav.camera import camera_depth_mm
-from spotnav.checks import check_image_size, edge_problem, judge_fit
+from spotnav.checks import check_image_size, judge_edge, judge_fit
 from spotnav.conefit import (
     PARAMETER_GROUPS,
     ConeProblem,
@@ -29,7 +29,7 @@ from spotnav.conefit import (
     fit_cones,
 )
 from spotnav.config import Setup
-from spotnav.detect import SpotDetection, detect_edge_subpixel, detect_spots_otsu, outer_boundary
+from spotnav.detect import SpotDetection, detect_edge_subpixel, detect_spots_otsu, group_fragments, outer_boundary
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import angles_between, assign_beams, normalize
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
@@ -37,6 +37,7 @@ from spotnav.thesis import ThesisSolution, solve_thesis
 
 __all__ = [
     "EdgeFrame",
+    "detect_spots",
     "localize_precise",
     "localize_precise_with_edges",
     "pose_problem",
@@ -45,8 +46,13 @@ __all__ = [
 ]
 
 _PRECISE_CONTRAST_SIGMA = 4.0
+_FRAGMENT_AREA_FRACTION = 0.005  # regions this small beside the largest may still be a piece of a spot
+_VESSEL_MM = 0.3  # the widest gap vessels (two side by side) may cut in a spot: fragments closer may be one spot
+_COARSE_BLUR_PX = 5  # the coarse detection's blur widens a vessel's gap by about its kernel
 _MAX_CLUTTER_AREA = 0.25
 _MIN_TIP_HEIGHT_MM = 1.0  # the lowest tip considered: its spot is the smallest
+_MAX_TIP_HEIGHT_MM = 10.0  # the highest: its spot is the largest
+_BACKGROUND_SPOTS = 3.0  # a background broader than this many of the largest spot's radii is not a spot
 _MIRROR_RESIDUAL_RATIO = 1.1
 _MIRROR_DISTANCE_MM = 0.1
 _SHAFT_MARGINS_MM = (0.05, 0.2)  # edge points this close to the shaft's outline are left out too
@@ -64,6 +70,8 @@ class EdgeFrame:
     ----------
     edges_px : tuple of ndarray, shape (N_k, 2)
         Each spot's sub-pixel edge points, in order around the spot.
+    edge_sigmas : tuple of float
+        Each spot's own whole-edge uncertainty, radians (a blur of unknown kind).
     beams : list of int
         The beam that made each spot.
     start : PoseEstimate
@@ -77,11 +85,39 @@ class EdgeFrame:
     """
 
     edges_px: tuple[np.ndarray, ...]
+    edge_sigmas: tuple[float, ...]
     beams: list[int]
     start: PoseEstimate
     axis: np.ndarray
     roll: float
     solution: ThesisSolution
+
+
+def detect_spots(image: np.ndarray, setup: Setup) -> SpotDetection:
+    """The coarse detection of the precise methods: fainter spots than the thesis's, fragments grouped into spots.
+
+    A background broader than any spot (an endo-illuminator's glow) is
+    removed; regions down to ``_FRAGMENT_AREA_FRACTION`` of the largest are kept, then
+    those closer than a vessel's width (``_VESSEL_MM``) are grouped by the
+    ellipse their outer boundaries share
+    (:func:`spotnav.detect.group_fragments`): the pieces of a spot that dark
+    vessels cut are one spot, and two spots stay two.
+    """
+    detection = detect_spots_otsu(
+        image,
+        min_contrast_sigma=_PRECISE_CONTRAST_SIGMA,
+        response=setup.camera.pixel_response,
+        min_area_fraction=_FRAGMENT_AREA_FRACTION,
+        background_px=int(_BACKGROUND_SPOTS * np.sqrt(largest_spot_area_px(setup) / np.pi)),
+    )
+    camera = setup.camera
+    gap_px = _VESSEL_MM * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3))) + _COARSE_BLUR_PX
+    return group_fragments(detection, image.shape[:2], gap_px, smallest_spot_area_px(setup))
+
+
+def largest_spot_area_px(setup: Setup) -> float:
+    """Area of the largest spot a beam makes with the tip ``_MAX_TIP_HEIGHT_MM`` above the retina, pixels."""
+    return smallest_spot_area_px(setup) * (_MAX_TIP_HEIGHT_MM / _MIN_TIP_HEIGHT_MM) ** 2
 
 
 def smallest_spot_area_px(setup: Setup) -> float:
@@ -104,9 +140,11 @@ def pose_problem(
     roll: float,
     *,
     through_insertion: bool = True,
+    edge_sigmas: Sequence[float] | None = None,
 ) -> ConeProblem:
-    """One frame's pose as a cone problem: its spots' edges, a start, the axis through the insertion point or free."""
-    points = EdgePoints.of_frames([edges_px], [beams])
+    """One frame's pose as a cone problem: its spots' edges (and their own whole-edge sigmas, radians), a start,
+    the axis through the insertion point or free."""
+    points = EdgePoints.of_frames([edges_px], [beams], None if edge_sigmas is None else [edge_sigmas])
     return cone_problem(
         setup,
         points,
@@ -152,13 +190,14 @@ def localize_precise_with_edges(
     wrong = check_image_size(image, setup)
     if wrong is not None:
         return wrong, None
-    detection = detect_spots_otsu(image, min_contrast_sigma=_PRECISE_CONTRAST_SIGMA)
+    detection = detect_spots(image, setup)
     beams = setup.instrument.beam_count
     spots = detection.spots
     if len(spots) > beams:
         extra = spots[beams].area_px
         if extra > _MAX_CLUTTER_AREA * spots[beams - 1].area_px or extra >= smallest_spot_area_px(setup):
-            return PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}"), None
+            detail = f"{detection.regions}, {beams} beam{'s' if beams > 1 else ''}: more spots than beams"
+            return PoseEstimate("ambiguous", spots=len(spots), detail=detail), None
         detection = replace(detection, spots=spots[:beams])
     prepared = prepare_edges(image, detection, setup, through_insertion)
     if isinstance(prepared, PoseEstimate):
@@ -194,13 +233,15 @@ def prepare_edges(
     if assignment is None:
         return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
     beams, roll = assignment
-    spot_edges = [detect_edge_subpixel(image, spot) for spot in solution.spots]
+    spot_edges = [detect_edge_subpixel(image, spot, setup.camera.pixel_response) for spot in solution.spots]
     radii_px = [np.sqrt(spot.area_px / np.pi) for spot in solution.spots]
     angle = edge_angle(setup)
-    problems = [p for p in (edge_problem(e, setup, r, angle) for e, r in zip(spot_edges, radii_px, strict=True)) if p]
+    verdicts = [judge_edge(e, setup, r, angle) for e, r in zip(spot_edges, radii_px, strict=True)]
+    problems = [v for v in verdicts if isinstance(v, tuple)]
     if problems:
-        return PoseEstimate("unreliable", spots=start.spots, detail=problems[0])
-    return EdgeFrame(tuple(e.pixels for e in spot_edges), beams, start, axis, roll, solution)
+        return PoseEstimate(problems[0][0], spots=start.spots, detail=problems[0][1])
+    sigmas = tuple(float(v) for v in verdicts)
+    return EdgeFrame(tuple(e.pixels for e in spot_edges), sigmas, beams, start, axis, roll, solution)
 
 
 def _fit_unhidden(
@@ -226,7 +267,7 @@ def _fit_unhidden(
         if isinstance(visible, PoseEstimate):
             return visible
         used = visible
-        fit = fit_cones(pose_problem(setup, used, prepared.beams, tip, axis, roll))
+        fit = fit_cones(pose_problem(setup, used, prepared.beams, tip, axis, roll, edge_sigmas=prepared.edge_sigmas))
         tip, axis, roll = fit.tip(), fit.axis(), fit.roll()
         now_hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
         if all(np.array_equal(a, b) for a, b in zip(hidden, now_hidden, strict=True)):
@@ -249,7 +290,8 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
             break
     # The cross-check continues from the constrained fit.
     tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
-    free = fit_cones(pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False))
+    sigmas = prepared.edge_sigmas
+    free = fit_cones(pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=sigmas))
     if through_insertion:
         estimate = judge_fit(constrained, setup, spots=start.spots, detail=start.detail, other_axis=free.axis())
         return _check_insertion(estimate, constrained, free, setup)
@@ -276,7 +318,11 @@ def _fit_free(prepared: EdgeFrame, setup: Setup, constrained: ConeSolution, free
     else:
         starts.append((start.tip_in_eye, prepared.axis, prepared.roll))
     fits = [
-        fit_cones(pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False))
+        fit_cones(
+            pose_problem(
+                setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=prepared.edge_sigmas
+            )
+        )
         for tip, axis, roll in starts
     ]
     inside = sorted(

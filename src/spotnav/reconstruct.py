@@ -15,7 +15,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from spotnav.geometry import normalize, rotation_about_y, rotation_about_z
@@ -29,8 +28,6 @@ __all__ = [
     "sphere_normal",
     "triangle_from_ellipse",
 ]
-
-_FIT_SCALE = 1000.0  # fitEllipse works in float32: fit in micrometres
 
 
 @dataclass(frozen=True)
@@ -53,25 +50,53 @@ class Ellipse:
 
 
 def fit_ellipse(points: np.ndarray) -> Ellipse:
-    """Least-squares ellipse through 2D points with OpenCV's ``fitEllipse``.
+    """Least-squares ellipse through 2D points, in double precision.
+
+    The direct least-squares fit (Fitzgibbon et al. 1999, in the numerically
+    stable form of Halir and Flusser 1998) on points centred and scaled to
+    unit spread, as OpenCV's ``fitEllipseDirect`` does in single precision
+    (whose axis ratio, and so the tilt, loses the square root of its
+    precision near a circle).
 
     Parameters
     ----------
     points : ndarray, shape (N, 2), N >= 5
         In any unit; the result is in the same unit.
+
+    Raises
+    ------
+    ValueError
+        For fewer than 5 points, or points no ellipse fits (collinear ones).
     """
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 2 or len(points) < 5:
         raise ValueError(f"need at least 5 points of shape (N, 2), got {points.shape}")
-    (cx, cy), (width, height), angle_deg = cv2.fitEllipse(points.astype(np.float32))
-    angle = np.radians(angle_deg)
-    width_direction = np.array([np.cos(angle), np.sin(angle)])
-    height_direction = np.array([-np.sin(angle), np.cos(angle)])
-    if width >= height:
-        major, minor, direction = width, height, width_direction
-    else:
-        major, minor, direction = height, width, height_direction
-    return Ellipse(np.array([cx, cy]), major / 2.0, minor / 2.0, direction)
+    offset = points.mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((points - offset) ** 2, axis=1)))) or 1.0
+    x, y = ((points - offset) / scale).T
+    quadratic = np.column_stack([x * x, x * y, y * y])
+    linear = np.column_stack([x, y, np.ones_like(x)])
+    s1, s2, s3 = quadratic.T @ quadratic, quadratic.T @ linear, linear.T @ linear
+    t = -np.linalg.solve(s3, s2.T)
+    m = s1 + s2 @ t
+    m = np.array([m[2] / 2.0, -m[1], m[0] / 2.0])  # the inverse of the constraint matrix, applied
+    _, vectors = np.linalg.eig(m)
+    vectors = np.real(vectors)
+    ellipse = 4.0 * vectors[0] * vectors[2] - vectors[1] ** 2 > 0
+    if not ellipse.any():
+        raise ValueError("no ellipse fits these points")
+    top = vectors[:, int(np.argmax(ellipse))]
+    a, b, c = top
+    d, e, f = t @ top
+    # The centre solves the conic's gradient; the axes are its quadratic form's at that centre.
+    quadratic_form = np.array([[a, b / 2.0], [b / 2.0, c]])
+    centre = np.linalg.solve(quadratic_form, [-d / 2.0, -e / 2.0])
+    level = -(f + 0.5 * (d * centre[0] + e * centre[1]))
+    eigenvalues, axes = np.linalg.eigh(quadratic_form / level)
+    if not np.all(eigenvalues > 0):
+        raise ValueError("no ellipse fits these points")
+    semi = 1.0 / np.sqrt(eigenvalues)  # eigh sorts ascending: the major axis first
+    return Ellipse(offset + scale * centre, scale * semi[0], scale * semi[1], axes[:, 0])
 
 
 def triangle_from_ellipse(semi_major: float, semi_minor: float, half_angle: float) -> tuple[float, float, float]:
@@ -164,10 +189,7 @@ def apex_candidates(
     # Rotate about z so the centre lies on +x, then about y so the normal is +z.
     to_plane = rotation_about_y(slope) @ to_x_axis
     in_plane = (points_in_eye - centroid) @ to_plane.T
-    fit = fit_ellipse(in_plane[:, :2] * _FIT_SCALE)
-    ellipse = Ellipse(
-        fit.center / _FIT_SCALE, fit.semi_major / _FIT_SCALE, fit.semi_minor / _FIT_SCALE, fit.major_direction
-    )
+    ellipse = fit_ellipse(in_plane[:, :2])
     alpha, s1, s2 = triangle_from_ellipse(ellipse.semi_major, ellipse.semi_minor, half_angle)
     major = np.array([*ellipse.major_direction, 0.0])
     up = np.array([0.0, 0.0, 1.0])

@@ -6,8 +6,9 @@ with Cycles' soft edge, a smoothstep in cosine space over the outer ``blend``
 fraction of the cone. Irradiance falls with the inverse square of distance and
 the cosine of incidence on a Lambertian retina with a procedural albedo, plus a
 dim ambient term. The camera integrates radiance with an exposure, adds
-Poisson-Gaussian sensor noise, applies the sRGB curve with clipping and
-quantizes to 8 bits.
+Poisson-Gaussian sensor noise, clips at full scale and encodes the light by
+the camera's response (sRGB, linear or a gamma) or an AgX-like tone curve, in
+8 or 16 bits.
 
 The eye and the camera are static: the renderer caches the albedo seen by every
 pixel, the ambient image and its noise once per world, and each frame computes
@@ -25,6 +26,7 @@ import numpy as np
 
 from spotnav.camera import (
     camera_depth_mm,
+    encoding_table,
     pixel_rays,
     pixels_behind_segment,
     project_points,
@@ -43,7 +45,7 @@ from spotnav.geometry import (
 )
 from spotnav.texture import make_texture, sample_albedo
 
-__all__ = ["Renderer", "bump_height", "exposure_gain"]
+__all__ = ["Renderer", "bump_height", "exposure_gain", "output_table"]
 
 _ROW_CHUNK = 256
 _NEWTON_STEPS = 8
@@ -64,13 +66,14 @@ def exposure_gain(exposure_stops: float) -> float:
     return 100.0 * np.pi * 2.0**exposure_stops
 
 
-def _srgb_lut() -> np.ndarray:
-    linear = np.linspace(0.0, 1.0, 65536)
-    srgb = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
-    return np.round(255.0 * srgb).astype(np.uint8)
+def output_table(tone: str, response: str | float, bits: int) -> np.ndarray:
+    """Pixel value for linear light quantized to 1/65535, shape (65536,): ``table[round(65535 * light)]``.
 
-
-_SRGB_LUT = _srgb_lut()
+    ``tone`` ``"camera"`` encodes by the camera's ``response``; ``"agx"`` by
+    the AgX-like tone curve whatever the camera says
+    (:func:`spotnav.camera.encoding_table`).
+    """
+    return encoding_table(response if tone == "camera" else "agx", bits)
 
 
 def bump_height(bumps: tuple[Bump, ...], x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -243,7 +246,7 @@ class Renderer:
         return irradiance, box
 
     def render(self, pose: InstrumentPose, *, seed: int = 0, power_w: float | None = None) -> np.ndarray:
-        """Render one 8-bit RGB frame.
+        """Render one RGB frame, 8 or 16 bits (``render.bit_depth``), encoded as ``render.tone`` says.
 
         Sensor noise is Gaussian with the Poisson variance of the signal plus the
         read noise. Its standard normals are read from a bank of independent
@@ -262,7 +265,7 @@ class Renderer:
 
         Returns
         -------
-        ndarray, shape (height_px, width_px, 3), uint8
+        ndarray, shape (height_px, width_px, 3), uint8 or uint16
             RGB.
 
         Raises
@@ -279,12 +282,13 @@ class Renderer:
         albedo, background, sigma, bank = _static_images(
             camera, self.setup.true_radius_mm, self.setup.world.surface, cfg
         )
-        patches = self._patches(pose, seed, power_w, albedo)
+        patches = self._patches(pose, seed, power_w, albedo, background)
+        table = output_table(cfg.tone, camera.pixel_response, cfg.bit_depth)
         noisy = cfg.full_well_e > 0
         if noisy:
             offset = int(np.random.default_rng(seed).integers(0, _NOISE_MARGIN))
             noise = bank[offset : offset + background.size].reshape(background.shape)
-        out = np.empty((camera.height_px, camera.width_px, 3), dtype=np.uint8)
+        out = np.empty((camera.height_px, camera.width_px, 3), dtype=table.dtype)
         scratch = np.empty((_ROW_CHUNK, camera.width_px, 3), dtype=np.float32)
         for r0 in range(0, camera.height_px, _ROW_CHUNK):
             r1 = min(r0 + _ROW_CHUNK, camera.height_px)
@@ -311,13 +315,18 @@ class Renderer:
             np.clip(linear, 0.0, 1.0, out=linear)
             linear *= np.float32(65535.0)
             linear += np.float32(0.5)
-            out[r0:r1] = _SRGB_LUT[linear.astype(np.uint16)]
+            out[r0:r1] = table[linear.astype(np.uint16)]
+        if self.setup.faults.frame_blur_px > 0:
+            out = cv2.GaussianBlur(out, (0, 0), self.setup.faults.frame_blur_px)
         return out
 
-    def _patches(self, pose: InstrumentPose, seed: int, power_w: float | None, albedo: np.ndarray) -> list[_Patch]:
+    def _patches(
+        self, pose: InstrumentPose, seed: int, power_w: float | None, albedo: np.ndarray, background: np.ndarray
+    ) -> list[_Patch]:
         """What each frame adds to the static background: the spots, then the faults' disturbances, in order."""
         faults = self.setup.faults
         rng = np.random.default_rng([seed, _FAULTS_STREAM])
+        more = np.random.default_rng([seed, _FAULTS_STREAM, 1])  # the later disturbances' own stream
         patches = []
         lit = self.irradiance_image(pose, power_w)
         if lit is not None:
@@ -327,9 +336,15 @@ class Renderer:
             ].astype(np.float32)
             if faults.vessels:
                 light *= 1.0 - faults.vessel_contrast * self._vessel_mask(light.shape[:2], faults.vessels, rng)
+            if faults.dark_patch > 0:  # darker albedo: under the spot's light and the ambient light alike
+                darker = faults.dark_patch * self._edge_patch_mask(light.shape[:2], more)
+                light *= 1.0 - darker
+                patches.append(_Patch(u0, v0, -darker * background[v0:v1, u0:u1]))
             spot = _Patch(u0, v0, light)
             if faults.motion_blur_px > 0:
                 spot = self._blurred(spot, faults.motion_blur_px, rng)
+            if faults.defocus_px > 0:
+                spot = self._defocused(spot, faults.defocus_px)
             patches.append(spot)
             centre = np.array([(u0 + u1) / 2.0, (v0 + v1) / 2.0])
             size = np.array([u1 - u0, v1 - v0], dtype=float)
@@ -343,6 +358,8 @@ class Renderer:
                 patches.append(self._blob(where, 0.04 * self.setup.camera.width_px, faults.stray_light))
         if faults.shaft and self.setup.instrument.shaft_diameter_mm > 0:
             patches.append(self._shaft(pose))
+        if faults.glow > 0:
+            patches.append(self._glow(faults.glow, albedo, more))
         return [p for p in patches if p is not None]
 
     @property
@@ -376,6 +393,43 @@ class Renderer:
         cv2.line(kernel, tuple(ends[0]), tuple(ends[1]), 1.0, 1, cv2.LINE_AA, 4)
         blurred = cv2.filter2D(grown, -1, kernel / kernel.sum(), borderType=cv2.BORDER_CONSTANT)
         return self._clipped(_Patch(patch.u0 - pad, patch.v0 - pad, blurred.reshape((*grown.shape[:2], 3))))
+
+    def _edge_patch_mask(self, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+        """A soft round patch (1 at its centre) on the edge of the spot that fills a box of ``shape``, (h, w, 1)."""
+        height, width = shape
+        half = 0.5 * min(height, width) - 4.0  # the spot's radius: the box holds it with 4 px to spare
+        angle = rng.uniform(0.0, 2.0 * np.pi)
+        centre = np.array([width, height]) / 2.0 + half * np.array([np.cos(angle), np.sin(angle)])
+        radius = rng.uniform(0.3, 0.6) * half
+        v, u = np.mgrid[:height, :width].astype(np.float32)
+        distance2 = (u - centre[0]) ** 2 + (v - centre[1]) ** 2
+        return np.exp(-2.0 * distance2 / radius**2)[..., None].astype(np.float32)
+
+    def _defocused(self, patch: _Patch, sigma_px: float) -> _Patch:
+        """The patch blurred by a Gaussian of ``sigma_px`` (grown to hold the blur): the light out of focus."""
+        pad = int(np.ceil(4.0 * sigma_px)) + 1
+        grown = cv2.copyMakeBorder(patch.linear, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+        blurred = cv2.GaussianBlur(grown, (0, 0), sigma_px, borderType=cv2.BORDER_CONSTANT)
+        return self._clipped(_Patch(patch.u0 - pad, patch.v0 - pad, blurred.reshape((*grown.shape[:2], 3))))
+
+    def _glow(self, peak: float, albedo: np.ndarray, rng: np.random.Generator) -> _Patch | None:
+        """An endo-illuminator's glow: a broad Gaussian (a third of the frame across), uneven, on the albedo."""
+        camera = self.setup.camera
+        size = np.array([camera.width_px, camera.height_px], dtype=float)
+        sigma = size.min() / 8.0
+        centre = size / 2.0 + rng.uniform(-0.25, 0.25, 2) * size
+        reach = int(np.ceil(3.0 * sigma))
+        u0, v0 = (np.floor(centre) - reach).astype(int)
+        v, u = np.mgrid[v0 : v0 + 2 * reach + 1, u0 : u0 + 2 * reach + 1].astype(np.float32)
+        uneven = cv2.resize(rng.normal(0.0, 0.3, (4, 4)).astype(np.float32), u.shape[::-1], cv2.INTER_CUBIC)
+        glow = peak * np.exp(-((u - centre[0]) ** 2 + (v - centre[1]) ** 2) / (2.0 * sigma**2)) * (1.0 + uneven)
+        patch = self._clipped(_Patch(int(u0), int(v0), np.repeat(np.maximum(glow, 0.0)[..., None], 3, axis=2)))
+        if patch is None:
+            return None
+        height, width = patch.linear.shape[:2]
+        return _Patch(
+            patch.u0, patch.v0, patch.linear * albedo[patch.v0 : patch.v0 + height, patch.u0 : patch.u0 + width]
+        )
 
     def _blob(self, centre_px: np.ndarray, sigma_px: float, peak: float) -> _Patch | None:
         """A round Gaussian light of ``peak`` full scales, grey, centred at ``centre_px``."""

@@ -45,7 +45,7 @@ def localize_thesis(image: np.ndarray, setup: Setup) -> PoseEstimate:
     wrong = check_image_size(image, setup)
     if wrong is not None:
         return wrong
-    return locate_from_spots(detect_spots_otsu(image), setup)
+    return locate_from_spots(detect_spots_otsu(image, response=setup.camera.pixel_response), setup)
 
 
 def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCandidates | None:
@@ -177,7 +177,7 @@ def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarra
     wrong = check_image_size(image, setup)
     if wrong is not None:
         raise ValueError(wrong.detail)
-    detection = detect_spots_otsu(image)
+    detection = detect_spots_otsu(image, response=setup.camera.pixel_response)
     if len(detection.spots) > setup.instrument.beam_count:
         raise ValueError(f"the calibration frame shows {len(detection.spots)} spots")
     plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from spotnav.camera import project_points
-from spotnav.checks import check_image_size, edge_problem, judge_fit
+from spotnav.checks import check_image_size, judge_edge, judge_fit
 from spotnav.conefit import edge_angle, fit_cones
 from spotnav.config import Setup
 from spotnav.detect import detect_edge_along_rays, edge_window_px, rays_through_curve
@@ -112,7 +112,7 @@ def _track_once(
     camera, instrument = setup.camera, setup.instrument
     angle = edge_angle(setup)
     axes = beam_axes(predicted.axis, instrument.beam_count, instrument.beam_tilt, predicted.roll)
-    edges = []
+    edges, sigmas = [], []
     for beam_axis in axes:
         try:
             apex_in_eye = predicted.tip_in_eye - beam_axis * instrument.light_radius_mm / np.tan(angle)
@@ -130,14 +130,15 @@ def _track_once(
         low, high = centre - reach, centre + reach
         if np.any(low < 0) or high[0] > camera.width_px - 1 or high[1] > camera.height_px - 1:
             return PoseEstimate("clipped", detail="a predicted spot reaches the image's border")
-        edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True)
+        edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True, response=camera.pixel_response)
         if len(edge.pixels) < _MIN_EDGE_RAY_FRACTION * edge.rays:
             found = f"an edge on only {100 * len(edge.pixels) / edge.rays:.0f} % of the rays near the predicted spot"
             return PoseEstimate("unreliable", detail=found)
-        problem = edge_problem(edge, setup, float(np.mean(radii)), angle)
-        if problem:
-            return PoseEstimate("unreliable", detail=problem)
+        verdict = judge_edge(edge, setup, float(np.mean(radii)), angle)
+        if isinstance(verdict, tuple):
+            return PoseEstimate(verdict[0], detail=verdict[1])
         edges.append(edge.pixels)
+        sigmas.append(verdict)
     visible = visible_edge_points(setup, edges, hidden_by_shaft(setup, edges, predicted.tip_in_eye, predicted.axis))
     if isinstance(visible, PoseEstimate):
         return visible
@@ -149,6 +150,7 @@ def _track_once(
         predicted.axis,
         predicted.roll,
         through_insertion=through_insertion,
+        edge_sigmas=sigmas,
     )
     return judge_fit(fit_cones(problem, solver="gauss-newton"), setup, spots=instrument.beam_count)
 

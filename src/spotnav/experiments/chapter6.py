@@ -329,7 +329,7 @@ def measure_ellipse(job: FrameJob) -> dict[str, object]:
     world = job.world
     surface = world.world.surface
     image = render_frame(job)
-    detection = detect_spots_otsu(image)
+    detection = detect_spots_otsu(image, response=world.camera.pixel_response)
     precise = localize_precise(image, with_true_edge(world)) if surface == "sphere" else None
     if world.instrument.beam_count == 3:
         return {"pose": locate_from_spots(detection, world, surface), "spots": len(detection.spots), "precise": precise}

@@ -73,6 +73,17 @@ def _three_beams(half_angle_deg: float) -> Callable[[Setup], Setup]:
     return _section("instrument", beam_count=3, beam_half_angle_deg=half_angle_deg)
 
 
+def _encoding(response: str | float, bits: int) -> Callable[[Setup], Setup]:
+    """Frames encoded by ``response`` in ``bits``, and the camera says so (its ``response``)."""
+
+    def change(world: Setup) -> Setup:
+        return replace(
+            world, camera=replace(world.camera, response=response), render=replace(world.render, bit_depth=bits)
+        )
+
+    return change
+
+
 def _same(world: Setup) -> Setup:
     return world
 
@@ -88,18 +99,35 @@ FAULT_CASES: tuple[FaultCase, ...] = (
     FaultCase("vessels", "2 at 0.6", _section("faults", vessels=2, vessel_contrast=0.6)),
     FaultCase("vessels", "4 at 0.8", _section("faults", vessels=4, vessel_contrast=0.8), default=True),
     FaultCase("vessels", "8 at 1.0", _section("faults", vessels=8, vessel_contrast=1.0)),
+    FaultCase("vessels", "12 at 1.0", _section("faults", vessels=12, vessel_contrast=1.0)),
+    FaultCase("dark patch", "30 % darker", _section("faults", dark_patch=0.3)),
+    FaultCase("dark patch", "50 % darker", _section("faults", dark_patch=0.5), default=True),
+    FaultCase("dark patch", "80 % darker", _section("faults", dark_patch=0.8)),
     FaultCase("second source", "0.5 fs", _section("faults", stray_light=0.5)),
     FaultCase("second source", "2 fs", _section("faults", stray_light=2.0), default=True),
     FaultCase("second source", "8 fs", _section("faults", stray_light=8.0)),
     FaultCase("motion blur", "0.5 %", _section("faults", motion_blur_px=0.005)),
     FaultCase("motion blur", "1.5 %", _section("faults", motion_blur_px=0.015), default=True),
     FaultCase("motion blur", "4 %", _section("faults", motion_blur_px=0.04)),
+    FaultCase("defocus", "1 px", _section("faults", defocus_px=1.0)),
+    FaultCase("defocus", "2 px", _section("faults", defocus_px=2.0), default=True),
+    FaultCase("defocus", "4 px", _section("faults", defocus_px=4.0)),
+    FaultCase("frame blur", "1 px", _section("faults", frame_blur_px=1.0)),
+    FaultCase("frame blur", "2 px", _section("faults", frame_blur_px=2.0), default=True),
+    FaultCase("frame blur", "4 px", _section("faults", frame_blur_px=4.0)),
+    FaultCase("encoding", "linear, 16 bits", _encoding("linear", 16)),
+    FaultCase("encoding", "gamma 1.8", _encoding(1.8, 8), default=True),
+    FaultCase("encoding", "AgX-like", _encoding("agx", 8)),
+    FaultCase("glow", "2 % of full scale", _section("faults", glow=0.02)),
+    FaultCase("glow", "5 %", _section("faults", glow=0.05), default=True),
+    FaultCase("glow", "10 %", _section("faults", glow=0.1)),
     FaultCase("sensor noise", "4x", _section("render", full_well_e=2500.0, read_noise_e=32.0)),
     FaultCase("sensor noise", "16x", _section("render", full_well_e=625.0, read_noise_e=128.0), default=True),
     FaultCase("sensor noise", "64x", _section("render", full_well_e=156.0, read_noise_e=512.0)),
     FaultCase("exposure", "-4 stops", _section("render", exposure_stops=-4.0)),
     FaultCase("exposure", "-2 stops", _section("render", exposure_stops=-2.0)),
     FaultCase("exposure", "+2 stops", _section("render", exposure_stops=2.0), default=True),
+    FaultCase("exposure", "+3 stops", _section("render", exposure_stops=3.0)),
     FaultCase("exposure", "+4 stops", _section("render", exposure_stops=4.0)),
     FaultCase("outside the image", "helix at x 4 mm", _same, shift_mm=(4.0, 0.0, 0.0)),
     FaultCase("outside the image", "at x 5 mm", _same, shift_mm=(5.0, 0.0, 0.0), default=True),

@@ -1,0 +1,31 @@
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import small_setup
+
+from spotnav.checks import blur_shift_px
+from spotnav.conefit import edge_angle
+from spotnav.detect import SpotEdge
+
+
+def _edge(width_px: float) -> SpotEdge:
+    return SpotEdge(np.zeros((0, 2)), np.zeros(0), width_px, False, 100, 100.0, 0.0, 0.5, 0.005)
+
+
+def test_a_blur_after_the_encoding_moves_the_edge_by_more_the_wider_it_is() -> None:
+    setup = small_setup(1024)
+    # The model's own edge (a 60 px spot's soft band, the pixels, the detector's smoothing) is 4.2 px wide.
+    widths = (4.0, 5.5, 7.0, 10.0)
+    shifts = [blur_shift_px(_edge(width), setup, 60.0, edge_angle(setup)) for width in widths]
+    assert shifts[0] == 0.0
+    assert 0.0 < shifts[1] < shifts[2] < shifts[3] < widths[3] / 2
+
+
+def test_a_linear_camera_s_blur_is_a_blur_in_light() -> None:
+    # Blurring linear values is blurring light: the midpoint in light stays where it was.
+    setup = small_setup(1024)
+    linear = replace(setup, camera=replace(setup.camera, response="linear"))
+    assert blur_shift_px(_edge(9.0), linear, 60.0, edge_angle(linear)) == pytest.approx(0.0, abs=0.05)
