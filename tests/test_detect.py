@@ -166,11 +166,15 @@ def test_a_spot_cut_by_vessels_is_one_spot() -> None:
 
 
 def test_separate_spots_and_a_glint_beside_a_spot_stay_apart() -> None:
-    # Two whole discs 10 px apart (closer than the gap) are two spots; a glint beside one is not part of it.
+    # Two whole discs 10 px apart (closer than the gap) are two spots; a glint 10 px beside one (within the
+    # gap too) is not part of it: the disc's outline stays the circle's.
     image = disc_image([(140, 200), (240, 200)], radius=45)
-    cv2.circle(image, (200, 120), 5, (255, 255, 255), -1)
+    cv2.circle(image, (140, 140), 5, (255, 255, 255), -1)
     grouped = _fragments_of(image, whole_area_px=1000.0)
     assert [round(s.area_px / (np.pi * 45**2), 1) for s in grouped.spots[:2]] == [1.0, 1.0]
+    for spot in grouped.spots[:2]:
+        centre = (140, 200) if spot.contour_px[:, 0].mean() < 190 else (240, 200)
+        assert np.hypot(*(spot.contour_px - centre).T).max() < 47
     assert len(grouped.spots) == 2  # the glint is clutter beside them
 
 

@@ -181,11 +181,12 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
     wrong = check_image_size(frame.image, setup)
     if wrong is not None:
         return f"{frame.name}: {wrong.detail}"
-    spots = detect_spots(frame.image, setup).spots
+    detection = detect_spots(frame.image, setup)
+    spots = detection.spots
     whole = [spot for spot in spots if not spot.touches_border]
     if len(spots) != instrument.beam_count or len(whole) != len(spots):
         cut = f", {len(spots) - len(whole)} cut by the border" if len(whole) != len(spots) else ""
-        return f"{frame.name}: {len(spots)} bright regions{cut}, {instrument.beam_count} beams"
+        return f"{frame.name}: {detection.regions}{cut}, {instrument.beam_count} beams"
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
     edges = [detect_edge_subpixel(frame.image, spot, response).pixels for spot in spots]

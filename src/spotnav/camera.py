@@ -230,7 +230,8 @@ def _agx(light: np.ndarray) -> np.ndarray:
 
 
 _AGX_LIGHT = np.concatenate([[0.0], np.logspace(-_AGX_STOPS * np.log10(2.0), 0.0, 4096)])
-_AGX_VALUES = np.maximum.accumulate(_agx(_AGX_LIGHT))
+_AGX_VALUES = _agx(_AGX_LIGHT)
+_AGX_KNOTS = np.concatenate([[0], np.flatnonzero(np.diff(_AGX_VALUES) > 0) + 1])  # strictly increasing values
 
 
 def encode_light(light: np.ndarray, response: str | float) -> np.ndarray:
@@ -258,7 +259,7 @@ def decode_values(values: np.ndarray, response: str | float) -> np.ndarray:
     if response == "linear":
         return values
     if response == "agx":
-        return np.interp(values, _AGX_VALUES, _AGX_LIGHT)
+        return np.interp(values, _AGX_VALUES[_AGX_KNOTS], _AGX_LIGHT[_AGX_KNOTS])
     return values ** float(response)
 
 
@@ -266,20 +267,24 @@ def decode_values(values: np.ndarray, response: str | float) -> np.ndarray:
 def decoding_table(response: str | float, bits: int) -> np.ndarray:
     """Linear light (full scale 1) of every ``bits``-bit pixel value under ``response``, shape (2**bits,), float32.
 
-    The inverse of :func:`encoding_table` (cached; do not modify).
+    The inverse of :func:`encoding_table` (cached, read-only).
     """
-    return decode_values(np.arange(2**bits) / (2**bits - 1), response).astype(np.float32)
+    table = decode_values(np.arange(2**bits) / (2**bits - 1), response).astype(np.float32)
+    table.setflags(write=False)
+    return table
 
 
 @lru_cache(maxsize=16)
 def encoding_table(response: str | float, bits: int) -> np.ndarray:
     """The ``bits``-bit pixel value of linear light quantized to 1/65535 under ``response``, shape (65536,).
 
-    ``table[round(65535 * light)]`` encodes ``light`` in [0, 1] (cached; do not modify).
+    ``table[round(65535 * light)]`` encodes ``light`` in [0, 1] (cached, read-only).
     """
     values = encode_light(np.linspace(0.0, 1.0, 65536), response)
     dtype = np.uint8 if bits == 8 else np.uint16
-    return np.round((2**bits - 1) * values).astype(dtype)
+    table = np.round((2**bits - 1) * values).astype(dtype)
+    table.setflags(write=False)
+    return table
 
 
 def _check_last_axis(name: str, array: np.ndarray, size: int) -> np.ndarray:

@@ -38,6 +38,7 @@ MAX_RMS_DEG = 0.1
 MAX_RMS_PX = 1.0
 _MIN_CONTRAST_TO_NOISE = 20.0  # measured: 60-500 on good frames, 5-10 where heavy noise biased the edge by 0.1 mm
 _MODEL_STEP_PX = 0.05
+_MODEL_SAMPLES = 200
 _OWN_BLUR_PX = 0.5  # sigma of every camera's own blur in light: the pixels' footprint, the rays' bilinear sampling
 _BISECTIONS = 10
 _WIDTH_TOLERANCE_PX = 0.4  # measured: unblurred edges 2.7-3.2 px wide at 256 px where the model says 2.7
@@ -77,7 +78,8 @@ def blur_shift_px(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: fl
         return 0.0
     levels, response = (edge.plateau, edge.background), setup.camera.pixel_response
     width = edge.width_px - _WIDTH_TOLERANCE_PX
-    if not width > _seen_edge(levels, band, 0.0, response)[0]:
+    unblurred = _seen_edge(levels, band, 0.0, response)
+    if not width > unblurred[0]:
         return 0.0
     low, high = 0.0, max(width, 1.0)
     if _seen_edge(levels, band, high, response)[0] < width:
@@ -85,7 +87,7 @@ def blur_shift_px(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: fl
     for _ in range(_BISECTIONS):
         middle = 0.5 * (low + high)
         low, high = (middle, high) if _seen_edge(levels, band, middle, response)[0] < width else (low, middle)
-    return abs(_seen_edge(levels, band, high, response)[1])
+    return abs(_seen_edge(levels, band, high, response)[1] - unblurred[1])
 
 
 def _seen_edge(
@@ -99,22 +101,29 @@ def _seen_edge(
     blurred by a Gaussian of ``blur_px`` (sigma), decoded and smoothed as the
     detector smooths (:data:`spotnav.detect.EDGE_SMOOTHING_PX`). Returns the
     full width at half maximum of its slope and the signed distance of its
-    half-light crossing from the band's middle (outward positive).
+    half-light crossing from the band's middle (outward positive; inf when
+    there is none).
     """
     plateau, background = levels
     reach = 0.5 * band_px + 5.0 * (blur_px + EDGE_SMOOTHING_PX + _OWN_BLUR_PX) + 1.0
-    x = np.arange(-reach, reach, _MODEL_STEP_PX)  # outward
-    t = np.clip(0.5 - x / max(band_px, _MODEL_STEP_PX), 0.0, 1.0)
+    step = max(_MODEL_STEP_PX, reach / _MODEL_SAMPLES)  # some 200 samples on each side, whatever the spot's size
+    x = np.arange(-round(reach / step), round(reach / step) + 1) * step  # outward, 0 at the band's middle
+    t = np.clip(0.5 - x / max(band_px, step), 0.0, 1.0)
     light = background + (plateau - background) * t * t * (3.0 - 2.0 * t)
-    light = gaussian_filter1d(light, _OWN_BLUR_PX / _MODEL_STEP_PX, mode="nearest")
+    light = gaussian_filter1d(light, _OWN_BLUR_PX / step, mode="nearest")
     if blur_px > 0:
-        encoded = gaussian_filter1d(encode_light(light, response), blur_px / _MODEL_STEP_PX, mode="nearest")
-        light = decode_values(encoded, response)
-    seen = gaussian_filter1d(light, EDGE_SMOOTHING_PX / _MODEL_STEP_PX, mode="nearest")
+        light = decode_values(
+            gaussian_filter1d(encode_light(light, response), blur_px / step, mode="nearest"), response
+        )
+    seen = gaussian_filter1d(light, EDGE_SMOOTHING_PX / step, mode="nearest")
     slope = -np.gradient(seen)
-    width = np.count_nonzero(slope >= 0.5 * slope.max()) * _MODEL_STEP_PX
+    width = np.count_nonzero(slope >= 0.5 * slope.max()) * step
     below = np.flatnonzero(seen <= 0.5 * (plateau + background))
-    return float(width), float(x[below[0]]) if len(below) else float("inf")
+    if not len(below) or below[0] == 0:
+        return float(width), float("inf")
+    i = below[0]  # the crossing, interpolated between samples i - 1 and i
+    level = 0.5 * (plateau + background)
+    return float(width), float(x[i - 1] + step * (seen[i - 1] - level) / (seen[i - 1] - seen[i]))
 
 
 def _soft_band_px(setup: Setup, radius_px: float, edge_angle: float) -> float:
@@ -146,7 +155,7 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     caused: a uniform shift of ``s`` pixels is an angle of about ``s`` over
     the spot's radius times the edge angle.
     """
-    if edge.contrast_to_noise < _MIN_CONTRAST_TO_NOISE:
+    if np.isfinite(edge.contrast_to_noise) and not edge.contrast_to_noise >= _MIN_CONTRAST_TO_NOISE:
         ratio = f"{edge.contrast_to_noise:.0f} times the noise, under {_MIN_CONTRAST_TO_NOISE:.0f}"
         return "unreliable", f"the edge's contrast is {ratio}"
     if len(edge.pixels) < max(MIN_EDGE_POINTS, _MIN_EDGE_FRACTION * edge.rays):

@@ -840,7 +840,7 @@ class ConeSolution:
         rows = problem.points.frame == frame
         points = problem.points.subset(rows)
         spots, spot = np.unique(points.spot, return_inverse=True)
-        sigma = None if points.spot_sigma is None else points.spot_sigma[spots]
+        sigma = points.spot_sigma[spots]
         one = replace(
             problem,
             points=EdgePoints(points.pixels, np.zeros(len(points.pixels)), points.beam, spot, sigma),
@@ -1042,7 +1042,8 @@ def scatter_covariance(
     indicator = csr_matrix((np.ones(len(spots)), (which, np.arange(len(spots)))), shape=(len(labels), len(spots)))
     sums = indicator @ jacobian  # J_s^T 1 of each spot
     shifts = np.asarray(sums.toarray() if not isinstance(sums, np.ndarray) else sums) @ response
-    sigmas = np.broadcast_to(np.asarray(contour_sigma, dtype=float), (int(spots.max()) + 1,))[labels]
+    given = np.asarray(contour_sigma, dtype=float)
+    sigmas = given[labels] if given.ndim else np.full(len(labels), float(given))
     shifts *= sigmas[:, None]
     return covariance + shifts.T @ shifts, response
 

@@ -152,8 +152,7 @@ class Camera:
         ``"srgb"`` (the sRGB curve), ``"linear"``, ``"agx"`` (an AgX-like tone
         curve, :func:`spotnav.camera.encode_light`), or a number ``g``: values
         proportional to light ``** (1 / g)``, ``g`` in [0.2, 5]. ``None``: not
-        stated; frames are read as sRGB (:attr:`pixel_response`) and
-        ``spotnav calibrate`` measures it.
+        stated; frames are read as sRGB (:attr:`pixel_response`).
     """
 
     width_px: int = 5000
@@ -524,8 +523,8 @@ class Render:
         8 or 16 bits per channel.
     tone : str
         How light becomes pixel values: ``"camera"`` (the camera's
-        ``response``) or ``"agx"`` (a tone curve like Blender's AgX view
-        transform, which no response key describes: a sigmoid in log exposure).
+        ``response``) or ``"agx"`` (the AgX-like tone curve, whatever the
+        camera's ``response`` says: a camera the setup describes wrongly).
     """
 
     exposure_stops: float = 0.0
@@ -930,7 +929,7 @@ height_px = 5000
 sensor_width_mm = 36.0
 focal_length_mm = 300.0
 distance_mm = 110.0           # height of the pinhole above the pole
-# response = "srgb"           # pixel values against light: "srgb" (assumed), "linear" or a gamma number
+# response = "srgb"           # pixel values against light: "srgb" (assumed), "linear", "agx" or a gamma
 # A calibrated camera replaces the three keys above with OpenCV's (spotnav scene --opencv FILE writes them):
 # matrix = [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]   # pixels
 # distortion = [k1, k2, p1, p2, k3]                          # 4, 5, 8, 12 or 14 values

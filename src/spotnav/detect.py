@@ -77,8 +77,8 @@ class SpotDetection:
         Mean grey level of the largest region minus the background's median, in
         grey levels (0 when nothing was found).
     fragments : int
-        How many bright regions made the spots (:func:`group_fragments`); 0:
-        one region per spot.
+        How many bright regions were found (:func:`group_fragments`); 0: not
+        grouped, one region per spot.
     """
 
     spots: tuple[Spot, ...]
@@ -368,7 +368,7 @@ def _merged(group: Sequence[Spot]) -> Spot:
     return Spot(points, float(cv2.contourArea(hull)), any(spot.touches_border for spot in group))
 
 
-def outer_boundary(spot: Spot, tolerance_px: float = 1.5) -> Spot:
+def outer_boundary(spot: Spot, tolerance_px: float = _HULL_TOLERANCE_PX) -> Spot:
     """The spot with only the convex part of its contour: the boundary that no occluder carved.
 
     A cone's spot is convex; where something opaque in front of it (the
@@ -386,10 +386,7 @@ def outer_boundary(spot: Spot, tolerance_px: float = 1.5) -> Spot:
     Spot
         With ``contour_px`` reduced (at least 5 points, else the spot unchanged).
     """
-    contour = spot.contour_px.astype(np.float32).reshape(-1, 1, 2)
-    hull = cv2.convexHull(contour)
-    distance = np.array([cv2.pointPolygonTest(hull, (float(u), float(v)), True) for u, v in spot.contour_px])
-    outer = spot.contour_px[distance <= tolerance_px]
+    outer = spot.contour_px[_near_hull(spot.contour_px.astype(float), tolerance_px)]
     if len(outer) < _MIN_CONTOUR_POINTS:
         return spot
     return replace(spot, contour_px=outer)
@@ -446,7 +443,9 @@ class SpotEdge:
     ray_angles : ndarray, shape (N,)
         Direction of each point's ray from the spot's centre, radians.
     width_px : float
-        Width of the edge: full width at half maximum of the mean intensity slope.
+        Width of the edge, pixels: full width at half maximum of the median
+        profile's slope (its ends interpolated), after the detector's
+        smoothing (:data:`EDGE_SMOOTHING_PX`).
     saturated : bool
         Whether the spot reaches full scale somewhere.
     rays : int
@@ -558,13 +557,17 @@ def detect_edge_along_rays(
 
     On each ray the linear luminance (of the brightest channel that does not
     clip) is lightly smoothed; straight lines are fitted to the plateau inside
-    the edge and to the background outside it, and the edge is put where the
-    profile crosses the level halfway between them. Levels relative to the
-    local plateau and background do not move when the power changes, and the
-    lines follow the light's fall-off across the edge. The edge's width (from
-    the median profile of all rays) sets where the lines are fitted. Rays
-    without a clear crossing give no point. Only the pixels near the rays are
-    read: the rays are the region of interest.
+    the edge and to the background outside it, and the edge is put where a
+    line through the profile's outermost fall crosses the level halfway
+    between them (:func:`_crossing`). Levels relative to the local plateau and
+    background do not move when the power changes, and the lines follow the
+    light's fall-off across the edge. The edge's width (from the median
+    profile of the lit rays) sets where the lines are fitted. Rays without a
+    clear crossing give no point, nor do rays a structure shaped (a plateau off
+    its line, a dip where the edge falls) or that lie next to a ray under a
+    dark structure; that erosion takes the rays to be evenly spaced around the
+    whole spot. Only the pixels near the rays are read: the rays are the
+    region of interest.
 
     With ``align`` the edge may lie anywhere within twice that distance of
     ``radii`` (a spot that moved since ``radii`` were predicted): a coarse
@@ -842,7 +845,7 @@ def _read_edges(
     if not finite.any():
         return edge_radii, valid, np.nan, np.nan, 0.0, np.nan, np.nan, 0
     # The median profile, over about _PROFILE_RAYS lit rays, gives the edge's place and width in the window: rays
-    # that vessels darken (the median of their inner half under half the brightest rays') would make it theirs,
+    # that vessels darken (the median of their inner half under _LIT of the brightest rays') would make it theirs,
     # and a glint on a ray hardly moves that median.
     inner = np.full(rays, np.nan)
     for r in range(rays):

@@ -38,6 +38,7 @@ from spotnav.thesis import ThesisSolution, solve_thesis
 __all__ = [
     "EdgeFrame",
     "detect_spots",
+    "largest_spot_area_px",
     "localize_precise",
     "localize_precise_with_edges",
     "pose_problem",

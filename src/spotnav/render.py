@@ -421,7 +421,9 @@ class Renderer:
         reach = int(np.ceil(3.0 * sigma))
         u0, v0 = (np.floor(centre) - reach).astype(int)
         v, u = np.mgrid[v0 : v0 + 2 * reach + 1, u0 : u0 + 2 * reach + 1].astype(np.float32)
-        uneven = cv2.resize(rng.normal(0.0, 0.3, (4, 4)).astype(np.float32), u.shape[::-1], cv2.INTER_CUBIC)
+        uneven = cv2.resize(
+            rng.normal(0.0, 0.3, (4, 4)).astype(np.float32), u.shape[::-1], interpolation=cv2.INTER_CUBIC
+        )
         glow = peak * np.exp(-((u - centre[0]) ** 2 + (v - centre[1]) ** 2) / (2.0 * sigma**2)) * (1.0 + uneven)
         patch = self._clipped(_Patch(int(u0), int(v0), np.repeat(np.maximum(glow, 0.0)[..., None], 3, axis=2)))
         if patch is None:

@@ -75,7 +75,10 @@ def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCa
         if not np.all(np.isfinite(points)):
             return None
         normal = sphere_normal(points, setup.eye.center_in_eye)
-    return apex_candidates(points, normal, setup.instrument.beam_half_angle, setup.instrument.height_correction)
+    try:
+        return apex_candidates(points, normal, setup.instrument.beam_half_angle, setup.instrument.height_correction)
+    except (ValueError, np.linalg.LinAlgError):  # no ellipse fits the contour
+        return None
 
 
 def _closest_set(candidates: list[ConeCandidates]) -> tuple[int, ...]:
