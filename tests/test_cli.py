@@ -12,6 +12,7 @@ import pytest
 
 from spotnav.cli import main
 from spotnav.config import EXAMPLE_SETUP, Setup, Uncertainty, setup_from_toml
+from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.geometry import edge_angle_of_blend
 
 
@@ -280,11 +281,27 @@ def test_track_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture
 def test_bench_prints_every_stage_and_the_tracking_ratio(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "--sizes", "512", "--frames", "6", "--full-every", "3"]) == 0
     out = capsys.readouterr().out
-    for stage in ("render", "thesis, full frame", "precise, full frame", "tracking (region of interest)"):
+    stages = ("render", "thesis, full frame", "acquisition (precise, full frame)", "tracking (region of interest)")
+    for stage in stages:
         assert f"| 512 | {stage} |" in out
     memory_row = next(line for line in out.splitlines() if line.startswith("| 512 | tracking, frames from memory |"))
-    assert memory_row.endswith("| 5 |")  # the 6 frames tracked again from memory, the first one acquired
+    assert memory_row.split("|")[6].strip() == "5"  # the 6 frames tracked again from memory, the first one acquired
+    median, p99, slowest = (float(memory_row.split("|")[i]) for i in (3, 4, 5))
+    assert median <= p99 <= slowest
+    assert "| 512 | re-acquisition after a loss |" in out  # a dark frame before the 6th: it is found again
     assert "tracking takes" in out
+
+
+def test_bench_stress_hides_the_spot_and_counts_re_acquisitions(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "--stress", "--sizes", "512", "--frames", "13", "--hide-every", "4"]) == 0
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| 512 |"))
+    cells = [cell.strip() for cell in row.split("|")[1:-1]]
+    frames, hidden, reacquired, ok = (int(cells[i]) for i in (1, 2, 3, 4))
+    assert (frames, hidden) == (13, 3)
+    assert reacquired == 3  # every dark frame is followed by a frame found again on the whole image
+    assert ok == frames - hidden
+    assert float(cells[10]) < SILENT_ERROR_MM and cells[11] == "0"  # max error, silent failures
+    assert main(["bench", "--stress", "--hide-every", "1"]) == 2
 
 
 def test_scene_from_an_opencv_calibration(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

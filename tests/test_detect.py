@@ -44,6 +44,21 @@ def test_one_disc_gives_one_round_contour() -> None:
     assert detection.contrast > 100
 
 
+@pytest.mark.parametrize("decimate", [2, 4])
+def test_a_shrunk_detection_outlines_the_disc_in_the_frame_s_pixels(decimate: int) -> None:
+    full = detect_spots_otsu(disc_image([(200, 180)])).spots[0]
+    detection = detect_spots_otsu(disc_image([(200, 180)]), decimate=decimate)
+    assert len(detection.spots) == 1
+    spot = detection.spots[0]
+    distances = np.hypot(spot.contour_px[:, 0] - 200, spot.contour_px[:, 1] - 180)
+    assert distances.mean() == pytest.approx(40, abs=0.5 * decimate)  # within half a shrunk pixel
+    # The outline runs within half a shrunk pixel of the full one: the area differs by at most that strip.
+    assert abs(spot.area_px - full.area_px) <= 2 * np.pi * 40 * 0.5 * decimate
+    assert detect_spots_otsu(disc_image([(390, 200)]), decimate=decimate).spots[0].touches_border
+    with pytest.raises(ValueError, match="decimate"):
+        detect_spots_otsu(disc_image([(200, 180)]), decimate=0)
+
+
 def test_noise_alone_is_no_spot() -> None:
     assert detect_spots_otsu(disc_image([])).spots == ()
 

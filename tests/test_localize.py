@@ -12,9 +12,10 @@ from spotnav.camera import camera_depth_mm
 from spotnav.config import Light, Setup
 from spotnav.estimate import STATUSES
 from spotnav.experiments import helix_tips, working_volume_tips
-from spotnav.experiments.chapter6 import with_true_edge
+from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.geometry import InstrumentPose, angles_between
 from spotnav.localize import localize
+from spotnav.precise import detection_decimation, smallest_spot_area_px
 from spotnav.render import Renderer
 
 
@@ -47,6 +48,16 @@ def test_soft_edge_biases_the_height_down() -> None:
 
 
 METHOD_NAMES = ["thesis", "precise", "precise-free"]
+
+
+@pytest.mark.parametrize("size_px", [256, 1024, 2048, 5000])
+def test_the_coarse_detection_shrinks_large_frames_and_keeps_the_smallest_spot_12_px_wide(size_px: int) -> None:
+    setup = thesis_world(size_px, 1)
+    decimate = detection_decimation(setup)
+    radius_px = np.sqrt(smallest_spot_area_px(setup) / np.pi) / decimate
+    assert decimate >= 1 and decimate & (decimate - 1) == 0
+    assert radius_px >= 12.0 or decimate == 1
+    assert radius_px < 24.0 or size_px < 2048  # no more than twice as wide as needed at 2048 px and over
 
 
 @pytest.mark.parametrize("method", METHOD_NAMES)

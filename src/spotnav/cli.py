@@ -31,7 +31,7 @@ from spotnav.conefit import PARAMETER_GROUPS
 from spotnav.config import EXAMPLE_SETUP, GEOMETRY_PARAMETERS, Camera, Setup
 from spotnav.estimate import PoseEstimate
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
-from spotnav.experiments.bench import bench_markdown, run_bench
+from spotnav.experiments.bench import bench_markdown, run_bench, run_stress, stress_markdown
 from spotnav.experiments.evaluate import evaluate_poses, evaluation_text, write_evaluation
 from spotnav.experiments.paths import helix_tips, resample_polyline, square_tips, tremor_offsets
 from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
@@ -248,6 +248,11 @@ def _cmd_localize(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     if any(size < 128 for size in args.sizes):
         raise UsageError(f"--sizes must be at least 128 px, got {' '.join(map(str, args.sizes))}")
+    if args.stress:
+        if args.hide_every < 2:
+            raise UsageError(f"--hide-every must be at least 2, got {args.hide_every}")
+        print(stress_markdown([run_stress(size, args.frames, args.hide_every, args.beams) for size in args.sizes]))
+        return 0
     rows = run_bench(
         args.sizes, frames=args.frames, beams=args.beams, full_every=args.full_every, memory_mb=args.memory_mb
     )
@@ -502,6 +507,13 @@ def _parser() -> argparse.ArgumentParser:
         default=4096.0,
         help="keep this much of the rendered frames to track again from memory, as from a camera (default 4096)",
     )
+    bench.add_argument(
+        "--stress",
+        action="store_true",
+        help="track the helix with its spot hidden every --hide-every frames: every frame's time, re-acquisitions, "
+        "errors and silent failures",
+    )
+    bench.add_argument("--hide-every", type=int, default=8, help="with --stress, hide the spot every Nth frame")
     bench.set_defaults(run=_cmd_bench)
 
     cal = commands.add_parser("calibrate", help="fit the geometry that frames at known poses determine")

@@ -144,6 +144,7 @@ def detect_spots_otsu(
     response: str | float = "srgb",
     min_area_fraction: float = _MIN_AREA_FRACTION,
     background_px: int = 0,
+    decimate: int = 1,
 ) -> SpotDetection:
     """Find the bright spots as the thesis does.
 
@@ -165,14 +166,26 @@ def detect_spots_otsu(
         When positive, a broad background (an endo-illuminator's glow) is
         estimated and removed first: the grey image opened with a disc this
         wide (wider than any spot), which keeps only what is broader.
+    decimate : int
+        Detect on the grey image shrunk by this factor (pixel areas averaged):
+        the coarse outlines of spots many pixels wide, at a fraction of the
+        cost. ``blur_px`` is in the shrunk image's pixels; ``background_px``
+        and the returned contours and areas are in the frame's.
 
     Returns
     -------
     SpotDetection
     """
+    if decimate < 1:
+        raise ValueError(f"decimate must be >= 1, got {decimate}")
     gray = to_gray8(image, response)
+    if decimate > 1:
+        height, width = gray.shape[0] // decimate, gray.shape[1] // decimate
+        if min(height, width) < 1:
+            raise ValueError(f"decimate {decimate} leaves no pixel of a {gray.shape[1]}x{gray.shape[0]} image")
+        gray = cv2.resize(gray[: height * decimate, : width * decimate], (width, height), interpolation=cv2.INTER_AREA)
     if background_px > 0:
-        gray = cv2.subtract(gray, _broad_background(gray, background_px))
+        gray = cv2.subtract(gray, _broad_background(gray, max(background_px // decimate, 1)))
     blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
     threshold, binary = cv2.threshold(blurred, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
@@ -189,15 +202,16 @@ def detect_spots_otsu(
     deviations = np.bincount(np.abs(levels - median), weights=histogram, minlength=256)
     spread = 1.4826 * _histogram_median(deviations)
     contrast = float(cv2.mean(blurred, mask)[0] - median)
-    min_area = max(20.0, 1e-5 * gray.size)
-    if areas[largest] < min_area or contrast < max(_MIN_CONTRAST_DN, min_contrast_sigma * spread):
+    scale = float(decimate) ** 2
+    min_area = max(20.0, 1e-5 * gray.size * scale)
+    if areas[largest] * scale < min_area or contrast < max(_MIN_CONTRAST_DN, min_contrast_sigma * spread):
         return SpotDetection((), float(threshold), contrast)
     height, width = gray.shape
     order = np.argsort(-areas)
     spots = tuple(
         Spot(
-            contour_px=contours[i].astype(float),
-            area_px=float(areas[i]),
+            contour_px=(contours[i] + 0.5) * decimate - 0.5,  # a shrunk pixel's centre in the frame's pixels
+            area_px=float(areas[i] * scale),
             touches_border=bool(
                 np.any(contours[i] == 0)
                 or np.any(contours[i][:, 0] == width - 1)

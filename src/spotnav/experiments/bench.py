@@ -1,4 +1,9 @@
-"""Speed benchmark: ms per frame of rendering, the full-frame methods and tracking, per image size."""
+"""Speed benchmark: ms per frame of rendering, the full-frame methods, tracking and re-acquisition, per image size.
+
+:func:`run_bench` times each stage on the helix; :func:`run_stress` tracks a
+helix whose spot is hidden every few frames, so that re-acquisitions are
+frequent, and reports every frame's time with the accuracy kept.
+"""
 
 from __future__ import annotations
 
@@ -10,21 +15,24 @@ import numpy as np
 from tqdm import tqdm
 
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.localize import localize
 from spotnav.render import Renderer
 from spotnav.track import Tracker
 
-__all__ = ["STAGES", "BenchRow", "bench_markdown", "run_bench"]
+__all__ = ["STAGES", "BenchRow", "StressResult", "bench_markdown", "run_bench", "run_stress", "stress_markdown"]
 
 STAGES = (
     "render",
     "thesis, full frame",
-    "precise, full frame",
+    "acquisition (precise, full frame)",
     "tracking (region of interest)",
     "tracking, frames from memory",
+    "re-acquisition after a loss",
 )
 HELIX_FRAMES = 300  # the helix's motion per frame: that of a 300-frame helix
+LOSS_EVERY = 10  # the re-acquisition stage loses the spot (a dark frame) once in this many frames, from the 6th
 
 
 @dataclass(frozen=True)
@@ -36,8 +44,8 @@ class BenchRow:
     size_px : int
     stage : str
         One of :data:`STAGES`.
-    median_ms, p99_ms : float
-        Median and 99th percentile, ms per frame.
+    median_ms, p99_ms, max_ms : float
+        Median, 99th percentile and slowest, ms per frame.
     frames : int
         Frames timed.
     """
@@ -46,7 +54,16 @@ class BenchRow:
     stage: str
     median_ms: float
     p99_ms: float
+    max_ms: float
     frames: int
+
+    @classmethod
+    def of_times(cls, size_px: int, stage: str, times_ms: Sequence[float]) -> BenchRow:
+        """The row of ``times_ms`` (at least one)."""
+        values = np.asarray(times_ms, dtype=float)
+        return cls(
+            size_px, stage, float(np.median(values)), float(np.percentile(values, 99)), float(values.max()), len(values)
+        )
 
 
 def _ms_since(start: float) -> float:
@@ -72,7 +89,9 @@ def run_bench(
     right after each frame's rendering, which leaves the caches cold (as
     decoding a video does), and then once more over the same frames kept in
     memory, back to back, as a camera hands them over (the first frames that
-    fit in ``memory_mb``).
+    fit in ``memory_mb``). A last pass over the frames in memory loses the
+    spot (a dark frame) once every ``LOSS_EVERY`` frames, from the sixth,
+    and times the frame that finds it again.
     """
     if frames < 2 or full_every < 1 or memory_mb < 0:
         raise ValueError(
@@ -102,18 +121,32 @@ def run_bench(
         tracker = Tracker(localizer)
         for image in kept:
             _time_tracking(tracker, image, times[STAGES[4]])
-        for stage, values in times.items():
-            if values:
-                median, p99 = float(np.median(values)), float(np.percentile(values, 99))
-                rows.append(BenchRow(size, stage, median, p99, len(values)))
+        tracker = Tracker(localizer)
+        for index, image in enumerate(kept):
+            if index % LOSS_EVERY == LOSS_EVERY // 2:
+                tracker.update(np.zeros_like(image))
+                start = time.perf_counter()
+                if tracker.update(image).mode == "acquired":
+                    times[STAGES[5]].append(_ms_since(start))
+            else:
+                tracker.update(image)
+        rows += [BenchRow.of_times(size, stage, values) for stage, values in times.items() if values]
     return rows
 
 
 def bench_markdown(rows: Sequence[BenchRow]) -> str:
-    """The rows as a markdown table, with tracking's ratio to the thesis method's full frame."""
-    lines = ["| size px | stage | median ms | p99 ms | frames |", "| --- | --- | --- | --- | --- |"]
-    lines += [f"| {r.size_px} | {r.stage} | {r.median_ms:.2f} | {r.p99_ms:.2f} | {r.frames} |" for r in rows]
+    """The rows as a markdown table, with each stage's median as a ratio to the thesis method's full frame."""
+    lines = [
+        "| size px | stage | median ms | p99 ms | max ms | frames | median / thesis |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
     by_key = {(r.size_px, r.stage): r for r in rows}
+    for r in rows:
+        thesis = by_key.get((r.size_px, STAGES[1]))
+        ratio = f"{r.median_ms / thesis.median_ms:.3f}" if thesis and r.stage != STAGES[0] else ""
+        lines.append(
+            f"| {r.size_px} | {r.stage} | {r.median_ms:.2f} | {r.p99_ms:.2f} | {r.max_ms:.2f} | {r.frames} | {ratio} |"
+        )
     for size in sorted({r.size_px for r in rows}):
         thesis, tracking = by_key.get((size, STAGES[1])), by_key.get((size, STAGES[3]))
         if thesis and tracking:
@@ -121,4 +154,102 @@ def bench_markdown(rows: Sequence[BenchRow]) -> str:
                 f"\n{size} px: tracking takes {tracking.median_ms / thesis.median_ms:.3f} of the thesis method's "
                 f"full-frame time ({1000 / tracking.median_ms:.0f} Hz)."
             )
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class StressResult:
+    """Tracking a helix whose spot is hidden every few frames, at one image size.
+
+    Attributes
+    ----------
+    size_px : int
+    frames : int
+        Frames tracked, the hidden ones included.
+    hidden : int
+        Frames whose spot was hidden (a dark frame).
+    reacquired : int
+        Frames that found the spot again on the whole image after a loss.
+    all_frames : BenchRow
+        Every frame's time.
+    reacquisitions : BenchRow or None
+        The re-acquisitions' times.
+    ok : int
+        Frames with a pose.
+    mean_mm, max_mm : float
+        Tip error over the frames with a pose.
+    silent : int
+        Frames with a pose more than :data:`~spotnav.experiments.faults.SILENT_ERROR_MM` off.
+    """
+
+    size_px: int
+    frames: int
+    hidden: int
+    reacquired: int
+    all_frames: BenchRow
+    reacquisitions: BenchRow | None
+    ok: int
+    mean_mm: float
+    max_mm: float
+    silent: int
+
+
+def run_stress(size: int, frames: int = 300, hide_every: int = 8, beams: int = 1) -> StressResult:
+    """Track ``frames`` consecutive helix frames, every ``hide_every``-th one dark, timing every update.
+
+    Each frame is rendered just before it is tracked (caches cold, as when
+    decoding a video); only :meth:`Tracker.update` is timed. The frame after
+    a dark one is re-acquired on the whole image.
+    """
+    if frames < 2 or hide_every < 2:
+        raise ValueError(f"frames and hide_every must be >= 2, got {frames} and {hide_every}")
+    setup = thesis_world(size, beams)
+    localizer = with_true_edge(setup)
+    renderer, tracker = Renderer(setup), Tracker(localizer)
+    poses = poses_through_insertion(helix_tips(frames), setup.instrument.insertion_in_eye)
+    renderer.render(poses[0])  # warm caches
+    times, reacquisitions, errors, hidden = [], [], [], 0
+    was_lost = False
+    for index, pose in enumerate(tqdm(poses, desc=f"stress {size} px", unit="frame", disable=None)):
+        image = renderer.render(pose, seed=index)
+        dark = index % hide_every == hide_every - 1
+        if dark:
+            image, hidden = np.zeros_like(image), hidden + 1
+        start = time.perf_counter()
+        tracked = tracker.update(image)
+        times.append(_ms_since(start))
+        if was_lost and tracked.mode == "acquired":
+            reacquisitions.append(times[-1])
+        was_lost = tracked.mode == "lost"
+        if tracked.estimate.ok and not dark:
+            errors.append(float(np.linalg.norm(tracked.estimate.tip_in_eye - pose.tip_in_eye)))
+    values = np.asarray(errors) if errors else np.array([np.nan])
+    return StressResult(
+        size,
+        frames,
+        hidden,
+        len(reacquisitions),
+        BenchRow.of_times(size, "every frame", times),
+        BenchRow.of_times(size, "re-acquisition", reacquisitions) if reacquisitions else None,
+        len(errors),
+        float(values.mean()),
+        float(values.max()),
+        int(np.sum(values > SILENT_ERROR_MM)),
+    )
+
+
+def stress_markdown(results: Sequence[StressResult]) -> str:
+    """The stress runs as a markdown table."""
+    lines = [
+        "| size px | frames | hidden | re-acquired | ok | median ms | p99 ms | max ms | re-acquisition max ms "
+        "| mean mm | max mm | silent failures |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in results:
+        every, again = r.all_frames, r.reacquisitions
+        lines.append(
+            f"| {r.size_px} | {r.frames} | {r.hidden} | {r.reacquired} | {r.ok} | {every.median_ms:.2f} "
+            f"| {every.p99_ms:.2f} | {every.max_ms:.2f} | {again.max_ms if again else float('nan'):.2f} "
+            f"| {r.mean_mm:.4f} | {r.max_mm:.4f} | {r.silent} |"
+        )
     return "\n".join(lines)
