@@ -10,7 +10,14 @@ from conftest import small_setup
 from hypothesis import given
 from hypothesis import strategies as st
 
-from spotnav.calibrate import KnownFrame, calibrate, insertion_from_axes, self_calibrate_radius
+from spotnav.calibrate import (
+    RESPONSE_CANDIDATES,
+    RESPONSE_MARGIN,
+    KnownFrame,
+    calibrate,
+    insertion_from_axes,
+    self_calibrate_radius,
+)
 from spotnav.conefit import SHARED_SIZE, setup_with_geometry
 from spotnav.config import GEOMETRY_PARAMETERS, Instrument, Setup, Uncertainty, World
 from spotnav.experiments import helix_tips, working_volume_tips
@@ -184,3 +191,22 @@ def test_self_calibration_of_the_radius_from_a_sequence() -> None:
     assert all("eye radius fitted" in e.detail for e in result.estimates)
     with pytest.raises(ValueError, match="at least 20 frames"):
         self_calibrate_radius(images[:10], setup)
+
+
+@pytest.mark.parametrize(("written", "found"), [("agx", "agx"), ("srgb", None)])
+def test_calibration_tells_a_tone_curve_from_srgb_when_the_response_is_not_stated(
+    written: str, found: str | None
+) -> None:
+    # Frames written through AgX (spots high on its shoulder) or sRGB; the setup does not say which.
+    world = small_setup(1024)
+    world = replace(world, camera=replace(world.camera, response=written))
+    setup = _only(replace(world, camera=replace(world.camera, response=None)), edge_half_angle_deg=0.3)
+    result = calibrate(known_frames(world, axes=True), setup)
+    assert result.setup.camera.response == found
+    spreads = dict(result.responses)
+    assert tuple(spreads) == RESPONSE_CANDIDATES
+    better = spreads["agx"] < (1.0 - RESPONSE_MARGIN) * spreads["srgb"]
+    assert better == (found == "agx")
+    # A stated response is the camera's: nothing is estimated.
+    stated = calibrate(known_frames(world, count=4, axes=True), replace(setup, camera=world.camera))
+    assert stated.responses == () and stated.setup.camera.response == written

@@ -7,11 +7,13 @@ from conftest import small_setup
 from hypothesis import given
 from hypothesis import strategies as st
 
-from spotnav.camera import unproject_pixels_to_sphere
+from spotnav.camera import decoding_table, encoding_table, unproject_pixels_to_sphere
 from spotnav.config import Setup
 from spotnav.detect import (
     _SMOOTHING,
     SpotDetection,
+    _decoding,
+    _linear_crop,
     _smooth,
     detect_edge_along_rays,
     detect_edge_subpixel,
@@ -83,6 +85,18 @@ def test_bit_depths_and_channels_agree() -> None:
     rgba = np.dstack([rgb, np.full(grey.shape, 255, np.uint8)])
     for variant in (grey, sixteen, rgba):
         np.testing.assert_array_equal(detect_spots_otsu(variant).spots[0].contour_px, reference)
+
+
+def test_a_tone_curve_clips_where_it_writes_full_scale_and_another_channel_is_read() -> None:
+    # AgX-like writes light at full scale as 242 of 255: a red channel there is clipped, green is read.
+    light = np.array([1.0, 0.25, 0.1])
+    codes = encoding_table("agx", 8)[np.round(light * 65535).astype(int)]
+    assert codes[0] == _decoding(codes[None], "agx")[1] == encoding_table("agx", 8)[-1] < 255
+    image = np.broadcast_to(codes, (20, 20, 3)).copy()
+    crop = _linear_crop(image, np.array([10.0, 10.0]), 5.0, "agx")
+    assert crop.saturated and crop.full_scale == decoding_table("agx", 8)[codes[0]]
+    np.testing.assert_array_equal(crop.plane, decoding_table("agx", 8)[codes[1]])
+    assert _decoding(codes[None], "srgb")[1] == 254  # sRGB: the first code that decodes to 0.99
 
 
 def test_to_gray8_rejects_other_types() -> None:

@@ -24,6 +24,16 @@ is refused.
 With known axes (``known.csv``'s ``dir_x, dir_y, dir_z``) the insertion point
 is where the axes' lines meet (least squares); without, the images determine
 it, if they can.
+
+When the setup does not state the camera's response (``camera.response``),
+the frames are calibrated through each of :data:`RESPONSE_CANDIDATES`, and
+the reading whose spots agree best with the calibrated edge model (the RMS of
+their mean offsets from their cones) is kept if it beats sRGB's by
+:data:`RESPONSE_MARGIN`: a wrong response moves each spot's halfway level by a
+fraction of its step that depends on its brightness, so spots of different
+brightness disagree. Power laws differ little that way (read through another
+gamma, a spot on a dark background moves by the same fraction of its step,
+which the edge angle absorbs): a linear or gamma camera must be stated.
 """
 
 from __future__ import annotations
@@ -53,7 +63,7 @@ from spotnav.conefit import (
     setup_with_geometry,
 )
 from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup
-from spotnav.detect import detect_edge_subpixel
+from spotnav.detect import SpotEdge, detect_edge_subpixel
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import assign_beams, normalize
 from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges
@@ -64,6 +74,8 @@ __all__ = [
     "MIN_FRAMES",
     "MIN_FRAMES_FOR_SELF_CALIBRATION",
     "PRIORITY",
+    "RESPONSE_CANDIDATES",
+    "RESPONSE_MARGIN",
     "Calibration",
     "HeightCorrection",
     "KnownFrame",
@@ -94,6 +106,13 @@ PRIORITY: tuple[int, ...] = (
 )
 _MAX_AXES_CONDITION = 1e6  # the known axes' lines must cross at an angle (1e6: some 0.1 deg apart)
 _MIN_INLIER_FRACTION = 0.5
+# The responses told apart when the setup states none: sRGB (the default reading) and a tone curve. Power laws
+# (linear, gammas) are not tried: on a textured retina a reading that compresses the texture makes the spots agree
+# better whatever the camera wrote (measured on spotnav's renderer: sRGB frames agree best read as linear).
+RESPONSE_CANDIDATES: tuple[str | float, ...] = ("srgb", "agx")
+# A reading's spots must agree this much better than sRGB's to replace it. Measured: AgX frames read as AgX agree
+# 23-72 % better (the Cycles sets) and 84 % (spotnav's renderer); sRGB frames read as AgX agree worse.
+RESPONSE_MARGIN = 0.15
 
 
 @dataclass(frozen=True)
@@ -150,6 +169,10 @@ class Calibration:
         Edge points used (inliers).
     skipped : tuple of str
         Frames left out, with the reason.
+    responses : tuple of (str or float, float)
+        When the setup stated no response: each candidate tried and the RMS
+        of its spots' mean offsets from their cones after its calibration,
+        pixels (NaN: its calibration failed); empty otherwise.
     """
 
     setup: Setup
@@ -164,6 +187,7 @@ class Calibration:
     frames: int
     points: int
     skipped: tuple[str, ...] = ()
+    responses: tuple[tuple[str | float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -173,6 +197,7 @@ class _FrameEdges:
     tip: np.ndarray
     axis: np.ndarray
     roll: float
+    spot_edges: list[SpotEdge]
 
 
 def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
@@ -189,7 +214,8 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
         return f"{frame.name}: {detection.regions}{cut}, {instrument.beam_count} beams"
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
-    edges = [detect_edge_subpixel(frame.image, spot, response).pixels for spot in spots]
+    spot_edges = [detect_edge_subpixel(frame.image, spot, response) for spot in spots]
+    edges = [edge.pixels for edge in spot_edges]
     beams, roll = [0], 0.0
     if len(spots) > 1:
         centres = np.array(
@@ -200,7 +226,7 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
         if assignment is None:
             return f"{frame.name}: cannot tell which spot each beam made"
         beams, roll = assignment
-    return _FrameEdges(edges, beams, tip, axis, roll)
+    return _FrameEdges(edges, beams, tip, axis, roll, spot_edges)
 
 
 def insertion_from_axes(tips_in_eye: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -331,6 +357,56 @@ def calibrate(
     both = sorted(set(fit) & set(fix))
     if both:
         raise ValueError(f"{both[0]} cannot be both fitted and fixed")
+    if setup.camera.response is not None:
+        return _finish(_fit_geometry(frames, setup, fit, fix))
+    fits: list[_GeometryFit | None] = []
+    spreads: list[float] = []
+    for response in RESPONSE_CANDIDATES:
+        try:
+            fitted = _fit_geometry(frames, replace(setup, camera=replace(setup.camera, response=response)), fit, fix)
+            fits.append(fitted)
+            ok = fitted.solution.inliers.mean() >= _MIN_INLIER_FRACTION
+            spreads.append(fitted.spot_spread_px() if ok else np.nan)
+        except ValueError:  # no usable frames, or a geometry out of its allowed ranges: not this response
+            if response == RESPONSE_CANDIDATES[0]:
+                raise  # the default reading's own reason
+            fits.append(None)
+            spreads.append(np.nan)
+    best = int(np.nanargmin(spreads)) if np.any(np.isfinite(spreads)) else 0
+    if np.isfinite(spreads[0]) and not spreads[best] < (1.0 - RESPONSE_MARGIN) * spreads[0]:
+        best = 0
+    chosen = fits[best]
+    assert chosen is not None
+    if best == 0:  # not told apart from the default reading: the response stays unstated
+        chosen = replace(chosen, setup=replace(chosen.setup, camera=replace(chosen.setup.camera, response=None)))
+    responses = tuple((r, float(v)) for r, v in zip(RESPONSE_CANDIDATES, spreads, strict=True))
+    return replace(_finish(chosen), responses=responses)
+
+
+@dataclass(frozen=True)
+class _GeometryFit:
+    """One calibration's fit before its frame-edge sigma and check (:func:`_fit_geometry`)."""
+
+    setup: Setup
+    edges: list[_FrameEdges]
+    axis_mode: str
+    chosen: list[int]
+    solution: ConeSolution
+    rms_before: float
+    reasons: dict[int, str]
+    lines: tuple[np.ndarray, np.ndarray, float] | None
+    skipped: list[str]
+
+    def spot_spread_px(self) -> float:
+        """RMS of the spots' mean offsets from their cones after the fit, pixels: how well they agree."""
+        problem, inliers = self.solution.problem, self.solution.inliers
+        residuals = _residuals_px(setup_with_geometry(self.setup, self.solution.shared), self.solution)
+        offsets = [residuals[(problem.points.spot == s) & inliers].mean() for s in np.unique(problem.points.spot)]
+        return float(np.sqrt(np.mean(np.square(offsets))))
+
+
+def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str], fix: Sequence[str]) -> _GeometryFit:
+    """The edges read with the setup's response, the parameters the frames determine, and the last fit."""
     edges, skipped = [], []
     for frame in frames:
         result = _frame_edges(frame, setup)
@@ -380,8 +456,22 @@ def calibrate(
     start = np.where(np.isin(np.arange(SHARED_SIZE), chosen), held.shared, 0.0)
     solution = fit_cones(_problem(setup, edges, axis_mode, chosen, start))
     rms_before = _rms(before.residuals(before.start), solution.inliers)
-    frame_edge = _frame_edge_sigma(setup, edges, axis_mode, chosen, solution.shared)
-    return _calibration(setup, solution, chosen, rms_before, frame_edge, reasons, lines, skipped)
+    return _GeometryFit(setup, edges, axis_mode, chosen, solution, rms_before, reasons, lines, skipped)
+
+
+def _finish(fitted: _GeometryFit) -> Calibration:
+    """The calibration of a fit: its frame-edge sigma, its check and its covariance."""
+    frame_edge = _frame_edge_sigma(fitted.setup, fitted.edges, fitted.axis_mode, fitted.chosen, fitted.solution.shared)
+    return _calibration(
+        fitted.setup,
+        fitted.solution,
+        fitted.chosen,
+        fitted.rms_before,
+        frame_edge,
+        fitted.reasons,
+        fitted.lines,
+        fitted.skipped,
+    )
 
 
 def _frame_edge_sigma(
@@ -413,6 +503,13 @@ def _rms(residuals: np.ndarray, inliers: np.ndarray) -> float:
     return float(np.sqrt(np.mean(residuals[inliers] ** 2)))
 
 
+def _residuals_px(calibrated: Setup, solution: ConeSolution) -> np.ndarray:
+    """Each edge point's distance from its cone in ``calibrated``'s camera, pixels (N,)."""
+    problem = solution.problem
+    points = unproject_pixels_to_sphere(calibrated.camera, problem.points.pixels, calibrated.eye.radius_mm)
+    return residuals_px(calibrated.camera, points, problem.frames[problem.points.frame, :3], solution.residuals)
+
+
 def _calibration(
     setup: Setup,
     solution: ConeSolution,
@@ -427,9 +524,7 @@ def _calibration(
     problem, inliers = solution.problem, solution.inliers
     rms_after = _rms(solution.residuals, inliers)
     calibrated = setup_with_geometry(setup, solution.shared)
-    points = unproject_pixels_to_sphere(calibrated.camera, problem.points.pixels, calibrated.eye.radius_mm)
-    tips = problem.frames[problem.points.frame, :3]
-    rms_px = float(np.sqrt(np.mean(residuals_px(calibrated.camera, points, tips, solution.residuals)[inliers] ** 2)))
+    rms_px = float(np.sqrt(np.mean(_residuals_px(calibrated, solution)[inliers] ** 2)))
     if inliers.mean() < _MIN_INLIER_FRACTION or (np.degrees(rms_after) > MAX_RMS_DEG and rms_px > MAX_RMS_PX):
         raise ValueError(
             f"the calibrated model does not fit the frames: RMS {np.degrees(rms_after):.3f} deg ({rms_px:.2f} px) "

@@ -412,14 +412,20 @@ _LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # Rec. 709, o
 
 
 def _decoding(image: np.ndarray, response: str | float) -> tuple[np.ndarray, int]:
-    """The frame's decoding table (linear light per code) and its first code at full scale."""
+    """The frame's decoding table (linear light per code) and its first code at full scale.
+
+    Full scale is the code that light at full scale is written as (a tone
+    curve may never reach the top code), or the first that decodes to
+    ``_FULL_SCALE_LINEAR`` if that comes first.
+    """
     if image.dtype == np.uint8:
-        table = decoding_table(response, 8)
+        bits = 8
     elif image.dtype == np.uint16:
-        table = decoding_table(response, 16)
+        bits = 16
     else:
         raise ValueError(f"image must be 8-bit or 16-bit, got {image.dtype}")
-    return table, int(np.searchsorted(table, _FULL_SCALE_LINEAR))
+    table = decoding_table(response, bits)
+    return table, min(int(np.searchsorted(table, _FULL_SCALE_LINEAR)), int(encoding_table(response, bits)[-1]))
 
 
 def linear_luminance(image: np.ndarray, response: str | float = "srgb") -> np.ndarray:
@@ -622,7 +628,7 @@ def detect_edge_along_rays(
         steps = _window_steps(wide, 2.0 * wide / _COARSE_SAMPLES)
         radii = _aligned_radii(crop.plane, offset, angles, radii, steps, wide - edge_window_px(radii))
     edge_radii, valid, width, ratio, clipped, plateau, background, left_out = _read_edges(
-        crop.plane, offset, angles, radii, _window_steps(edge_window_px(radii), _STEP_PX)
+        crop.plane, offset, angles, radii, _window_steps(edge_window_px(radii), _STEP_PX), crop.full_scale
     )
     pixels = centre + edge_radii[valid, None] * np.column_stack([np.cos(angles[valid]), np.sin(angles[valid])])
     return SpotEdge(
@@ -839,13 +845,18 @@ def _line_deviation(values: np.ndarray, line: tuple[float, float], start: float,
 
 @njit(cache=True)
 def _read_edges(
-    plane: np.ndarray, offset: np.ndarray, ray_angles: np.ndarray, radii: np.ndarray, steps: np.ndarray
+    plane: np.ndarray,
+    offset: np.ndarray,
+    ray_angles: np.ndarray,
+    radii: np.ndarray,
+    steps: np.ndarray,
+    full_scale: float,
 ) -> tuple[np.ndarray, np.ndarray, float, float, float, float, float, int]:
     """The fine pass of :func:`detect_edge_along_rays` on rays sampled at ``steps`` (S,) around ``radii`` (R,).
 
     Returns each ray's edge distance from the centre (R,), whether it is valid
     (R,), the edge's width in samples, the median contrast over the noise, the
-    clipped fraction of the plateau, the median profile's plateau and
+    clipped fraction of the plateau (at ``full_scale`` light or over), the median profile's plateau and
     background at the edge (linear light), and how many rays on the image
     gave no edge: no fall through the halfway level, too little contrast, a
     structure that shaped it (a plateau off its line or a dip where it falls,
@@ -926,7 +937,7 @@ def _read_edges(
     for r in range(rays):
         if finite[r]:
             for s in plateau_samples:
-                clipped_samples += profiles[r, s] >= _FULL_SCALE_LINEAR
+                clipped_samples += profiles[r, s] >= full_scale
                 samples += 1
     clipped = clipped_samples / max(samples, 1)
     plateau_level = mean_plateau[0] + mean_plateau[1] * middle
@@ -984,6 +995,7 @@ class _LinearCrop:
     plane: np.ndarray
     origin: tuple[int, int]
     saturated: bool
+    full_scale: float
 
 
 def _linear_crop(image: np.ndarray, centre: np.ndarray, reach: float, response: str | float) -> _LinearCrop:
@@ -991,8 +1003,10 @@ def _linear_crop(image: np.ndarray, centre: np.ndarray, reach: float, response: 
 
     The channel is the brightest that never clips there (else the least
     clipped one): a clipped channel bends the profile where it clips, while
-    another channel still holds the edge's true shape. ``saturated`` tells
-    whether any channel clipped.
+    another channel still holds the edge's true shape. A tone curve may write
+    full scale below the top code (AgX-like: 242 of 255), and that code is
+    where it clips. ``saturated`` tells whether any channel clipped;
+    ``full_scale`` is the light at the first code at full scale.
     """
     height, width = image.shape[:2]
     u0, v0 = max(int(np.floor(centre[0] - reach)) - 1, 0), max(int(np.floor(centre[1] - reach)) - 1, 0)
@@ -1001,7 +1015,7 @@ def _linear_crop(image: np.ndarray, centre: np.ndarray, reach: float, response: 
     crop = image[v0:v1, u0:u1]
     lut, full_scale = _decoding(image, response)
     plane, saturated = _linear_channel(crop if crop.ndim == 3 else crop[:, :, None], lut, full_scale)
-    return _LinearCrop(plane, (u0, v0), saturated)
+    return _LinearCrop(plane, (u0, v0), saturated, float(lut[full_scale]))
 
 
 @njit(cache=True)
