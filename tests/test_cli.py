@@ -300,7 +300,7 @@ def test_bench_stress_hides_the_spot_and_counts_re_acquisitions(capsys: pytest.C
     assert (frames, hidden) == (13, 3)
     assert reacquired == 3  # every dark frame is followed by a frame found again on the whole image
     assert ok == frames - hidden
-    assert float(cells[10]) < SILENT_ERROR_MM and cells[11] == "0"  # max error, silent failures
+    assert float(cells[12]) < SILENT_ERROR_MM and cells[13] == "0"  # max error, silent failures
     assert main(["bench", "--stress", "--hide-every", "1"]) == 2
 
 

@@ -84,14 +84,23 @@ def test_a_spot_that_leaves_the_image_is_clipped_not_guessed() -> None:
     assert track_frame(image, setup, far).status == "clipped"
 
 
-def test_a_lost_spot_is_reacquired_on_the_whole_frame() -> None:
+def test_a_lost_spot_is_reacquired_where_it_was_last_seen_else_on_the_whole_frame() -> None:
     setup = world()
     renderer, tracker = Renderer(setup), Tracker(setup)
-    poses = poses_through_insertion(helix_tips(300)[:3], setup.instrument.insertion_in_eye)
+    poses = poses_through_insertion(
+        np.vstack([helix_tips(300)[:3], [-1.5, -1.5, 6.0]]), setup.instrument.insertion_in_eye
+    )
+    dark = np.zeros((SIZE_PX, SIZE_PX, 3), np.uint8)
     assert tracker.update(renderer.render(poses[0], seed=0)).mode == "acquired"
-    dark = tracker.update(np.zeros((SIZE_PX, SIZE_PX, 3), np.uint8))
-    assert dark.mode == "lost" and dark.estimate.status == "no_spot"
-    assert tracker.update(renderer.render(poses[2], seed=2)).mode == "acquired"
+    lost = tracker.update(dark)
+    assert lost.mode == "lost" and lost.estimate.status == "no_spot"
+    again = tracker.update(renderer.render(poses[2], seed=2))
+    assert again.mode == "reacquired"
+    assert np.linalg.norm(again.estimate.tip_in_eye - poses[2].tip_in_eye) < 0.03
+    # Moved far while hidden: the rays where it was find nothing, the whole frame does.
+    assert tracker.update(dark).mode == "lost"
+    far = tracker.update(renderer.render(poses[3], seed=3))
+    assert far.mode == "acquired" and np.linalg.norm(far.estimate.tip_in_eye - poses[3].tip_in_eye) < 0.03
 
 
 def test_constant_velocity_filter_follows_a_ramp_and_averages_noise() -> None:

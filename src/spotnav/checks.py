@@ -8,6 +8,8 @@ setup's geometry cannot back it (:func:`judge_fit`).
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
@@ -78,7 +80,7 @@ def blur_shift_px(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: fl
         return 0.0
     levels, response = (edge.plateau, edge.background), setup.camera.pixel_response
     width = edge.width_px - _WIDTH_TOLERANCE_PX
-    unblurred = _seen_edge(levels, band, 0.0, response)
+    unblurred = _unblurred_edge(round(band, 2))
     if not width > unblurred[0]:
         return 0.0
     low, high = 0.0, max(width, 1.0)
@@ -88,6 +90,12 @@ def blur_shift_px(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: fl
         middle = 0.5 * (low + high)
         low, high = (middle, high) if _seen_edge(levels, band, middle, response)[0] < width else (low, middle)
     return abs(_seen_edge(levels, band, high, response)[1] - unblurred[1])
+
+
+@lru_cache(maxsize=4096)
+def _unblurred_edge(band_px: float) -> tuple[float, float]:
+    """:func:`_seen_edge` without a blur: the levels and the response do not matter then (cached by band)."""
+    return _seen_edge((1.0, 0.0), band_px, 0.0, "linear")
 
 
 def _seen_edge(

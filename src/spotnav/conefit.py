@@ -479,12 +479,29 @@ class ConeProblem:
 
 def _as_matrix(values: np.ndarray, columns: np.ndarray, size: int) -> np.ndarray | csr_matrix:
     count, width = values.shape
-    if width == 0:
-        return np.zeros((count, size))
-    matrix = csr_matrix((values.ravel(), columns.ravel(), np.arange(0, count * width + 1, width)), shape=(count, size))
     if count * size <= 4_000_000:
-        return matrix.toarray()
+        return _dense_rows(values, columns, size)
+    return csr_matrix((values.ravel(), columns.ravel(), np.arange(0, count * width + 1, width)), shape=(count, size))
+
+
+@njit(cache=True)
+def _dense_rows(values: np.ndarray, columns: np.ndarray, size: int) -> np.ndarray:
+    """The matrix (N, size) whose row ``n`` holds ``values[n]`` in the columns ``columns[n]`` (summed if repeated)."""
+    matrix = np.zeros((values.shape[0], size))
+    for n in range(values.shape[0]):
+        for a in range(values.shape[1]):
+            matrix[n, columns[n, a]] += values[n, a]
     return matrix
+
+
+@njit(cache=True)
+def _group_sums(matrix: np.ndarray, groups: np.ndarray, count: int) -> np.ndarray:
+    """The rows of ``matrix`` (N, P) summed by ``groups`` (N,) in [0, count): shape (count, P)."""
+    sums = np.zeros((count, matrix.shape[1]))
+    for n in range(matrix.shape[0]):
+        for j in range(matrix.shape[1]):
+            sums[groups[n], j] += matrix[n, j]
+    return sums
 
 
 def cone_problem(
@@ -1039,9 +1056,12 @@ def scatter_covariance(
     covariance = np.linalg.pinv(information / np.outer(scale, scale)) / np.outer(scale, scale)
     response = covariance / variance
     labels, which = np.unique(spots, return_inverse=True)
-    indicator = csr_matrix((np.ones(len(spots)), (which, np.arange(len(spots)))), shape=(len(labels), len(spots)))
-    sums = indicator @ jacobian  # J_s^T 1 of each spot
-    shifts = np.asarray(sums.toarray() if not isinstance(sums, np.ndarray) else sums) @ response
+    if isinstance(jacobian, np.ndarray):
+        sums = _group_sums(jacobian, which, len(labels))  # J_s^T 1 of each spot
+    else:
+        indicator = csr_matrix((np.ones(len(spots)), (which, np.arange(len(spots)))), shape=(len(labels), len(spots)))
+        sums = (indicator @ jacobian).toarray()
+    shifts = sums @ response
     given = np.asarray(contour_sigma, dtype=float)
     sigmas = given[labels] if given.ndim else np.full(len(labels), float(given))
     shifts *= sigmas[:, None]

@@ -1,15 +1,17 @@
 """Track a moving instrument frame by frame: the precise method on a region of interest.
 
-The first frame, and any frame after the spot was lost, is localized on the
-whole image (:func:`spotnav.localize.localize_precise`): *acquisition*. After
-that the tracker predicts the pose (constant velocity), projects each beam's
-predicted edge curve into the image and reads the image only along rays
-across it (:func:`spotnav.detect.detect_edge_along_rays`): the rays are the
-region of interest, a few per cent of the pixels. The cone fit starts from the
+The first frame is localized on the whole image
+(:func:`spotnav.localize.localize_precise`): *acquisition*. After that the
+tracker predicts the pose (constant velocity), projects each beam's predicted
+edge curve into the image and reads the image only along rays across it
+(:func:`spotnav.detect.detect_edge_along_rays`): the rays are the region of
+interest, a few per cent of the pixels. The cone fit starts from the
 prediction, so the fit keeps the apex that continues the track. A tracked
 frame whose fit fails a check, or whose tip jumps further than
 ``max_jump_mm`` from the prediction, is localized on the whole image again in
-the same call.
+the same call. After a loss (the spot hidden, or refused) the next frame is
+first read where the spot was last seen, with the same rays and checks
+(*re-acquisition*), and only then on the whole image.
 
 :class:`ConstantVelocityFilter` optionally smooths the poses (a Kalman filter
 with a constant-velocity model).
@@ -33,7 +35,7 @@ from spotnav.shaft import hidden_by_shaft, visible_edge_points
 
 __all__ = ["TRACK_MODES", "ConstantVelocityFilter", "TrackedFrame", "Tracker", "track_frame"]
 
-TRACK_MODES = ("tracked", "acquired", "lost")
+TRACK_MODES = ("tracked", "reacquired", "acquired", "lost")
 _CURVE_POINTS = 90
 _BORDER_PX = 2.0
 _MIN_EDGE_RAY_FRACTION = 0.5  # fewer rays with an edge: the spot is not where it was predicted
@@ -51,8 +53,10 @@ class TrackedFrame:
     estimate : PoseEstimate
         The pose (smoothed with ``smooth``), or why there is none.
     mode : str
-        ``tracked`` (region of interest), ``acquired`` (whole image) or
-        ``lost`` (no pose; the next frame tries the whole image).
+        ``tracked`` (region of interest), ``reacquired`` (after a loss, where
+        the spot was last seen), ``acquired`` (whole image) or ``lost`` (no
+        pose; the next frame tries where it was last seen, then the whole
+        image).
     """
 
     estimate: PoseEstimate
@@ -248,7 +252,8 @@ class Tracker:
     acceleration_mm : float
         The filter's process noise, mm per frame^2.
     max_jump_mm : float
-        A tracked tip further than this from the prediction is re-acquired.
+        A tracked tip further than this from the prediction (re-acquired:
+        from where it was last seen) is localized on the whole image instead.
     max_rays : int
         Most rays per spot in tracked frames.
     """
@@ -260,6 +265,7 @@ class Tracker:
     max_jump_mm: float = 0.5
     max_rays: int = 256
     _last: PoseEstimate | None = field(default=None, init=False, repr=False)
+    _last_seen: PoseEstimate | None = field(default=None, init=False, repr=False)
     _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
     _filter: ConstantVelocityFilter | None = field(default=None, init=False, repr=False)
 
@@ -282,13 +288,14 @@ class Tracker:
         """
         predicted = self._predict()
         estimate, mode = None, "acquired"
-        if predicted is not None:
+        start, found = (predicted, "tracked") if predicted is not None else (self._last_seen, "reacquired")
+        if start is not None:
             tracked = track_frame(
-                image, self.setup, predicted, through_insertion=self.through_insertion, max_rays=self.max_rays
+                image, self.setup, start, through_insertion=self.through_insertion, max_rays=self.max_rays
             )
-            assert predicted.tip_in_eye is not None
-            if tracked.ok and np.linalg.norm(tracked.tip_in_eye - predicted.tip_in_eye) <= self.max_jump_mm:
-                estimate, mode = tracked, "tracked"
+            assert start.tip_in_eye is not None
+            if tracked.ok and np.linalg.norm(tracked.tip_in_eye - start.tip_in_eye) <= self.max_jump_mm:
+                estimate, mode = tracked, found
         if estimate is None:
             estimate = localize_precise(image, self.setup, through_insertion=self.through_insertion)
         if not estimate.ok:
@@ -315,7 +322,7 @@ class Tracker:
             estimate = replace(estimate, tip_in_eye=tip_in_eye, axis=self._axis_of(tip_in_eye, estimate.axis))
         elif self._last is not None and self._last.tip_in_eye is not None:
             self._velocity = estimate.tip_in_eye - self._last.tip_in_eye
-        self._last = estimate
+        self._last = self._last_seen = estimate
         return estimate
 
     def _axis_of(self, tip_in_eye: np.ndarray, axis: np.ndarray) -> np.ndarray:
