@@ -11,12 +11,12 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
+from numba import njit
 
-from spotnav.camera import camera_depth_mm, decode_values, encode_light
+from spotnav.camera import camera_depth_mm, encode_light
 from spotnav.conefit import DEFAULT_BLEND, PARAMETER_GROUPS, ConeSolution, geometry_covariance, group_of
 from spotnav.config import Camera, Setup
-from spotnav.detect import EDGE_SMOOTHING_PX, SpotEdge
+from spotnav.detect import EDGE_SMOOTHING_PX, SpotEdge, _full_width_at_half_maximum
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import edge_angle_of_blend
 
@@ -40,7 +40,7 @@ MAX_RMS_DEG = 0.1
 MAX_RMS_PX = 1.0
 _MIN_CONTRAST_TO_NOISE = 20.0  # measured: 60-500 on good frames, 5-10 where heavy noise biased the edge by 0.1 mm
 _MODEL_STEP_PX = 0.05
-_MODEL_SAMPLES = 200
+_MODEL_SAMPLES = 50  # samples on each side of the model edge; its width and crossing are interpolated
 _OWN_BLUR_PX = 0.5  # sigma of every camera's own blur in light: the pixels' footprint, the rays' bilinear sampling
 _BISECTIONS = 10
 _WIDTH_TOLERANCE_PX = 0.4  # measured: unblurred edges 2.7-3.2 px wide at 256 px where the model says 2.7
@@ -112,26 +112,63 @@ def _seen_edge(
     half-light crossing from the band's middle (outward positive; inf when
     there is none).
     """
-    plateau, background = levels
+    light, values = _response_curve(response)
+    return _seen_edge_kernel(levels[0], levels[1], band_px, blur_px, light, values)
+
+
+@lru_cache(maxsize=16)
+def _response_curve(response: str | float) -> tuple[np.ndarray, np.ndarray]:
+    """Light (0 and some 2000 steps, log-spaced down to 1e-8) and its encoded values, both strictly increasing."""
+    light = np.concatenate([[0.0], np.logspace(-8.0, 0.0, 2000)])
+    values = encode_light(light, response)
+    knots = np.concatenate([[0], np.flatnonzero(np.diff(values) > 0) + 1])
+    return light[knots], values[knots]
+
+
+@njit(cache=True)
+def _gaussian_nearest(values: np.ndarray, sigma: float) -> np.ndarray:
+    """``values`` convolved with a Gaussian of ``sigma`` samples to 4 sigma, ends held (SciPy's ``mode="nearest"``)."""
+    radius = int(4.0 * sigma + 0.5)
+    kernel = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
+    kernel /= kernel.sum()
+    count = len(values)
+    out = np.empty(count)
+    for i in range(count):
+        total = 0.0
+        for k in range(2 * radius + 1):
+            total += kernel[k] * values[min(max(i + k - radius, 0), count - 1)]
+        out[i] = total
+    return out
+
+
+@njit(cache=True)
+def _seen_edge_kernel(
+    plateau: float, background: float, band_px: float, blur_px: float, light_grid: np.ndarray, value_grid: np.ndarray
+) -> tuple[float, float]:
+    """:func:`_seen_edge`, the response given as its curve (``light_grid`` encoded as ``value_grid``)."""
     reach = 0.5 * band_px + 5.0 * (blur_px + EDGE_SMOOTHING_PX + _OWN_BLUR_PX) + 1.0
-    step = max(_MODEL_STEP_PX, reach / _MODEL_SAMPLES)  # some 200 samples on each side, whatever the spot's size
-    x = np.arange(-round(reach / step), round(reach / step) + 1) * step  # outward, 0 at the band's middle
-    t = np.clip(0.5 - x / max(band_px, step), 0.0, 1.0)
-    light = background + (plateau - background) * t * t * (3.0 - 2.0 * t)
-    light = gaussian_filter1d(light, _OWN_BLUR_PX / step, mode="nearest")
+    step = max(_MODEL_STEP_PX, reach / _MODEL_SAMPLES)  # as many samples whatever the spot's size
+    half = round(reach / step)
+    x = np.arange(-half, half + 1) * step  # outward, 0 at the band's middle
+    t = np.minimum(np.maximum(0.5 - x / max(band_px, step), 0.0), 1.0)
+    light = _gaussian_nearest(background + (plateau - background) * t * t * (3.0 - 2.0 * t), _OWN_BLUR_PX / step)
     if blur_px > 0:
-        light = decode_values(
-            gaussian_filter1d(encode_light(light, response), blur_px / step, mode="nearest"), response
-        )
-    seen = gaussian_filter1d(light, EDGE_SMOOTHING_PX / step, mode="nearest")
-    slope = -np.gradient(seen)
-    width = np.count_nonzero(slope >= 0.5 * slope.max()) * step
-    below = np.flatnonzero(seen <= 0.5 * (plateau + background))
-    if not len(below) or below[0] == 0:
-        return float(width), float("inf")
-    i = below[0]  # the crossing, interpolated between samples i - 1 and i
+        encoded = _gaussian_nearest(np.interp(light, light_grid, value_grid), blur_px / step)
+        light = np.interp(encoded, value_grid, light_grid)
+    seen = _gaussian_nearest(light, EDGE_SMOOTHING_PX / step)
+    count = len(seen)
+    slope = np.empty(count)  # minus np.gradient: central differences, one-sided at the ends
+    slope[0], slope[-1] = seen[0] - seen[1], seen[-2] - seen[-1]
+    for i in range(1, count - 1):
+        slope[i] = 0.5 * (seen[i - 1] - seen[i + 1])
+    width = _full_width_at_half_maximum(slope)[1] * step
     level = 0.5 * (plateau + background)
-    return float(width), float(x[i - 1] + step * (seen[i - 1] - level) / (seen[i - 1] - seen[i]))
+    for i in range(count):
+        if seen[i] <= level:
+            if i == 0:
+                break
+            return width, x[i - 1] + step * (seen[i - 1] - level) / (seen[i - 1] - seen[i])  # between i - 1 and i
+    return width, np.inf
 
 
 def _soft_band_px(setup: Setup, radius_px: float, edge_angle: float) -> float:
