@@ -35,7 +35,7 @@ __all__ = [
 
 _MIN_CONTOUR_POINTS = 5
 _MIN_AREA_FRACTION = 0.1  # blobs smaller than this fraction of the largest are clutter
-_BACKGROUND_DISC_PX = 32  # the broad background is opened on a grid where its disc is about this wide
+_BACKGROUND_DISC_PX = 16  # the broad background is opened on a grid where its disc is about this wide
 _HULL_TOLERANCE_PX = 1.5  # a contour point this close to the convex hull is on the outer boundary
 _GROUP_RMS_PX = 1.5  # fragments whose outer boundaries an ellipse fits this well (or ...
 _GROUP_RMS_FRACTION = 0.03  # ... to this fraction of its radius) are one spot
@@ -178,12 +178,13 @@ def detect_spots_otsu(
     """
     if decimate < 1:
         raise ValueError(f"decimate must be >= 1, got {decimate}")
-    gray = to_gray8(image, response)
-    if decimate > 1:
-        height, width = gray.shape[0] // decimate, gray.shape[1] // decimate
+    if decimate > 1 and image.dtype in (np.uint8, np.uint16) and image.ndim in (2, 3):
+        height, width = image.shape[0] // decimate, image.shape[1] // decimate
         if min(height, width) < 1:
-            raise ValueError(f"decimate {decimate} leaves no pixel of a {gray.shape[1]}x{gray.shape[0]} image")
-        gray = cv2.resize(gray[: height * decimate, : width * decimate], (width, height), interpolation=cv2.INTER_AREA)
+            raise ValueError(f"decimate {decimate} leaves no pixel of a {image.shape[1]}x{image.shape[0]} image")
+        whole = image[: height * decimate, : width * decimate]  # shrunk before the grey conversion: less to convert
+        image = cv2.resize(whole, (width, height), interpolation=cv2.INTER_AREA)
+    gray = to_gray8(image, response)
     if background_px > 0:
         gray = cv2.subtract(gray, _broad_background(gray, max(background_px // decimate, 1)))
     blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
@@ -196,7 +197,8 @@ def detect_spots_otsu(
     largest = int(np.argmax(areas))
     mask = np.zeros_like(binary)
     cv2.drawContours(mask, contours, largest, 255, thickness=cv2.FILLED)
-    histogram = cv2.calcHist([blurred], [0], cv2.bitwise_not(binary), [256], [0, 256]).ravel()
+    # The background's level and spread from every other pixel of every other row: a quarter of the work.
+    histogram = cv2.calcHist([blurred[::2, ::2]], [0], cv2.bitwise_not(binary[::2, ::2]), [256], [0, 256]).ravel()
     median = _histogram_median(histogram)
     levels = np.arange(256)
     deviations = np.bincount(np.abs(levels - median), weights=histogram, minlength=256)
@@ -228,7 +230,8 @@ def _broad_background(gray: np.ndarray, width_px: int) -> np.ndarray:
     """What is broader than ``width_px`` in ``gray`` (uint8): its opening by a disc that wide, on a coarse grid."""
     scale = max(1, width_px // _BACKGROUND_DISC_PX)
     coarse = (max(gray.shape[1] // scale, 1), max(gray.shape[0] // scale, 1))
-    small = cv2.resize(gray, coarse, interpolation=cv2.INTER_AREA)
+    whole = gray[: coarse[1] * scale, : coarse[0] * scale]  # whole cells: OpenCV's fast path
+    small = cv2.resize(whole, coarse, interpolation=cv2.INTER_AREA)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * (width_px // (2 * scale)) + 1,) * 2)
     opened = cv2.GaussianBlur(cv2.morphologyEx(small, cv2.MORPH_OPEN, disc), (0, 0), width_px / (4.0 * scale))
     return cv2.resize(opened, (gray.shape[1], gray.shape[0]), interpolation=cv2.INTER_LINEAR)

@@ -49,7 +49,8 @@ __all__ = [
 _PRECISE_CONTRAST_SIGMA = 4.0
 _FRAGMENT_AREA_FRACTION = 0.005  # regions this small beside the largest may still be a piece of a spot
 _VESSEL_MM = 0.3  # the widest gap vessels (two side by side) may cut in a spot: fragments closer may be one spot
-_COARSE_BLUR_PX = 5  # the coarse detection's blur widens a vessel's gap by about its kernel (shrunk pixels)
+_COARSE_BLUR_PX = 5  # the coarse detection's blur widens a vessel's gap by about its kernel (shrunk pixels) ...
+_SHRUNK_BLUR_PX = 3  # ... a shrunk frame, already averaged over its cells, needs less
 _MIN_SPOT_RADIUS_PX = 12.0  # the smallest spot keeps this radius in the shrunk image the coarse detection reads
 _MAX_CLUTTER_AREA = 0.25
 _MIN_TIP_HEIGHT_MM = 1.0  # the lowest tip considered: its spot is the smallest
@@ -106,8 +107,10 @@ def detect_spots(image: np.ndarray, setup: Setup) -> SpotDetection:
     vessels cut are one spot, and two spots stay two.
     """
     decimate = detection_decimation(setup)
+    blur_px = _COARSE_BLUR_PX if decimate == 1 else _SHRUNK_BLUR_PX
     detection = detect_spots_otsu(
         image,
+        blur_px=blur_px,
         min_contrast_sigma=_PRECISE_CONTRAST_SIGMA,
         response=setup.camera.pixel_response,
         min_area_fraction=_FRAGMENT_AREA_FRACTION,
@@ -116,9 +119,7 @@ def detect_spots(image: np.ndarray, setup: Setup) -> SpotDetection:
     )
     camera = setup.camera
     vessel_px = _VESSEL_MM * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3)))
-    return group_fragments(
-        detection, image.shape[:2], vessel_px + _COARSE_BLUR_PX * decimate, smallest_spot_area_px(setup)
-    )
+    return group_fragments(detection, image.shape[:2], vessel_px + blur_px * decimate, smallest_spot_area_px(setup))
 
 
 def detection_decimation(setup: Setup) -> int:
@@ -301,10 +302,12 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
         constrained, visible = unhidden
         if judge_fit(constrained, setup, spots=start.spots).status != "unreliable":
             break
-    # The cross-check continues from the constrained fit.
+    # The cross-check continues from the constrained fit: Gauss-Newton steps from there reach its free axis
+    # (precise-free's own answer keeps the boxed trust-region fit, and tries the mirror starts).
     tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
     sigmas = prepared.edge_sigmas
-    free = fit_cones(pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=sigmas))
+    problem = pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=sigmas)
+    free = fit_cones(problem, solver="gauss-newton" if through_insertion else "trust-region")
     if through_insertion:
         estimate = judge_fit(constrained, setup, spots=start.spots, detail=start.detail, other_axis=free.axis())
         return _check_insertion(estimate, constrained, free, setup)
