@@ -95,7 +95,7 @@ def test_a_tone_curve_clips_where_it_writes_full_scale_and_another_channel_is_re
     image = np.broadcast_to(codes, (20, 20, 3)).copy()
     crop = _linear_crop(image, np.array([10.0, 10.0]), 5.0, "agx")
     assert crop.saturated and crop.full_scale == decoding_table("agx", 8)[codes[0]]
-    np.testing.assert_array_equal(crop.plane, decoding_table("agx", 8)[codes[1]])
+    np.testing.assert_array_equal(crop.lut[crop.pixels], decoding_table("agx", 8)[codes[1]])
     assert _decoding(codes[None], "srgb")[1] == 254  # sRGB: the first code that decodes to 0.99
 
 

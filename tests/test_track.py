@@ -139,7 +139,7 @@ def test_a_new_tracker_has_its_compiled_kernels_ready_before_the_first_frame() -
     code = """
 import json
 import spotnav.detect as d, spotnav.conefit as c
-kernels = [d._linear_channel, d._aligned_radii, d._read_edges, c._residuals, c._shared_columns, c._frame_columns,
+kernels = [d._brightest_channel, d._aligned_radii, d._read_edges, c._residuals, c._shared_columns, c._frame_columns,
            c._gauss_newton, c.correlation_inflation, c.robust_sigma]
 before = [len(kernel.signatures) for kernel in kernels]
 from spotnav.config import Setup
