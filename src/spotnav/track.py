@@ -69,7 +69,7 @@ def track_frame(
     predicted: PoseEstimate,
     *,
     through_insertion: bool = True,
-    max_rays: int = 256,
+    max_rays: int = 128,
 ) -> PoseEstimate:
     """Localize the tip near a predicted pose, reading the image only around the predicted edges.
 
@@ -84,9 +84,11 @@ def track_frame(
         Constrain the axis through the insertion point (as method ``precise``).
     max_rays : int
         Most rays per spot (one per two pixels of the predicted edge, at least
-        64). More rays do not help beyond some 250: the error left is each
-        spot's whole-edge shift, which no number of rays averages away (at
-        5000 px, 256 rays track a helix as well as 1024).
+        64). More rays hardly help: the error left is each spot's whole-edge
+        shift, which no number of rays averages away (at 5000 px, 256 rays
+        track a helix as well as 1024; at 2048 px, 150 helix frames, 128 rays
+        0.0021 / 0.0170 mm mean / max against 256's 0.0021 / 0.0152, in 1.56
+        ms a frame against 1.95).
 
     Returns
     -------
@@ -263,7 +265,7 @@ class Tracker:
     smooth: bool = False
     acceleration_mm: float = 0.02
     max_jump_mm: float = 0.5
-    max_rays: int = 256
+    max_rays: int = 128
     _last: PoseEstimate | None = field(default=None, init=False, repr=False)
     _last_seen: PoseEstimate | None = field(default=None, init=False, repr=False)
     _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
