@@ -296,11 +296,11 @@ def test_bench_stress_hides_the_spot_and_counts_re_acquisitions(capsys: pytest.C
     assert main(["bench", "--stress", "--sizes", "512", "--frames", "13", "--hide-every", "4"]) == 0
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| 512 |"))
     cells = [cell.strip() for cell in row.split("|")[1:-1]]
-    frames, hidden, reacquired, ok = (int(cells[i]) for i in (1, 2, 3, 4))
+    frames, hidden, reacquired, nearby, ok = (int(cells[i]) for i in (1, 2, 3, 4, 5))
     assert (frames, hidden) == (13, 3)
-    assert reacquired == 3  # every dark frame is followed by a frame found again on the whole image
+    assert reacquired == nearby == 3  # every dark frame is followed by a frame found again where it was last seen
     assert ok == frames - hidden
-    assert float(cells[12]) < SILENT_ERROR_MM and cells[13] == "0"  # max error, silent failures
+    assert float(cells[13]) < SILENT_ERROR_MM and cells[14] == "0"  # max error, silent failures
     assert main(["bench", "--stress", "--hide-every", "1"]) == 2
 
 

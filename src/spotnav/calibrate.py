@@ -63,7 +63,7 @@ from spotnav.conefit import (
     setup_with_geometry,
 )
 from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup
-from spotnav.detect import SpotEdge, detect_edge_subpixel
+from spotnav.detect import detect_edge_subpixel
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import assign_beams, normalize
 from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges
@@ -197,7 +197,6 @@ class _FrameEdges:
     tip: np.ndarray
     axis: np.ndarray
     roll: float
-    spot_edges: list[SpotEdge]
 
 
 def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
@@ -214,8 +213,7 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
         return f"{frame.name}: {detection.regions}{cut}, {instrument.beam_count} beams"
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
-    spot_edges = [detect_edge_subpixel(frame.image, spot, response) for spot in spots]
-    edges = [edge.pixels for edge in spot_edges]
+    edges = [detect_edge_subpixel(frame.image, spot, response).pixels for spot in spots]
     beams, roll = [0], 0.0
     if len(spots) > 1:
         centres = np.array(
@@ -226,7 +224,7 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
         if assignment is None:
             return f"{frame.name}: cannot tell which spot each beam made"
         beams, roll = assignment
-    return _FrameEdges(edges, beams, tip, axis, roll, spot_edges)
+    return _FrameEdges(edges, beams, tip, axis, roll)
 
 
 def insertion_from_axes(tips_in_eye: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -401,8 +399,9 @@ class _GeometryFit:
         """RMS of the spots' mean offsets from their cones after the fit, pixels: how well they agree."""
         problem, inliers = self.solution.problem, self.solution.inliers
         residuals = _residuals_px(setup_with_geometry(self.setup, self.solution.shared), self.solution)
-        offsets = [residuals[(problem.points.spot == s) & inliers].mean() for s in np.unique(problem.points.spot)]
-        return float(np.sqrt(np.mean(np.square(offsets))))
+        spots = [(problem.points.spot == s) & inliers for s in np.unique(problem.points.spot)]
+        offsets = [residuals[spot].mean() for spot in spots if spot.any()]
+        return float(np.sqrt(np.mean(np.square(offsets)))) if offsets else float("nan")
 
 
 def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str], fix: Sequence[str]) -> _GeometryFit:

@@ -332,7 +332,7 @@ def _calibration_lines(result: Calibration) -> list[str]:
     edge = result.setup.calibration.frame_edge_sigma_deg
     lines.append(f"one frame's edge strays from the model by {edge:.4f} deg (1 sigma, each frame left out in turn)")
     if result.responses:
-        tried = ", ".join(f"{_response_name(r)} {spread:.4f}" for r, spread in result.responses if np.isfinite(spread))
+        tried = ", ".join(f"{r} {spread:.4f}" for r, spread in result.responses if np.isfinite(spread))
         response = result.setup.camera.response
         if response is None:
             lines.append(
@@ -341,14 +341,10 @@ def _calibration_lines(result: Calibration) -> list[str]:
             )
         else:
             lines.append(
-                f"camera.response = {_response_name(response)}: estimated, its spots agree best with the edge model "
+                f"camera.response = {response}: estimated, its spots agree best with the edge model "
                 f"(spots' RMS offset, px: {tried}); written to the calibrated setup"
             )
     return lines
-
-
-def _response_name(response: str | float) -> str:
-    return f"gamma {response:g}" if isinstance(response, float) else str(response)
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:

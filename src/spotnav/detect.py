@@ -51,7 +51,8 @@ class Spot:
     Attributes
     ----------
     contour_px : ndarray, shape (N, 2)
-        Boundary pixels ``(u, v)``, as ``findContours`` returns them.
+        Boundary pixels ``(u, v)``, as ``findContours`` returns them (from a
+        shrunk frame: the shrunk pixels' centres, in the frame's pixels).
     area_px : float
         Enclosed area in pixels.
     touches_border : bool
@@ -167,10 +168,11 @@ def detect_spots_otsu(
         estimated and removed first: the grey image opened with a disc this
         wide (wider than any spot), which keeps only what is broader.
     decimate : int
-        Detect on the grey image shrunk by this factor (pixel areas averaged):
-        the coarse outlines of spots many pixels wide, at a fraction of the
-        cost. ``blur_px`` is in the shrunk image's pixels; ``background_px``
-        and the returned contours and areas are in the frame's.
+        Detect on the frame shrunk by this factor (its encoded values averaged
+        over whole cells, then made grey): the coarse outlines of spots many
+        pixels wide, at a fraction of the cost. ``blur_px`` is in the shrunk
+        image's pixels; ``background_px`` and the returned contours (through
+        the shrunk pixels' centres) and areas are in the frame's.
 
     Returns
     -------
@@ -193,7 +195,10 @@ def detect_spots_otsu(
     contours = [c.reshape(-1, 2) for c in contours if len(c) > _MIN_CONTOUR_POINTS]
     if not contours:
         return SpotDetection((), float(threshold), 0.0)
-    areas = np.array([cv2.contourArea(c) for c in contours])
+    # In the frame's pixels; a shrunk contour runs half a shrunk pixel inside the spot (not half a pixel): the
+    # strip between them along its length is added.
+    strip = 0.5 * decimate * (decimate - 1)
+    areas = np.array([decimate**2 * cv2.contourArea(c) + strip * cv2.arcLength(c, True) for c in contours])
     largest = int(np.argmax(areas))
     mask = np.zeros_like(binary)
     cv2.drawContours(mask, contours, largest, 255, thickness=cv2.FILLED)
@@ -204,16 +209,15 @@ def detect_spots_otsu(
     deviations = np.bincount(np.abs(levels - median), weights=histogram, minlength=256)
     spread = 1.4826 * _histogram_median(deviations)
     contrast = float(cv2.mean(blurred, mask)[0] - median)
-    scale = float(decimate) ** 2
-    min_area = max(20.0, 1e-5 * gray.size * scale)
-    if areas[largest] * scale < min_area or contrast < max(_MIN_CONTRAST_DN, min_contrast_sigma * spread):
+    min_area = max(20.0, 1e-5 * gray.size * decimate**2)
+    if areas[largest] < min_area or contrast < max(_MIN_CONTRAST_DN, min_contrast_sigma * spread):
         return SpotDetection((), float(threshold), contrast)
     height, width = gray.shape
     order = np.argsort(-areas)
     spots = tuple(
         Spot(
             contour_px=(contours[i] + 0.5) * decimate - 0.5,  # a shrunk pixel's centre in the frame's pixels
-            area_px=float(areas[i] * scale),
+            area_px=float(areas[i]),
             touches_border=bool(
                 np.any(contours[i] == 0)
                 or np.any(contours[i][:, 0] == width - 1)
@@ -409,7 +413,8 @@ def outer_boundary(spot: Spot, tolerance_px: float = _HULL_TOLERANCE_PX) -> Spot
     return replace(spot, contour_px=outer)
 
 
-# The decoding tables are monotonic: clipping (linear >= 0.99) and brightness can be judged on the codes.
+# The decoding tables are monotonic: clipping (at the first code at full scale, see _decoding) and brightness can
+# be judged on the codes.
 _FULL_SCALE_LINEAR = 0.99
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # Rec. 709, on linear values
 
@@ -470,7 +475,7 @@ class SpotEdge:
         profile's slope (its ends interpolated), after the detector's
         smoothing (:data:`EDGE_SMOOTHING_PX`).
     saturated : bool
-        Whether the spot reaches full scale somewhere.
+        Whether any channel reaches full scale around the spot (on every other pixel of every other row).
     rays : int
         Rays cast; ``len(pixels)`` of them gave an edge.
     contrast_to_noise : float

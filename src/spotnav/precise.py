@@ -302,12 +302,13 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
         constrained, visible = unhidden
         if judge_fit(constrained, setup, spots=start.spots).status != "unreliable":
             break
-    # The cross-check continues from the constrained fit: Gauss-Newton steps from there reach its free axis
-    # (precise-free's own answer keeps the boxed trust-region fit, and tries the mirror starts).
+    # The cross-check continues from the constrained fit. Three beams fix the free axis: Gauss-Newton steps from
+    # there reach it (within 0.005 deg); one beam's is loose (0.25 deg short), and precise-free answers with it.
     tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
     sigmas = prepared.edge_sigmas
     problem = pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=sigmas)
-    free = fit_cones(problem, solver="gauss-newton" if through_insertion else "trust-region")
+    steps = through_insertion and setup.instrument.beam_count == 3
+    free = fit_cones(problem, solver="gauss-newton" if steps else "trust-region")
     if through_insertion:
         estimate = judge_fit(constrained, setup, spots=start.spots, detail=start.detail, other_axis=free.axis())
         return _check_insertion(estimate, constrained, free, setup)

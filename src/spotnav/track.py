@@ -9,9 +9,10 @@ interest, a few per cent of the pixels. The cone fit starts from the
 prediction, so the fit keeps the apex that continues the track. A tracked
 frame whose fit fails a check, or whose tip jumps further than
 ``max_jump_mm`` from the prediction, is localized on the whole image again in
-the same call. After a loss (the spot hidden, or refused) the next frame is
+the same call. After a loss (the spot hidden, or refused) the next frames are
 first read where the spot was last seen, with the same rays and checks
-(*re-acquisition*), and only then on the whole image.
+(*re-acquisition*; up to ``_MAX_LOST_FRAMES`` lost frames later), and only
+then on the whole image.
 
 :class:`ConstantVelocityFilter` optionally smooths the poses (a Kalman filter
 with a constant-velocity model).
@@ -38,6 +39,7 @@ __all__ = ["TRACK_MODES", "ConstantVelocityFilter", "TrackedFrame", "Tracker", "
 TRACK_MODES = ("tracked", "reacquired", "acquired", "lost")
 _CURVE_POINTS = 90
 _BORDER_PX = 2.0
+_MAX_LOST_FRAMES = 10  # after this many frames without a pose the last one seen is too old to search from
 _MIN_EDGE_RAY_FRACTION = 0.5  # fewer rays with an edge: the spot is not where it was predicted
 # A fit further than this from the prediction read its rays aslant (on the Cycles helix, 0.6 mm a frame, a
 # 0.2 mm miss biased the tip by 0.01 mm): its edges are read again from the fitted pose.
@@ -172,7 +174,8 @@ def _prepare_kernels(setup: Setup) -> None:
     image[(rows - 48) ** 2 + (columns - 48) ** 2 < 24**2] = 200
     circle = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
     curve_px = 48 + 20 * np.column_stack([np.cos(circle), np.sin(circle)])
-    detect_edge_along_rays(image, *rays_through_curve(curve_px, 64), align=True)
+    edge = detect_edge_along_rays(image, *rays_through_curve(curve_px, 64), align=True)
+    judge_edge(replace(edge, width_px=2.0 * edge.width_px), setup, 20.0, edge_angle(setup))  # the blur model's kernels
     instrument, eye = setup.instrument, setup.eye
     tip_in_eye = 0.5 * (instrument.insertion_in_eye + eye.center_in_eye)
     axis = normalize(tip_in_eye - instrument.insertion_in_eye)
@@ -268,6 +271,7 @@ class Tracker:
     max_rays: int = 128
     _last: PoseEstimate | None = field(default=None, init=False, repr=False)
     _last_seen: PoseEstimate | None = field(default=None, init=False, repr=False)
+    _lost_frames: int = field(default=0, init=False, repr=False)
     _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
     _filter: ConstantVelocityFilter | None = field(default=None, init=False, repr=False)
 
@@ -303,6 +307,7 @@ class Tracker:
         if not estimate.ok:
             self._forget()
             return TrackedFrame(estimate, "lost")
+        self._lost_frames = 0
         return TrackedFrame(self._remember(estimate), mode)
 
     def _predict(self) -> PoseEstimate | None:
@@ -335,5 +340,8 @@ class Tracker:
 
     def _forget(self) -> None:
         self._last, self._velocity = None, None
+        self._lost_frames += 1
+        if self._lost_frames > _MAX_LOST_FRAMES:
+            self._last_seen = None
         if self._filter is not None:
             self._filter.reset()
