@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
 from spotnav.camera import project_points
@@ -164,7 +165,7 @@ def _track_once(
 
 
 def _prepare_kernels(setup: Setup) -> None:
-    """Run tracking's compiled kernels once, on a synthetic spot and cone.
+    """Run tracking's compiled kernels, and the whole-frame method, once on synthetic spots and cones.
 
     They are compiled (or loaded from Numba's cache) on their first call: here, before the first
     frame, rather than during a tracked frame.
@@ -185,6 +186,12 @@ def _prepare_kernels(setup: Setup) -> None:
     edges = [project_points(setup.camera, curve) for curve in curves]
     problem = pose_problem(setup, edges, list(range(instrument.beam_count)), tip_in_eye + 0.01, axis, 0.0)
     fit_cones(problem, solver="gauss-newton")
+    # The whole-frame method once, on a frame of the camera's size with those spots drawn: its tables and first
+    # calls are ready before the first frame too.
+    frame = np.full((setup.camera.height_px, setup.camera.width_px, 3), 10, dtype=np.uint8)
+    outlines = [np.round(edge[np.all(np.isfinite(edge), axis=1)]).astype(np.int32) for edge in edges]
+    cv2.fillPoly(frame, [outline for outline in outlines if len(outline) > 2], (200, 200, 200))
+    localize_precise(frame, setup)
 
 
 class ConstantVelocityFilter:
