@@ -169,7 +169,8 @@ def detect_spots_otsu(
         wide (wider than any spot), which keeps only what is broader.
     decimate : int
         Detect on the frame shrunk by this factor (its encoded values averaged
-        over whole cells, then made grey): the coarse outlines of spots many
+        over the 2 x 2 middle pixels of each cell, then made grey; all of a
+        cell at 2): the coarse outlines of spots many
         pixels wide, at a fraction of the cost. ``blur_px`` is in the shrunk
         image's pixels; ``background_px`` and the returned contours (through
         the shrunk pixels' centres) and areas are in the frame's.
@@ -184,8 +185,10 @@ def detect_spots_otsu(
         height, width = image.shape[0] // decimate, image.shape[1] // decimate
         if min(height, width) < 1:
             raise ValueError(f"decimate {decimate} leaves no pixel of a {image.shape[1]}x{image.shape[0]} image")
-        whole = image[: height * decimate, : width * decimate]  # shrunk before the grey conversion: less to convert
-        image = cv2.resize(whole, (width, height), interpolation=cv2.INTER_AREA)
+        # Shrunk before the grey conversion (less to convert), each cell by the mean of its 2 x 2 middle pixels
+        # (bilinear at the cell's centre): every pixel of it at 2, and no full pass over a 5000 px frame at 4.
+        whole = image[: height * decimate, : width * decimate]
+        image = cv2.resize(whole, (width, height), interpolation=cv2.INTER_LINEAR)
     gray = to_gray8(image, response)
     if background_px > 0:
         gray = cv2.subtract(gray, _broad_background(gray, max(background_px // decimate, 1)))
