@@ -4,6 +4,7 @@ import csv
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 from spotnav.cli import main
-from spotnav.config import EXAMPLE_SETUP, Setup, Uncertainty, setup_from_toml
+from spotnav.config import EXAMPLE_SETUP, THESIS_EXPOSURE_STOPS, Render, Setup, Uncertainty, setup_from_toml
 from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.geometry import edge_angle_of_blend
 
@@ -35,6 +36,13 @@ def read_poses(path: Path) -> list[dict[str, str]]:
 def test_scene_example_prints_the_thesis_setup(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["scene", "--example"]) == 0
     assert setup_from_toml(capsys.readouterr().out) == Setup(uncertainty=Uncertainty.exact())
+
+
+def test_scene_example_thesis_exposure_differs_only_in_exposure(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["scene", "--example", "thesis-exposure"]) == 0
+    setup = setup_from_toml(capsys.readouterr().out)
+    assert setup.render.exposure_stops == THESIS_EXPOSURE_STOPS > 0
+    assert replace(setup, render=Render()) == Setup(uncertainty=Uncertainty.exact())
 
 
 def test_round_trip_at_5000_px(tmp_path: Path) -> None:

@@ -28,7 +28,7 @@ from spotnav.calibrate import (
     self_calibrate_radius,
 )
 from spotnav.conefit import PARAMETER_GROUPS
-from spotnav.config import EXAMPLE_SETUP, GEOMETRY_PARAMETERS, Camera, Setup
+from spotnav.config import EXAMPLES, GEOMETRY_PARAMETERS, Camera, Setup
 from spotnav.estimate import PoseEstimate
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.experiments.bench import bench_markdown, run_bench, run_stress, stress_markdown
@@ -69,10 +69,10 @@ class UsageError(ValueError):
 
 
 def _cmd_scene(args: argparse.Namespace) -> int:
-    if args.example == (args.opencv is not None):
+    if (args.example is None) == (args.opencv is None):
         raise UsageError("scene needs --example (print the thesis's setup) or --opencv FILE (a calibrated camera)")
-    if args.example:
-        sys.stdout.write(EXAMPLE_SETUP)
+    if args.example is not None:
+        sys.stdout.write(EXAMPLES[args.example])
         return 0
     base = read_setup(args.scene) if args.scene else Setup()
     width, height, matrix, distortion = read_opencv_camera(args.opencv)
@@ -418,7 +418,13 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     scene = commands.add_parser("scene", help="print a setup file")
-    scene.add_argument("--example", action="store_true", help="the thesis's setup, commented")
+    scene.add_argument(
+        "--example",
+        nargs="?",
+        const="thesis",
+        choices=list(EXAMPLES),
+        help="the thesis's setup, commented; thesis-exposure: the same with the thesis's saturated spots",
+    )
     scene.add_argument(
         "--opencv",
         metavar="FILE",

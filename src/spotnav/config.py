@@ -21,8 +21,10 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "EXAMPLES",
     "EXAMPLE_SETUP",
     "GEOMETRY_PARAMETERS",
+    "THESIS_EXPOSURE_STOPS",
     "Bump",
     "CalibrationRecord",
     "Camera",
@@ -995,3 +997,24 @@ defocus_px = 0.0              # Gaussian blur of the light (defocus), sigma in p
 frame_blur_px = 0.0           # Gaussian blur of the encoded frame (camera or codec), sigma in pixels
 glow = 0.0                    # an endo-illuminator's broad uneven glow: peak, fraction of full scale (0 = none)
 """
+
+# The exposure at which the thesis's spots saturate (docs/methods.md, "The thesis's exposure"): its Figure 6.16
+# shows the spot at (0, 0, 8) mm brightening up to 0.5 W and no more from 1 W. A spot stops brightening when it
+# is white, full scale in every channel: at 1 W the median of its centre's darkest channel (blue) reaches full
+# scale at +4.44 stops on spotnav's retina (spotnav.experiments.chapter6.saturating_exposure_stops), and
+# the preset rounds that up to the half stop.
+THESIS_EXPOSURE_STOPS = 4.5
+
+EXAMPLES = {
+    "thesis": EXAMPLE_SETUP,
+    "thesis-exposure": EXAMPLE_SETUP.replace(
+        "# spotnav setup: the thesis's simulation (Hennerkes 2020, Table 6.8).\n",
+        "# spotnav setup: the thesis's simulation (Hennerkes 2020, Table 6.8), exposed as its Figure 6.16 shows:\n"
+        "# the spot is saturated (white) from 1 W up. spotnav's default world is not: it keeps the edge's light.\n",
+    ).replace(
+        "exposure_stops = 0.0          # 0: white surface 5 mm below 1 W, facing it, is full scale\n",
+        f"exposure_stops = {THESIS_EXPOSURE_STOPS}          # the thesis's: a spot 8 mm above the retina is white"
+        " from 1 W up\n",
+    ),
+}
+"""Named example setups: ``spotnav scene --example NAME``."""

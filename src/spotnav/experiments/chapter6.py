@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spotnav.camera import camera_depth_mm, project_points
-from spotnav.config import Bump, Camera, Instrument, Light, Render, Setup, Uncertainty, World
+from spotnav.camera import camera_depth_mm, decode_values, project_points
+from spotnav.config import THESIS_EXPOSURE_STOPS, Bump, Camera, Instrument, Light, Render, Setup, Uncertainty, World
 from spotnav.detect import detect_spots_otsu
 from spotnav.estimate import PoseEstimate
 from spotnav.experiments.figures import plot_against_power, plot_gallery, plot_path_3d, plot_per_step
@@ -43,9 +43,23 @@ from spotnav.experiments.runner import (
 from spotnav.geometry import InstrumentPose, edge_angle_of_blend, rotation_about_y
 from spotnav.precise import localize_precise
 from spotnav.reconstruct import fit_ellipse, triangle_from_ellipse
+from spotnav.render import Renderer
 from spotnav.thesis import locate_from_spots, spot_candidates
 
-__all__ = ["POWERS_W", "THESIS", "Experiment", "Options", "bump_grid", "run_ellipse", "run_paths", "run_world"]
+__all__ = [
+    "EXPOSURES",
+    "GALLERY_POSE",
+    "POWERS_W",
+    "THESIS",
+    "Experiment",
+    "Options",
+    "bump_grid",
+    "gallery_centre",
+    "run_ellipse",
+    "run_paths",
+    "run_world",
+    "saturating_exposure_stops",
+]
 
 POWERS_W = (0.01, 0.1, 0.25, 0.5, 1.0, 1.5, 2.0)
 THESIS_PX_PER_MM = 300.0 * 5000 / 36.0 / 110.0  # thesis-notes 3
@@ -78,6 +92,8 @@ THESIS_POWER = {  # Tables 6.13-6.16: power -> (mean, max)
     ("helix", "3 beams"): [(0.109, 0.300), (0.044, 0.092), (0.033, 0.078), (0.029, 0.081), (0.026, 0.080),
                            (0.024, 0.083), (0.024, 0.086)],
 }  # fmt: skip
+EXPOSURES = {"default exposure": 0.0, "thesis's exposure": THESIS_EXPOSURE_STOPS}
+EXPOSURE_SUFFIX = {"default exposure": "", "thesis's exposure": "_thesis_exposure"}  # figure names
 THESIS_TABLE_NUMBERS = {"square": ("6.9", "6.10", "6.13", "6.14"), "helix": ("6.11", "6.12", "6.15", "6.16")}
 
 
@@ -100,13 +116,16 @@ class Experiment:
     summary: str
 
 
-def thesis_world(size_px: int, beams: int, power_w: float = 1.0, world: World | None = None) -> Setup:
-    """Table 6.8's setup at ``size_px``, soft edge, with ``beams`` beams."""
+def thesis_world(
+    size_px: int, beams: int, power_w: float = 1.0, world: World | None = None, exposure_stops: float = 0.0
+) -> Setup:
+    """Table 6.8's setup at ``size_px``, soft edge, with ``beams`` beams, at ``exposure_stops``."""
     return Setup(
         camera=Camera(width_px=size_px, height_px=size_px),
         instrument=Instrument(beam_count=beams),
         light=Light(power_w=power_w, blend=0.15),
         world=world or World(),
+        render=Render(exposure_stops=exposure_stops),
     )
 
 
@@ -437,10 +456,11 @@ def path_poses(path: str, count: int, insertion: np.ndarray) -> list[InstrumentP
 
 
 def run_paths(options: Options) -> Experiment:
-    """Sections 6.4-6.6 and 6.9: square and helix at every power, one and three beams."""
+    """Sections 6.4-6.6 and 6.9: square and helix at every power, one and three beams, in both exposures."""
     out, size, count = options.out, options.size_px, options.count
     insertion = Instrument().insertion_in_eye
     insertion_text = ", ".join(f"{v:g}" for v in insertion)
+    criterion = saturating_exposure_stops(size)
     lines = [
         "## Sections 6.4-6.6: square and helix paths, light power (Tables 6.7-6.16)",
         "",
@@ -450,6 +470,18 @@ def run_paths(options: Options) -> Experiment:
         f"with the tip at {CALIBRATION_TIP_MM} mm in the same world (same power and beams). The precise method "
         "gets the simulated light's edge model (`instrument.edge_half_angle_deg`, 8.655 deg for blend 0.15) and "
         "constrains the axis through the insertion point; `sigma` is its reported 1-sigma tip uncertainty.",
+        "",
+        "Every experiment runs in two exposures:",
+        "",
+        "- **default exposure** (`render.exposure_stops = 0`, `spotnav scene --example`): the spot is not "
+        "saturated, so the frame keeps the light across the cone's soft edge.",
+        f"- **thesis's exposure** (`render.exposure_stops = {THESIS_EXPOSURE_STOPS:g}`, "
+        "`spotnav scene --example thesis-exposure`): the spot is saturated from 1 W up, as in the thesis's "
+        "Figure 6.16 (section 6.6: the first four images, 0.01-0.5 W, differ clearly in brightness, the rest "
+        "only slightly in blurriness). Criterion: a spot stops brightening when it is white, full scale in every "
+        "channel; the exposure is the one at which the spot at (0, 0, 8) mm, straight down, reaches full scale "
+        f"at 1 W in the median of its centre's darkest channel: +{criterion:.2f} stops at this size, "
+        f'rounded up to the half stop, +{THESIS_EXPOSURE_STOPS:g} (docs/methods.md, "The thesis\'s exposure").',
         "",
         "Table 6.7, the square (closed, P1-P2-P3-P4-P1):",
         "",
@@ -462,31 +494,61 @@ def run_paths(options: Options) -> Experiment:
         + ", about the z axis.",
         "",
     ]
-    gallery = _power_gallery(options)
-    plot_gallery(out / "power_gallery.png", gallery, "Spot at (0, 0, 8) mm, straight down, per power (Figure 6.16)")
     csv_rows: list[tuple[dict[str, object], FrameResult]] = []
+    at_1w: dict[tuple[str, str], dict[str, dict[str, list[FrameResult]]]] = {}
+    sections = []
+    for regime, stops in EXPOSURES.items():
+        section, at_1w_regime = _run_regime(options, regime, stops, csv_rows)
+        sections += section
+        at_1w |= {(regime, path): by_beams for path, by_beams in at_1w_regime.items()}
+    lines += [*_side_by_side(at_1w), "", *sections, *_gap_lines(at_1w)]
+    write_results_csv(out / "paths.csv", csv_rows)
+    summary = "; ".join(f"{regime}, {path}: {_summary_text(by_beams)}" for (regime, path), by_beams in at_1w.items())
+    return Experiment("paths", "\n".join(lines), summary + " at 1 W")
+
+
+def _run_regime(
+    options: Options, regime: str, stops: float, csv_rows: list[tuple[dict[str, object], FrameResult]]
+) -> tuple[list[str], dict[str, dict[str, dict[str, list[FrameResult]]]]]:
+    """One exposure's paths at every power: its report section, and the results at 1 W by path and beams.
+
+    Appends every frame's row to ``csv_rows``; figures go to ``options.out`` with the regime's suffix.
+    """
+    out, size = options.out, options.size_px
+    suffix = EXPOSURE_SUFFIX[regime]
+    insertion = Instrument().insertion_in_eye
+    gallery = _power_gallery(options, stops)
+    plot_gallery(
+        out / f"power_gallery{suffix}.png",
+        gallery,
+        f"Spot at (0, 0, 8) mm, straight down, per power, {regime} (Figure 6.16)",
+    )
+    lines = [f"### {regime.capitalize()} ({stops:+g} stops)", ""]
     power_curves: dict[str, dict[str, dict[str, list[float]]]] = {"mean": {}, "max": {}}
-    summary_parts = []
+    at_1w = {}
     for path in ("square", "helix"):
-        poses = path_poses(path, count, insertion)
-        worlds = {(b, p): thesis_world(size, beams, p) for b, beams in BEAMS.items() for p in POWERS_W}
-        results, factors = _run_configs(options.runner, worlds, poses, PATH_SEEDS[path], path)
+        poses = path_poses(path, options.count, insertion)
+        worlds = {
+            (b, p): thesis_world(size, beams, p, exposure_stops=stops) for b, beams in BEAMS.items() for p in POWERS_W
+        }
+        results, factors = _run_configs(options.runner, worlds, poses, PATH_SEEDS[path], f"{path}, {regime}")
         for (b, p), by_variant in results.items():
             for label, frames in by_variant.items():
-                tags = {"path": path, "beams": BEAMS[b], "power_w": p, "variant": label}
+                tags = {"path": path, "beams": BEAMS[b], "power_w": p, "exposure_stops": stops, "variant": label}
                 csv_rows += [({**tags, "step": i}, r) for i, r in enumerate(frames)]
-        at_1w = {b: results[(b, 1.0)] for b in BEAMS}
+        at_1w[path] = {b: results[(b, 1.0)] for b in BEAMS}
         t_err, t_rot, *t_power = THESIS_TABLE_NUMBERS[path]
-        lines += [f"### {path.capitalize()} path, 1 W", "", f"Table {t_err}: Euclidean tip error.", ""]
-        lines += _error_table(path, at_1w)
+        lines += [f"#### {path.capitalize()} path, 1 W, {regime}", "", f"Table {t_err}: Euclidean tip error.", ""]
+        lines += _error_table(path, at_1w[path])
         lines += ["", f"Table {t_rot}: rotation error of the axis (about y, about z; and the angle between axes).", ""]
-        lines += _rotation_table(path, at_1w)
-        lines += ["", *_statuses_lines(at_1w), ""]
-        _plot_path(out, path, poses, at_1w)
-        lines += [f"![{path}: path](path_{path}.png)", f"![{path}: error per step](error_{path}.png)"]
-        lines += [f"![{path}: error per axis](error_xyz_{path}.png)", f"![{path}: rotation](rotation_{path}.png)", ""]
+        lines += _rotation_table(path, at_1w[path])
+        lines += ["", *_statuses_lines(at_1w[path]), ""]
+        _plot_path(out, path, poses, at_1w[path], f"{regime}", suffix)
+        lines += [f"![{path}: path](path_{path}{suffix}.png)", f"![{path}: error per step](error_{path}{suffix}.png)"]
+        lines += [f"![{path}: error per axis](error_xyz_{path}{suffix}.png)"]
+        lines += [f"![{path}: rotation](rotation_{path}{suffix}.png)", ""]
         for b, table_number in zip(BEAMS, t_power, strict=True):
-            lines += [f"Table {table_number}: {path}, {b}, error against power.", ""]
+            lines += [f"Table {table_number}: {path}, {b}, error against power, {regime}.", ""]
             lines += _power_table(path, b, results, factors)
             lines += ["", *_statuses_lines({f"{p:g} W, {b}": results[(b, p)] for p in POWERS_W}), ""]
             for label in VARIANTS:
@@ -497,29 +559,74 @@ def run_paths(options: Options) -> Experiment:
             for kind, index in (("mean", 0), ("max", 1)):
                 printed = [row[index] for row in THESIS_POWER[(path, b)]]
                 power_curves[kind][path][f"{b}, thesis printed"] = printed
-        summary_parts.append(f"{path}: {_summary_text(at_1w)}")
     for kind, number in (("mean", "6.17"), ("max", "6.18")):
         plot_against_power(
-            out / f"power_{kind}.png",
+            out / f"power_{kind}{suffix}.png",
             POWERS_W,
             power_curves[kind],
             f"{kind} error [mm]",
-            f"{kind.capitalize()} error against power (Figure {number})",
+            f"{kind.capitalize()} error against power, {regime} (Figure {number})",
         )
     lines += [
-        "![mean error against power](power_mean.png)",
-        "![max error against power](power_max.png)",
-        "![spot per power](power_gallery.png)",
+        f"![mean error against power, {regime}](power_mean{suffix}.png)",
+        f"![max error against power, {regime}](power_max{suffix}.png)",
+        f"![spot per power, {regime}](power_gallery{suffix}.png)",
         "",
-        "### Section 6.9: calibration",
-        "",
-        "The thesis found that its height factor did not help and left it out. Here the default edge is soft, "
-        "so the Otsu edge sits inside the cone, the spot looks small and the tip too low: the factor removes "
-        "most of that bias (compare the `thesis method` and `thesis + 5.5` columns above). The precise method "
-        "needs no such factor: its edge model puts the edge where the light is half of its full value.",
     ]
-    write_results_csv(out / "paths.csv", csv_rows)
-    return Experiment("paths", "\n".join(lines), "; ".join(summary_parts) + " at 1 W")
+    return lines, at_1w
+
+
+def _side_by_side(at_1w: Mapping[tuple[str, str], Mapping[str, Mapping[str, list[FrameResult]]]]) -> list[str]:
+    """The thesis's printed mean and max at 1 W beside both exposures' (Tables 6.9 and 6.11)."""
+    header = ["path, beams", "thesis (printed)"]
+    header += [f"{regime}: {m}" for regime in EXPOSURES for m in (PLAIN, "ratio to printed", PRECISE)]
+    rows = []
+    for path in ("square", "helix"):
+        for b in BEAMS:
+            printed = THESIS[path][b]
+            row = [f"{path}, {b}", f"{printed[0]:.3f} / {printed[1]:.3f}"]
+            for regime in EXPOSURES:
+                plain, precise = (summarize(at_1w[(regime, path)][b][m]) for m in (PLAIN, PRECISE))
+                row += [f"{_cell(plain.mean_mm)} / {_cell(plain.max_mm)}", f"{plain.mean_mm / printed[0]:.2f}"]
+                row.append(f"{_cell(precise.mean_mm, 4)} / {_cell(precise.max_mm, 4)} ({precise.ok}/{precise.frames})")
+            rows.append(row)
+    return [
+        "### Side by side at 1 W: mean / max tip error [mm]",
+        "",
+        *markdown_table(header, rows),
+        "",
+        "The precise method's cells give its frames with a pose; it refuses the frames whose spots are clipped "
+        "(status `clipped`): a clipped edge does not show where the light is half of its full value.",
+    ]
+
+
+def _gap_lines(at_1w: Mapping[tuple[str, str], Mapping[str, Mapping[str, list[FrameResult]]]]) -> list[str]:
+    """Section 6.9, and why the thesis method's error differs from the printed one (measured z bias per exposure)."""
+    bias = {
+        regime: np.mean(
+            [summarize(at_1w[(regime, path)][b][PLAIN]).bias_xyz_mm[2] for path in ("square", "helix") for b in BEAMS]
+        )
+        for regime in EXPOSURES
+    }
+    default, thesis = (f"{bias[r]:+.3f} mm" for r in EXPOSURES)
+    return [
+        "### Section 6.9: calibration, and the gap to the printed numbers",
+        "",
+        "The thesis found that its height factor did not help and left it out. At the default exposure the edge "
+        "is soft and unsaturated, so the Otsu edge sits inside the cone, near the angle where the light is half "
+        "of its full value; the spot looks small and the tip too low, and the factor removes most of that bias "
+        "(compare the `thesis method` and `thesis + 5.5` columns). The precise method needs no such factor: its "
+        "edge model puts the edge where the light is half of its full value.",
+        "",
+        "The soft edge alone does not explain the gap to the printed numbers: the exposure does most of it. A "
+        "saturated spot's plateau is clipped, so Otsu's threshold lies at a small fraction of the light's "
+        "unclipped value and the edge moves out toward the cone's 9 deg, where the thesis's method assumes it. "
+        f"The thesis method's mean z bias at 1 W (both paths, both beam counts): {default} at the default "
+        f"exposure, {thesis} at the thesis's. What the thesis's exposure leaves is the rest of the soft edge: "
+        "with more light the edge keeps creeping outward through the blend's toe, so the error keeps falling "
+        "with power where the thesis's flattens above 0.5 W; the thesis's light may have had a narrower blend, a "
+        "light of finite size or Blender's Filmic view transform, none of which it states.",
+    ]
 
 
 def _statuses_lines(by_case: Mapping[str, Mapping[str, list[FrameResult]]]) -> list[str]:
@@ -554,26 +661,30 @@ def _power_table(
     return markdown_table(header, rows)
 
 
-def _plot_path(out: Path, path: str, poses: Sequence[InstrumentPose], at_1w: Mapping[str, Mapping]) -> None:
+def _plot_path(
+    out: Path, path: str, poses: Sequence[InstrumentPose], at_1w: Mapping[str, Mapping], regime: str, suffix: str
+) -> None:
     truth = np.array([p.tip_in_eye for p in poses])
-    title = f"{path.capitalize()} path, 1 W"
+    title = f"{path.capitalize()} path, 1 W, {regime}"
     cases = {f"{b}, {m}": at_1w[b][m] for b in BEAMS for m in (PLAIN, PRECISE)}
-    plot_path_3d(out / f"path_{path}.png", truth, {c: _tips(r) for c, r in cases.items()}, title)
+    plot_path_3d(out / f"path_{path}{suffix}.png", truth, {c: _tips(r) for c, r in cases.items()}, title)
     errors = {b: {m: np.array([r.error_mm for r in at_1w[b][m]]) for m in VARIANTS} for b in BEAMS}
-    plot_per_step(out / f"error_{path}.png", errors, "Euclidean error [mm]", title, log=True)
+    plot_per_step(out / f"error_{path}{suffix}.png", errors, "Euclidean error [mm]", title, log=True)
     xyz = {c: np.array([r.error_xyz_mm for r in frames]) for c, frames in cases.items()}
     panels = {c: {axis: values[:, k] for k, axis in enumerate("xyz")} for c, values in xyz.items()}
-    plot_per_step(out / f"error_xyz_{path}.png", panels, "error [mm]", f"{title}: error per axis")
+    plot_per_step(out / f"error_xyz_{path}{suffix}.png", panels, "error [mm]", f"{title}: error per axis")
     rotation = {c: np.array([r.rotation_error_deg for r in frames]) for c, frames in cases.items()}
     panels = {c: {"about y": v[:, 0], "about z": v[:, 1], "axis angle": v[:, 2]} for c, v in rotation.items()}
-    plot_per_step(out / f"rotation_{path}.png", panels, "error [deg]", f"{title}: rotation error")
+    plot_per_step(out / f"rotation_{path}{suffix}.png", panels, "error [deg]", f"{title}: rotation error")
 
 
-def _power_gallery(options: Options) -> dict[str, np.ndarray]:
+GALLERY_POSE = InstrumentPose(np.array([0.0, 0.0, 8.0]), np.array([0.0, 0.0, -1.0]))  # Figure 6.16
+
+
+def _power_gallery(options: Options, exposure_stops: float) -> dict[str, np.ndarray]:
     """Crops of a spot at (0, 0, 8) mm, straight down, at each power (Figure 6.16)."""
-    pose = InstrumentPose(np.array([0.0, 0.0, 8.0]), np.array([0.0, 0.0, -1.0]))
-    worlds = [thesis_world(options.size_px, 1, p) for p in POWERS_W]
-    frames = options.runner.map(render_frame, [FrameJob(w, pose, 5, ()) for w in worlds], "power gallery")
+    worlds = [thesis_world(options.size_px, 1, p, exposure_stops=exposure_stops) for p in POWERS_W]
+    frames = options.runner.map(render_frame, [FrameJob(w, GALLERY_POSE, 5, ()) for w in worlds], "power gallery")
     camera = worlds[0].camera
     u, v = project_points(camera, np.zeros(3))
     half = round(1.8 * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3))))  # the spot's radius: 1.27 mm
@@ -581,6 +692,28 @@ def _power_gallery(options: Options) -> dict[str, np.ndarray]:
         f"{p:g} W": frame[max(int(v) - half, 0) : int(v) + half, max(int(u) - half, 0) : int(u) + half].copy()
         for p, frame in zip(POWERS_W, frames, strict=True)
     }
+
+
+def saturating_exposure_stops(size_px: int) -> float:
+    """The exposure at which the Figure 6.16 spot is white at 1 W: the thesis's exposure's criterion.
+
+    Renders the spot at (0, 0, 8) mm, straight down, at 1 W and the default exposure,
+    without noise, and returns the stops that bring the median of the darkest channel's
+    linear light over the spot's centre (a disc of 0.5 mm on the retina) to full scale.
+    """
+    world = thesis_world(size_px, 1)
+    world = replace(world, render=replace(world.render, full_well_e=0.0, bit_depth=16))
+    frame = Renderer(world).render(GALLERY_POSE, seed=5)
+    light = decode_values(frame[gallery_centre(world.camera)] / 65535.0, world.camera.pixel_response)
+    return float(-np.log2(np.median(light.min(axis=1))))
+
+
+def gallery_centre(camera: Camera) -> np.ndarray:
+    """The pixels (height, width) bool of the Figure 6.16 spot's centre: a disc of 0.5 mm about the pole."""
+    centre = project_points(camera, np.zeros(3))
+    radius_px = 0.5 * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3)))
+    rows, cols = np.indices((camera.height_px, camera.width_px))
+    return np.hypot(cols - centre[0], rows - centre[1]) <= radius_px
 
 
 # --- 6.7 and 6.8: a deformed and a larger eye ----------------------------------------------------------------
@@ -641,6 +774,7 @@ def _summary_text(by_beams: Mapping[str, Mapping[str, list[FrameResult]]]) -> st
     for b, results in by_beams.items():
         plain, precise = summarize(results[PLAIN]), summarize(results[PRECISE])
         parts.append(
-            f"{b} thesis {plain.mean_mm:.4f}/{plain.max_mm:.4f}, precise {precise.mean_mm:.4f}/{precise.max_mm:.4f}"
+            f"{b} thesis {_cell(plain.mean_mm, 4)}/{_cell(plain.max_mm, 4)}, "
+            f"precise {_cell(precise.mean_mm, 4)}/{_cell(precise.max_mm, 4)} ({precise.ok}/{precise.frames})"
         )
     return "; ".join(parts) + " mm mean/max"

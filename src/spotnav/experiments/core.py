@@ -94,8 +94,10 @@ def run_volume(options: Options) -> Experiment:
         "",
         "![tip error per pose](volume_errors.png)",
         "",
-        "A soft edge moves the Otsu edge inside the cone, so the spot looks smaller and the tip "
-        "closer to the retina: the negative z bias. Section 5.5's height calibration is the thesis's answer.",
+        "A soft edge that is not saturated (spotnav's default exposure) moves the Otsu edge inside the cone, "
+        "so the spot looks smaller and the tip closer to the retina: the negative z bias. Section 5.5's height "
+        "calibration is the thesis's answer; a saturated spot, as in the thesis's frames, moves the edge back out "
+        "(the paths section, thesis's exposure).",
     ]
     text = "; ".join(
         f"{label}: mean {s.mean_mm:.4f} mm, max {s.max_mm:.4f} mm ({s.ok}/{s.frames} ok)" for label, s in summaries
