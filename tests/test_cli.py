@@ -2,8 +2,13 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import signal
+import struct
 import subprocess
 import sys
+import time
+import zlib
 from dataclasses import replace
 from pathlib import Path
 
@@ -45,7 +50,7 @@ def test_scene_example_thesis_exposure_differs_only_in_exposure(capsys: pytest.C
     assert replace(setup, render=Render()) == Setup(uncertainty=Uncertainty.exact())
 
 
-def test_round_trip_at_5000_px(tmp_path: Path) -> None:
+def test_round_trip_at_5000_px(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # Issue: render --tip 3 3 5 straight down, sharp edge, then localize --method thesis: within 0.02 mm.
     scene = write_scene(tmp_path / "setup.toml")
     frame = tmp_path / "frame.png"
@@ -62,6 +67,9 @@ def test_round_trip_at_5000_px(tmp_path: Path) -> None:
     assert row["status"] == "ok"
     tip = np.array([float(row[k]) for k in ("x_mm", "y_mm", "z_mm")])
     assert np.linalg.norm(tip - [3.0, 3.0, 5.0]) < 0.02
+    # render's own truth is a truth file for evaluate
+    assert main(["evaluate", str(poses), str(frame.with_suffix(".json"))]) == 0
+    assert f"max {np.linalg.norm(tip - [3.0, 3.0, 5.0]):.4f}" in capsys.readouterr().out
 
 
 def test_localize_three_beams_with_the_default_method(tmp_path: Path) -> None:
@@ -225,7 +233,8 @@ def test_render_a_path_as_video_then_track_it(tmp_path: Path, capsys: pytest.Cap
     video = tmp_path / "seq" / "helix.mkv"
     argv = ["render", "--scene", str(scene), "--path", "helix", "--frames", "12", "--tremor", "--out", str(video)]
     assert main(argv) == 0
-    truth = read_poses(tmp_path / "seq" / "truth.csv")
+    assert main([*argv[:-1], str(tmp_path / "seq" / "other.mkv")]) == 0  # a second video in the same folder
+    truth = read_poses(tmp_path / "seq" / "helix.truth.csv")
     assert [r["frame"] for r in truth] == [str(i) for i in range(12)] and {r["image"] for r in truth} == {""}
     assert main(["track", "--scene", str(scene), str(video), "--out", str(tmp_path / "poses.csv")]) == 0
     poses = read_poses(tmp_path / "poses.csv")
@@ -240,7 +249,7 @@ def test_render_a_path_as_video_then_track_it(tmp_path: Path, capsys: pytest.Cap
     ]
     assert max(errors) < 0.05  # 512 px: the precise method's some 0.01 mm, on a lossless video
     # A video's rows have no image name: evaluate joins them on the frame.
-    assert main(["evaluate", str(tmp_path / "poses.csv"), str(tmp_path / "seq" / "truth.csv")]) == 0
+    assert main(["evaluate", str(tmp_path / "poses.csv"), str(tmp_path / "seq" / "helix.truth.csv")]) == 0
     assert f"max {max(errors):.4f}" in capsys.readouterr().out
 
 
@@ -340,3 +349,126 @@ def test_calibrate_takes_fit_and_fix(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert "invalid choice" in capsys.readouterr().err
     assert main([*args, "--fit", "eye-radius", "--fix", "eye-radius"]) == 2
     assert "cannot be both fitted and fixed" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def long_video(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A 256 px setup and a 1200-frame FFV1 video of it: 12 helix frames over and over, 100 fps."""
+    folder = tmp_path_factory.mktemp("long")
+    scene = write_scene(folder / "setup.toml", size_px=256, blend=0.15)
+    frames = folder / "frames"
+    assert main(["render", "--scene", str(scene), "--path", "helix", "--frames", "12", "--out", str(frames)]) == 0
+    images = [cv2.imread(str(frames / f"frame_{i:05d}.png")) for i in range(12)]
+    video = folder / "long.mkv"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"FFV1"), 100.0, (256, 256))
+    for index in range(1200):
+        writer.write(images[index % 12])
+    writer.release()
+    return scene, video
+
+
+def _complete_rows(path: Path) -> list[dict[str, str]]:
+    data = path.read_bytes()
+    assert b"\r" not in data and data.endswith(b"\n")  # LF line endings, the last row whole
+    rows = list(csv.reader(data.decode().splitlines()))
+    assert all(len(row) == len(rows[0]) for row in rows)
+    return [dict(zip(rows[0], row, strict=True)) for row in rows[1:]]
+
+
+@pytest.mark.parametrize("number", [signal.SIGINT, signal.SIGTERM])
+def test_a_stopped_track_keeps_every_finished_frame(
+    tmp_path: Path, long_video: tuple[Path, Path], number: signal.Signals
+) -> None:
+    scene, video = long_video
+    poses = tmp_path / "poses.csv"
+    argv = [sys.executable, "-m", "spotnav", "track", "--scene", str(scene), str(video), "--out", str(poses)]
+    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not poses.exists() or poses.read_bytes().count(b"\n") < 6):
+        time.sleep(0.002)
+    process.send_signal(number)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 0, err
+    rows = _complete_rows(poses)
+    assert 5 <= len(rows) < 1200
+    assert [int(row["frame"]) for row in rows] == list(range(len(rows)))
+    assert f"{len(rows)} frames" in err and f"stopped by {number.name}" in err and "Traceback" not in err
+
+
+def test_track_limits_and_capture_timestamps(
+    tmp_path: Path, long_video: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    scene, video = long_video
+    poses = tmp_path / "poses.csv"
+    assert main(["track", "--scene", str(scene), str(video), "--out", str(poses), "--max-frames", "30"]) == 0
+    rows = _complete_rows(poses)
+    assert len(rows) == 30 and "(--max-frames 30)" in capsys.readouterr().err
+    stamps = np.array([float(row["timestamp_s"]) for row in rows])
+    np.testing.assert_allclose(np.diff(stamps), 0.01, atol=1e-6)  # the video's 100 fps
+    assert main(["track", "--scene", str(scene), str(video), "--out", str(poses), "--duration", "0.2"]) == 0
+    assert 1 <= len(_complete_rows(poses)) < 1200 and "(--duration 0.2 s)" in capsys.readouterr().err
+    # A URL is a live stream: its frames carry the time they arrived.
+    start = time.time()
+    url = video.resolve().as_uri()
+    assert main(["track", "--scene", str(scene), url, "--out", str(poses), "--max-frames", "5"]) == 0
+    stamps = np.array([float(row["timestamp_s"]) for row in _complete_rows(poses)])
+    assert np.all(np.diff(stamps) >= 0) and start <= stamps[0] <= time.time()
+    assert main(["track", "--scene", str(scene), str(video), "--out", str(poses), "--fps", "30"]) == 2
+    assert "camera settings need a live camera" in capsys.readouterr().err
+
+
+def test_frames_of_the_wrong_size_warn_then_stop(
+    tmp_path: Path, long_video: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, video = long_video
+    scene = write_scene(tmp_path / "setup.toml", size_px=512)
+    assert main(["track", "--scene", str(scene), str(video), "--out", str(tmp_path / "poses.csv")]) == 2
+    rows = _complete_rows(tmp_path / "poses.csv")
+    assert [row["status"] for row in rows] == ["wrong_size"] * 25
+    err = capsys.readouterr().err
+    assert err.count("warning: frame 0: image is 256x256 px, the setup's camera is 512x512 px") == 1
+    assert "25 frames in a row are not the setup's camera size" in err
+
+
+def test_bad_files_never_stop_a_batch(tmp_path: Path) -> None:
+    # Issue 20: a header claiming 100000 x 100000 px, a real decompression bomb, a name that is not UTF-8,
+    # a folder, a symlink loop and a missing file among good frames: a row each, the batch goes on, exit 0.
+    scene = write_scene(tmp_path / "setup.toml", size_px=256, blend=0.15)
+    good = tmp_path / "good.png"
+    assert main(["render", "--scene", str(scene), "--tip", "1", "1", "5", "--out", str(good)]) == 0
+    (tmp_path / "header.png").write_bytes(_png(100_000, 100_000, b"\0" * 1000))
+    (tmp_path / "bomb.png").write_bytes(_png(12_000, 12_000, b"\0" * (3 * 12_000 + 1) * 12_000))
+    odd = os.fsencode(tmp_path) + b"/odd\xff.png"
+    Path(os.fsdecode(odd)).write_bytes(good.read_bytes())
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "loop1").symlink_to(tmp_path / "loop2")
+    (tmp_path / "loop2").symlink_to(tmp_path / "loop1")
+    names = ["good.png", "header.png", "bomb.png", os.fsdecode(odd), "folder", "loop1", "missing.png", "good.png"]
+    poses = tmp_path / "poses.csv"
+    # The run's peak memory is its own VmHWM: a child's ru_maxrss starts from its parent's.
+    run = "import sys; from spotnav.cli import main; code = main(sys.argv[1:]); print(open('/proc/self/status').read())"
+    run += "; sys.exit(code)"
+    argv = [sys.executable, "-c", run, "localize", "--scene", str(scene), "--out", str(poses)]
+    result = subprocess.run([*argv, *[str(tmp_path / n) for n in names]], capture_output=True, text=True, check=False)
+    err = result.stderr
+    assert result.returncode == 0, err
+    peak_kb = int(result.stdout.split("VmHWM:")[1].split()[0])
+    rows = _complete_rows(poses)
+    statuses = [row["status"] for row in rows]
+    assert statuses == ["ok", "unreadable", "wrong_size", "ok", "unreadable", "unreadable", "unreadable", "ok"]
+    assert rows[3]["image"].endswith("odd\\xff.png")
+    details = " ".join(row["detail"] for row in rows)
+    for reason in ("header claims over", "image is 12000x12000 px", "is a folder", "symbolic links", "no such file"):
+        assert reason in details
+    assert 100_000 < peak_kb < 1_000_000  # nothing was decoded past its header
+    assert "Traceback" not in err
+
+
+def _png(width: int, height: int, raw: bytes) -> bytes:
+    """A PNG of ``width`` x ``height`` RGB pixels whose image data is ``raw``, deflated."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")

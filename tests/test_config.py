@@ -45,6 +45,9 @@ def test_bumps_are_parsed() -> None:
         ("[camera]\nwidth_px = 0", "camera.width_px"),
         ("[camera]\ndistance_mm = 20.0", "camera.distance_mm"),
         ("[camera]\nfocal_length_mm = -300.0", "camera.focal_length_mm"),
+        ("[camera]\nfocal_length_mm = 1e308", "camera.focal_length_mm"),  # issue 20: a degenerate camera
+        ("[camera]\nsensor_width_mm = 1e-308", "camera.focal_length_mm / camera.sensor_width_mm"),
+        ("[camera]\ndistance_mm = 1e300", "camera.distance_mm"),
         ("[instrument]\nbeam_half_angle_deg = 0.0", "instrument.beam_half_angle_deg"),
         ("[instrument]\nbeam_half_angle_deg = 45.0", "instrument.beam_half_angle_deg"),
         ("[instrument]\nbeam_half_angle_deg = 60.0", "instrument.beam_half_angle_deg"),

@@ -14,7 +14,9 @@ from spotnav.estimate import PoseEstimate
 from spotnav.files import (
     POSES_COLUMNS,
     ImageReadError,
+    PosesWriter,
     SequenceWriter,
+    image_size,
     iter_frames,
     pose_row,
     read_image,
@@ -60,6 +62,27 @@ def test_bad_images_raise_one_line_errors(tmp_path: Path) -> None:
         with pytest.raises(ImageReadError, match=message) as error:
             read_image(tmp_path / name)
         assert name in str(error.value) and "\n" not in str(error.value)
+
+
+def test_an_image_is_sized_from_its_header_before_it_is_decoded(tmp_path: Path) -> None:
+    good = tmp_path / "good.png"
+    cv2.imwrite(str(good), np.full((48, 64, 3), 90, np.uint8))
+    assert image_size(good) == (64, 48)
+    with pytest.raises(ImageReadError, match="image is 64x48 px, the setup's camera is 64x64 px") as error:
+        read_image(good, expected_size=(64, 64))
+    assert error.value.status == "wrong_size"
+    assert read_image(good, expected_size=(64, 48)).shape == (48, 64, 3)
+    with pytest.raises(ImageReadError, match="64x48 px would take more than") as error:
+        read_image(good, max_bytes=8 * 64 * 48 - 1)
+    assert error.value.status == "unreadable"
+
+
+def test_poses_rows_are_on_disk_as_soon_as_they_are_written(tmp_path: Path) -> None:
+    path = tmp_path / "poses.csv"
+    with PosesWriter(path) as writer:
+        writer.write(pose_row("a.png", PoseEstimate("no_spot", detail="none")))
+        assert path.read_bytes().count(b"\n") == 2 and b"\r" not in path.read_bytes()
+        assert writer.rows == 1
 
 
 def test_read_setup_names_the_file(tmp_path: Path) -> None:

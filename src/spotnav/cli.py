@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import time
 from collections import Counter
-from collections.abc import Sequence
-from dataclasses import replace
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -38,8 +40,12 @@ from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
 from spotnav.experiments.sweep_report import write_sweep_report
 from spotnav.files import (
     TRACK_COLUMNS,
+    CameraSettings,
+    Frame,
     ImageReadError,
+    PosesWriter,
     SequenceWriter,
+    display_name,
     iter_frames,
     pose_row,
     read_image,
@@ -51,7 +57,6 @@ from spotnav.files import (
     setup_to_toml,
     track_row,
     write_image,
-    write_poses_csv,
     write_truth_csv,
     write_truth_json,
 )
@@ -159,89 +164,200 @@ def _render_sequence(args: argparse.Namespace, setup: Setup) -> int:
         for index, tip in enumerate(tqdm(tips, desc="render", unit="frame", disable=None)):
             pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
             truth.append((index, writer.write(index, renderer.render(pose, seed=args.seed + index)), pose))
-    truth_path = (out.parent if writer.video else out) / "truth.csv"
+    truth_path = out.with_suffix(".truth.csv") if writer.video else out / "truth.csv"  # each output its own
     write_truth_csv(truth_path, truth)
     print(f"wrote {len(tips)} frames to {out} and the truth to {truth_path}", file=sys.stderr)
     return 0
 
 
+class _StopSignals:
+    """SIGINT and SIGTERM ask a loop to stop after the frame in hand: a requested stop, not a failure.
+
+    A second signal of the same kind while the first is pending ends the run at once, as
+    Python's default would.
+    """
+
+    def __init__(self) -> None:
+        self.received: str | None = None
+        self._previous: dict[int, object] = {}
+
+    def _handle(self, number: int, _frame: object) -> None:
+        if self.received == signal.Signals(number).name:
+            raise KeyboardInterrupt
+        self.received = signal.Signals(number).name
+
+    def __enter__(self) -> _StopSignals:
+        for number in (signal.SIGINT, signal.SIGTERM):
+            self._previous[number] = signal.signal(number, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for number, handler in self._previous.items():
+            signal.signal(number, handler)
+
+
+_WRONG_SIZE_STOP = 25  # consecutive frames of the wrong size that stop tracking
+
+
+def _track_limits(args: argparse.Namespace) -> CameraSettings:
+    """Check ``track``'s limits and camera settings; the camera settings asked for."""
+    if args.max_frames is not None and args.max_frames < 1:
+        raise UsageError(f"--max-frames must be at least 1, got {args.max_frames}")
+    if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
+        raise UsageError(f"--duration must be a finite number of seconds > 0, got {args.duration}")
+    if args.camera_size is not None and min(args.camera_size) < 1:
+        raise UsageError(f"--camera-size must be positive, got {' '.join(map(str, args.camera_size))}")
+    if args.fps is not None and not (np.isfinite(args.fps) and args.fps > 0):
+        raise UsageError(f"--fps must be a finite number > 0, got {args.fps}")
+    if args.exposure is not None and not np.isfinite(args.exposure):
+        raise UsageError(f"--exposure must be a finite number, got {args.exposure}")
+    size = tuple(args.camera_size) if args.camera_size is not None else None
+    return CameraSettings(size, args.fps, args.exposure)
+
+
+@dataclass
+class _TrackRun:
+    """What a tracking run has done so far."""
+
+    statuses: Counter[str] = field(default_factory=Counter)
+    latencies: list[float] = field(default_factory=list)
+    wrong_size: int = 0  # frames of the wrong size in a row
+    stop: str = ""  # why it stopped before the source ended
+
+
 def _cmd_track(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
+    camera = _track_limits(args)
     tracker = Tracker(setup, through_insertion=args.method == "precise", smooth=args.smooth)
-    frames = iter_frames(args.source, ring=2)  # the tracker keeps no image
-    server = PoseServer(args.igtl, args.igtl_wait) if args.igtl is not None else None
-    if server is not None:
-        state = "connected" if server.connected else "waiting for a client"
-        print(f"OpenIGTLink: {DEVICE_NAME} on 127.0.0.1:{server.port} ({state})", file=sys.stderr)
-    rows, statuses, latencies = [], Counter[str](), []
-    try:
-        progress = tqdm(frames, desc="track", unit="frame", disable=None)
-        for frame in progress:
-            start = time.perf_counter()
-            if frame.pixels is None:
-                tracked = TrackedFrame(PoseEstimate("unreadable", detail=frame.error), "lost")
-            else:
-                tracked = tracker.update(frame.pixels)
-            latency = 1000 * (time.perf_counter() - start)
-            if server is not None:
-                server.send(tracked.estimate, frame.index)
-            rows.append(track_row(frame.index, frame.image, tracked.estimate, tracked.mode, latency, frame.decode_ms))
-            statuses[tracked.estimate.status] += 1
-            latencies.append(latency)
-            progress.set_postfix_str(f"{1000 / max(np.median(latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")
-    finally:
+    report = partial(print, file=sys.stderr)
+    frames = iter_frames(args.source, ring=2, camera=camera, report=report)  # the tracker keeps no image
+    with _StopSignals() as signals:
+        server = PoseServer(args.igtl, args.igtl_wait) if args.igtl is not None else None
         if server is not None:
-            server.close()
-    write_poses_csv(args.out, rows, TRACK_COLUMNS)
-    counts = ", ".join(f"{n} {s}" for s, n in statuses.most_common())
-    timing = f"latency median {np.median(latencies):.2f} ms, 99th percentile {np.percentile(latencies, 99):.2f} ms"
-    print(f"wrote {args.out}: {len(rows)} frames, {counts}; {timing}", file=sys.stderr)
+            state = "connected" if server.connected else "waiting for a client"
+            print(f"OpenIGTLink: {DEVICE_NAME} on 127.0.0.1:{server.port} ({state})", file=sys.stderr)
+        try:
+            with PosesWriter(args.out, TRACK_COLUMNS) as out:
+                run = _track_frames(args, tracker, frames, server, signals, out)
+        finally:
+            if server is not None:
+                server.close()
+    counts = ", ".join(f"{n} {s}" for s, n in run.statuses.most_common()) or "no frames"
+    latencies = run.latencies
+    timing = (
+        f"; latency median {np.median(latencies):.2f} ms, 99th percentile {np.percentile(latencies, 99):.2f} ms"
+        if latencies
+        else ""
+    )
+    ended = f" ({run.stop})" if run.stop else ""
+    print(f"wrote {args.out}: {out.rows} frames, {counts}{timing}{ended}", file=sys.stderr)
+    if run.wrong_size >= _WRONG_SIZE_STOP:
+        print(f"spotnav: error: {run.wrong_size} frames in a row are not the setup's camera size", file=sys.stderr)
+        return 2
     return 0
+
+
+def _track_frames(
+    args: argparse.Namespace,
+    tracker: Tracker,
+    frames: Iterable[Frame],
+    server: PoseServer | None,
+    signals: _StopSignals,
+    out: PosesWriter,
+) -> _TrackRun:
+    """Track every frame, writing each row as it is done, until the source ends or a stop is due."""
+    run = _TrackRun()
+    started = time.monotonic()
+    progress = tqdm(frames, desc="track", unit="frame", disable=None)
+    for frame in progress:
+        start = time.perf_counter()
+        if frame.pixels is None:
+            tracked = TrackedFrame(PoseEstimate("unreadable", detail=frame.error), "lost")
+        else:
+            tracked = tracker.update(frame.pixels)
+        latency = 1000 * (time.perf_counter() - start)
+        if server is not None:
+            server.send(tracked.estimate, frame.index)
+        out.write(track_row(frame, tracked.estimate, tracked.mode, latency))
+        run.statuses[tracked.estimate.status] += 1
+        run.latencies.append(latency)
+        progress.set_postfix_str(f"{1000 / max(np.median(run.latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")
+        run.wrong_size = run.wrong_size + 1 if tracked.estimate.status == "wrong_size" else 0
+        if run.wrong_size == 1:
+            print(f"spotnav: warning: frame {frame.index}: {tracked.estimate.detail}", file=sys.stderr)
+        run.stop = _track_stop(args, signals, out.rows, time.monotonic() - started, run.wrong_size)
+        if run.stop:
+            break
+    progress.close()
+    return run
+
+
+def _track_stop(args: argparse.Namespace, signals: _StopSignals, frames: int, elapsed_s: float, wrong_size: int) -> str:
+    """Why tracking stops after this frame, or ``""`` to go on."""
+    if signals.received:
+        return f"stopped by {signals.received}"
+    if args.max_frames is not None and frames >= args.max_frames:
+        return f"--max-frames {args.max_frames}"
+    if args.duration is not None and elapsed_s >= args.duration:
+        return f"--duration {args.duration:g} s"
+    if wrong_size >= _WRONG_SIZE_STOP:
+        return "frames of the wrong size"
+    return ""
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
     if args.fit_radius and args.method != "precise":
         raise UsageError("--fit-radius works with --method precise")
-    rows: list[list[str]] = []
     statuses: Counter[str] = Counter()
-    shares: list[tuple[int, tuple]] = []  # --fit-radius: each frame's edges, not the frame (memory)
-    estimates: list[PoseEstimate | None] = []  # None: waits for the joint fit of --fit-radius
-    times: list[float] = []
-    for name in tqdm(args.images, desc="localize", unit="image", disable=None):
-        start = time.perf_counter()
-        estimate: PoseEstimate | None
-        try:
-            image = read_image(name)
-        except ImageReadError as error:
-            estimate = PoseEstimate("unreadable", detail=str(error))
-        else:
-            if args.fit_radius:
-                shares.append((len(estimates), prepare_self_calibration(image, setup)))
-                estimate = None
+    camera_size = (setup.camera.width_px, setup.camera.height_px)
+    # --fit-radius: rows wait for the joint fit; each frame's edges are kept, not the frame (memory).
+    waiting: list[tuple[str, float]] = []
+    done: dict[int, PoseEstimate] = {}
+    shares: list[tuple[int, tuple]] = []
+    with _StopSignals() as signals, PosesWriter(args.out) as out:
+        for name in tqdm(args.images, desc="localize", unit="image", disable=None):
+            if signals.received:
+                break
+            start = time.perf_counter()
+            try:
+                image = read_image(name, expected_size=camera_size)
+            except ImageReadError as error:
+                estimate = PoseEstimate(error.status, detail=str(error))
             else:
+                if args.fit_radius:
+                    shares.append((len(waiting), prepare_self_calibration(image, setup)))
+                    waiting.append((name, 1000 * (time.perf_counter() - start)))
+                    continue
                 estimate = localize(image, setup, args.method)
-        if estimate is not None and estimate.status in ("unreadable", "wrong_size"):
-            print(f"spotnav: warning: {name}: {estimate.detail}", file=sys.stderr)
-        estimates.append(estimate)
-        times.append(1000 * (time.perf_counter() - start))
-    if args.fit_radius:
-        start = time.perf_counter()
-        fitted = self_calibrate_radius([share for _, share in shares], setup)
-        share_ms = 1000 * (time.perf_counter() - start) / max(len(shares), 1)
-        for (index, _), estimate in zip(shares, fitted.estimates, strict=True):
-            estimates[index] = estimate
-            times[index] += share_ms
-        print(
-            f"eye.radius_mm = {fitted.radius_mm:.4f} +- {fitted.radius_sigma_mm:.4f} (1 sigma, {fitted.frames} frames)"
-        )
-    for name, estimate, elapsed in zip(args.images, estimates, times, strict=True):
-        assert estimate is not None
-        rows.append(pose_row(name, estimate, elapsed))
-        statuses[estimate.status] += 1
-    write_poses_csv(args.out, rows)
-    counts = ", ".join(f"{n} {s}" for s, n in statuses.most_common())
-    print(f"wrote {args.out}: {len(rows)} images, {counts}", file=sys.stderr)
+            if estimate.status in ("unreadable", "wrong_size"):
+                shown = display_name(name)
+                detail = estimate.detail if estimate.detail.startswith(shown) else f"{shown}: {estimate.detail}"
+                print(f"spotnav: warning: {detail}", file=sys.stderr)
+            elapsed_ms = 1000 * (time.perf_counter() - start)
+            if args.fit_radius:
+                done[len(waiting)] = estimate
+                waiting.append((name, elapsed_ms))
+            else:
+                out.write(pose_row(display_name(name), estimate, elapsed_ms))
+                statuses[estimate.status] += 1
+        if waiting and not signals.received:
+            start = time.perf_counter()
+            fitted = self_calibrate_radius([share for _, share in shares], setup)
+            share_ms = 1000 * (time.perf_counter() - start) / max(len(shares), 1)
+            failed = set(done)
+            for (index, _), estimate in zip(shares, fitted.estimates, strict=True):
+                done[index] = estimate
+            for index, (name, elapsed_ms) in enumerate(waiting):
+                out.write(pose_row(display_name(name), done[index], elapsed_ms + share_ms * (index not in failed)))
+                statuses[done[index].status] += 1
+            print(
+                f"eye.radius_mm = {fitted.radius_mm:.4f} +- {fitted.radius_sigma_mm:.4f} (1 sigma, "
+                f"{fitted.frames} frames)"
+            )
+    counts = ", ".join(f"{n} {s}" for s, n in statuses.most_common()) or "no images"
+    ended = f" (stopped by {signals.received})" if signals.received else ""
+    print(f"wrote {args.out}: {out.rows} images, {counts}{ended}", file=sys.stderr)
     return 0
 
 
@@ -272,7 +388,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     frames = []
     for pose in tqdm(known, desc="calibrate", unit="image", disable=None):
         try:
-            image = read_image(pose.image)
+            image = read_image(pose.image, expected_size=(setup.camera.width_px, setup.camera.height_px))
         except ImageReadError as error:
             print(f"spotnav: warning: {error}; left out", file=sys.stderr)
             continue
@@ -466,7 +582,7 @@ def _parser() -> argparse.ArgumentParser:
         "--out",
         required=True,
         help="PNG path (the truth beside it as .json); with --path a folder of PNGs (truth.csv inside) or a "
-        ".mkv video (FFV1; truth.csv beside it)",
+        "FILE.mkv video (FFV1; FILE.truth.csv beside it)",
     )
     render.set_defaults(run=_cmd_render)
 
@@ -484,7 +600,11 @@ def _parser() -> argparse.ArgumentParser:
 
     track = commands.add_parser("track", help="track a moving instrument in a video, images or a camera")
     track.add_argument("--scene", required=True, help="setup TOML")
-    track.add_argument("source", metavar="SOURCE", help="video file, folder or glob of images, or camera index")
+    track.add_argument(
+        "source",
+        metavar="SOURCE",
+        help="video file, folder or glob of images, camera index, URL (rtsp://...) or GStreamer pipeline",
+    )
     track.add_argument("--out", required=True, help="poses.csv path")
     track.add_argument(
         "--method",
@@ -502,6 +622,13 @@ def _parser() -> argparse.ArgumentParser:
         help=f"send each pose to OpenIGTLink clients such as 3D Slicer (default port {DEFAULT_PORT})",
     )
     track.add_argument("--igtl-wait", type=float, default=0.0, metavar="S", help="wait for a client first (s)")
+    track.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    track.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    track.add_argument(
+        "--camera-size", type=int, nargs=2, metavar=("W", "H"), help="ask a live camera for this frame size, px"
+    )
+    track.add_argument("--fps", type=float, help="ask a live camera for this frame rate")
+    track.add_argument("--exposure", type=float, help="ask a live camera for this exposure (CAP_PROP_EXPOSURE units)")
     track.set_defaults(run=_cmd_track)
 
     evaluate = commands.add_parser("evaluate", help="compare a poses.csv with the truth: error statistics")

@@ -112,6 +112,9 @@ IDEAL_ROTATION = ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0))  # eye fr
 DISTORTION_COUNTS = (4, 5, 8, 12, 14)  # OpenCV's distortion vector lengths
 _CALIBRATED_KEYS = ("matrix", "distortion", "rotation", "translation_mm")
 _IDEAL_KEYS = ("sensor_width_mm", "focal_length_mm", "distance_mm")
+_MAX_LENGTH_MM = 1e6  # a camera's lengths and distance: up to a kilometre
+# The focal length over the image's width (fx / width_px): a field of view from 176 deg down to 0.006 deg.
+_FOCAL_PER_WIDTH = (0.01, 1e4)
 _ORTHONORMAL_TOLERANCE = 1e-6
 
 
@@ -195,13 +198,15 @@ class Camera:
         else:
             for name in _IDEAL_KEYS:
                 value = _number(f"camera.{name}", getattr(self, name))
-                _in_range(f"camera.{name}", value, 0.0, low_open=True)
+                _in_range(f"camera.{name}", value, 0.0, _MAX_LENGTH_MM, low_open=True)
+            ratio = self.focal_length_mm / self.sensor_width_mm  # type: ignore[operator]
+            _in_range("camera.focal_length_mm / camera.sensor_width_mm", ratio, *_FOCAL_PER_WIDTH)
 
     def _check_calibrated(self) -> None:
         matrix = _matrix3("camera.matrix", self.matrix)
         (fx, skew, cx), (zero_a, fy, cy), last = matrix
         for name, value in (("camera.matrix[0][0] (fx)", fx), ("camera.matrix[1][1] (fy)", fy)):
-            _in_range(name, value, 0.0, low_open=True)
+            _in_range(name, value, *(bound * self.width_px for bound in _FOCAL_PER_WIDTH))
         if skew != 0.0 or zero_a != 0.0 or last != (0.0, 0.0, 1.0):
             raise SetupError(f"camera.matrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {self.matrix!r}")
         _in_range("camera.matrix[0][2] (cx)", cx, -0.5, self.width_px - 0.5)
@@ -221,6 +226,8 @@ class Camera:
                 f"got {self.rotation!r}"
             )
         translation = _vector3("camera.translation_mm", self.translation_mm)
+        for index, value in enumerate(translation):
+            _in_range(f"camera.translation_mm[{index}]", value, -_MAX_LENGTH_MM, _MAX_LENGTH_MM)
         for name, value in (
             ("matrix", matrix),
             ("distortion", distortion),

@@ -10,13 +10,16 @@ from __future__ import annotations
 import csv
 import glob
 import json
+import os
 import time
-from collections.abc import Iterable, Iterator, Sequence
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
+import PIL.Image
 
 from spotnav.config import Setup, SetupError, setup_from_toml
 from spotnav.estimate import PoseEstimate
@@ -28,11 +31,16 @@ __all__ = [
     "TRACK_COLUMNS",
     "TRUTH_COLUMNS",
     "VIDEO_SUFFIXES",
+    "CameraSettings",
     "Frame",
     "ImageReadError",
     "KnownPose",
     "PoseRow",
+    "PosesWriter",
     "SequenceWriter",
+    "display_name",
+    "image_size",
+    "is_live",
     "iter_frames",
     "pose_row",
     "read_image",
@@ -57,7 +65,17 @@ POSES_COLUMNS = (
 
 
 class ImageReadError(ValueError):
-    """An image file is missing, empty or not an image."""
+    """An image file is missing, empty, too large, not an image, or not the camera's size.
+
+    ``status`` is the ``poses.csv`` status of its row: ``unreadable`` or ``wrong_size``.
+    """
+
+    def __init__(self, message: str, status: str = "unreadable") -> None:
+        super().__init__(message)
+        self.status = status
+
+
+MAX_IMAGE_BYTES = 1 << 30  # the most memory one decoded image may take (8 bytes a pixel at most: RGBA, 16 bits)
 
 
 def read_setup(path: str | Path) -> Setup:
@@ -79,25 +97,92 @@ def read_setup(path: str | Path) -> Setup:
         raise SetupError(f"{path}: {error}") from None
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read an 8- or 16-bit image as grey, RGB or RGBA (not OpenCV's BGR).
+def display_name(path: str | Path) -> str:
+    """The path as text that can be written anywhere: bytes that are not UTF-8 become ``\\xNN`` escapes."""
+    return os.fsencode(path).decode("utf-8", "backslashreplace")
+
+
+def _open_error(name: str, error: OSError) -> ImageReadError:
+    if isinstance(error, FileNotFoundError):
+        return ImageReadError(f"{name}: no such file")
+    if isinstance(error, IsADirectoryError):
+        return ImageReadError(f"{name}: is a folder, not an image")
+    return ImageReadError(f"{name}: {error.strerror or error}")
+
+
+def image_size(path: str | Path) -> tuple[int, int] | None:
+    """Width and height in px from the file's header, without decoding it; None when Pillow does not read it.
 
     Raises
     ------
     ImageReadError
-        If the file is missing, empty or not an image OpenCV can decode.
+        If the file cannot be opened (missing, a directory, a symlink loop, no permission)
+        or its header claims more pixels than Pillow's decompression-bomb limit.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise ImageReadError(f"{path}: no such file")
-    data = np.fromfile(path, dtype=np.uint8)
+    name = display_name(path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PIL.Image.DecompressionBombWarning)
+            with PIL.Image.open(path) as image:
+                return image.size
+    except PIL.Image.DecompressionBombError:
+        raise ImageReadError(f"{name}: its header claims over {2 * PIL.Image.MAX_IMAGE_PIXELS} pixels") from None
+    except PIL.UnidentifiedImageError:
+        return None
+    except OSError as error:
+        raise _open_error(name, error) from None
+    except (ValueError, SyntaxError):  # a header Pillow cannot parse: let OpenCV decide
+        return None
+
+
+def read_image(
+    path: str | Path, *, expected_size: tuple[int, int] | None = None, max_bytes: int = MAX_IMAGE_BYTES
+) -> np.ndarray:
+    """Read an 8- or 16-bit image as grey, RGB or RGBA (not OpenCV's BGR).
+
+    The size in the file's header is checked before anything is decoded.
+
+    Parameters
+    ----------
+    path : str or Path
+    expected_size : (int, int), optional
+        Width and height the image must have (the setup's camera), px.
+    max_bytes : int
+        The most memory the decoded image may take.
+
+    Raises
+    ------
+    ImageReadError
+        If the file is missing, a folder, empty, too large, not an image OpenCV can
+        decode, or not ``expected_size`` (status ``wrong_size``).
+    """
+    name = display_name(path)
+    size = image_size(path)
+    if size is not None:
+        if expected_size is not None and tuple(size) != tuple(expected_size):
+            message = f"{name}: image is {size[0]}x{size[1]} px, the setup's camera is {expected_size[0]}x"
+            raise ImageReadError(f"{message}{expected_size[1]} px", "wrong_size")
+        if 8 * size[0] * size[1] > max_bytes:
+            raise ImageReadError(f"{name}: {size[0]}x{size[1]} px would take more than {max_bytes >> 20} MB")
+    try:
+        if Path(path).stat().st_size > max_bytes:
+            raise ImageReadError(f"{name}: the file is larger than {max_bytes >> 20} MB")
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as error:
+        raise _open_error(name, error) from None
     if data.size == 0:
-        raise ImageReadError(f"{path}: the file is empty")
-    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        raise ImageReadError(f"{name}: the file is empty")
+    try:
+        image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        image = None
     if image is None:
-        raise ImageReadError(f"{path}: not an image OpenCV can read (or truncated)")
+        raise ImageReadError(f"{name}: not an image OpenCV can read (or truncated, or too large)")
     if image.dtype not in (np.uint8, np.uint16):
-        raise ImageReadError(f"{path}: {image.dtype} pixels, expected 8 or 16 bits")
+        raise ImageReadError(f"{name}: {image.dtype} pixels, expected 8 or 16 bits")
+    if expected_size is not None and image.shape[1::-1] != tuple(expected_size):
+        message = f"{name}: image is {image.shape[1]}x{image.shape[0]} px, the setup's camera is {expected_size[0]}x"
+        raise ImageReadError(f"{message}{expected_size[1]} px", "wrong_size")
     if image.ndim == 3 and image.shape[2] == 3:
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     if image.ndim == 3 and image.shape[2] == 4:
@@ -152,6 +237,45 @@ def pose_row(image: str, estimate: PoseEstimate, time_ms: float | None = None) -
     return [image, estimate.status, *numbers, str(estimate.spots), *quality, *other, timing, estimate.detail]
 
 
+class PosesWriter:
+    """``poses.csv`` written row by row, each row on disk as soon as it is written.
+
+    A run that stops early (Ctrl-C, SIGTERM, a crash) leaves every finished row.
+    Lines end in LF. Use it as a context manager.
+
+    Parameters
+    ----------
+    path : str or Path
+    columns : sequence of str
+        The header: the contract's columns first (:data:`POSES_COLUMNS` or :data:`TRACK_COLUMNS`).
+    """
+
+    def __init__(self, path: str | Path, columns: Sequence[str] = POSES_COLUMNS) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._handle = self.path.open("w", newline="", encoding="utf-8")
+        self._writer = csv.writer(self._handle, lineterminator="\n")
+        self.rows = 0
+        self.write(columns)
+        self.rows = 0
+
+    def write(self, row: Sequence[str]) -> None:
+        """Write one row and flush it to the file."""
+        self._writer.writerow(row)
+        self._handle.flush()
+        self.rows += 1
+
+    def close(self) -> None:
+        """Close the file."""
+        self._handle.close()
+
+    def __enter__(self) -> PosesWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def write_poses_csv(path: str | Path, rows: Iterable[Sequence[str]], columns: Sequence[str] = POSES_COLUMNS) -> None:
     """Write ``poses.csv``: the contract's columns first, then :data:`POSES_COLUMNS`' own.
 
@@ -160,12 +284,9 @@ def write_poses_csv(path: str | Path, rows: Iterable[Sequence[str]], columns: Se
     cross-check axis (fitted without the insertion point, or with it for
     ``precise-free``); all empty for the thesis's method.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(columns)
-        writer.writerows(rows)
+    with PosesWriter(path, columns) as writer:
+        for row in rows:
+            writer.write(row)
 
 
 def _read_csv_rows(path: Path, needed: Sequence[str]) -> list[dict[str, str]]:
@@ -200,12 +321,29 @@ def _frame_number(row: dict[str, str], path: Path, number: int) -> int | None:
         raise ValueError(f"{path}, line {number}: the frame must be a whole number") from None
 
 
+def _read_truth_json(path: Path) -> KnownPose:
+    """The one pose of the ``.json`` truth that ``render`` writes beside a frame."""
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+        tip = np.array(record["tip_mm"], dtype=float)
+        axis = np.array(record["axis"], dtype=float)
+        image = path.parent / record.get("image", path.with_suffix(".png").name)
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: cannot read the truth: {getattr(error, 'strerror', None) or error}") from None
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+        raise ValueError(f"{path}: not a truth file of spotnav render (tip_mm, axis, image)") from None
+    if tip.shape != (3,) or axis.shape != (3,) or not (np.all(np.isfinite(tip)) and np.all(np.isfinite(axis))):
+        raise ValueError(f"{path}: tip_mm and axis must be three finite numbers each")
+    return KnownPose(image, tip, axis, None)
+
+
 def read_known_poses(path: str | Path) -> list[KnownPose]:
     """Read ``known.csv`` (contract: ``image,x_mm,y_mm,z_mm``; optional ``dir_x,dir_y,dir_z``).
 
     Image paths are taken relative to the CSV's folder unless absolute; an
     empty one (a video's frame, as in ``truth.csv``) stays empty, with the
-    optional ``frame`` column's index.
+    optional ``frame`` column's index. A ``.json`` file is the single frame's
+    truth that ``spotnav render`` writes beside it.
 
     Raises
     ------
@@ -213,6 +351,8 @@ def read_known_poses(path: str | Path) -> list[KnownPose]:
         Naming the file and the row for a missing column or a bad number.
     """
     path = Path(path)
+    if path.suffix.lower() == ".json":
+        return [_read_truth_json(path)]
     rows = _read_csv_rows(path, ("image", "x_mm", "y_mm", "z_mm"))
     has_axis = all(f"dir_{k}" in rows[0] for k in "xyz")
     poses = []
@@ -377,15 +517,17 @@ def _toml_value(value: object) -> str:
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
 VIDEO_SUFFIXES = (".mkv", ".avi", ".mp4", ".mov")
 TRUTH_COLUMNS = ("frame", "image", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z")
-TRACK_COLUMNS = (*POSES_COLUMNS[:8], "frame", "mode", "latency_ms", "decode_ms", *POSES_COLUMNS[8:14], "detail")
+TRACK_COLUMNS = (
+    *POSES_COLUMNS[:8],
+    *("frame", "mode", "latency_ms", "decode_ms", *POSES_COLUMNS[8:14], "detail", "timestamp_s"),
+)
 
 
-def track_row(
-    frame: int, image: str, estimate: PoseEstimate, mode: str, latency_ms: float, decode_ms: float
-) -> list[str]:
+def track_row(frame: Frame, estimate: PoseEstimate, mode: str, latency_ms: float) -> list[str]:
     """One ``poses.csv`` row of ``spotnav track``, in :data:`TRACK_COLUMNS` order."""
-    row = dict(zip(POSES_COLUMNS, pose_row(image, estimate), strict=True))
-    row.update(frame=str(frame), mode=mode, latency_ms=f"{latency_ms:.2f}", decode_ms=f"{decode_ms:.2f}")
+    row = dict(zip(POSES_COLUMNS, pose_row(frame.image, estimate), strict=True))
+    row.update(frame=str(frame.index), mode=mode, latency_ms=f"{latency_ms:.2f}", decode_ms=f"{frame.decode_ms:.2f}")
+    row["timestamp_s"] = "" if not np.isfinite(frame.timestamp_s) else f"{frame.timestamp_s:.6f}"
     return [row[column] for column in TRACK_COLUMNS]
 
 
@@ -405,6 +547,9 @@ class Frame:
         Time spent reading and decoding, ms.
     error : str
         Why ``pixels`` is None.
+    timestamp_s : float
+        When the frame was captured, s: Unix time when a live camera or stream
+        delivered it, the position in a video file; NaN for image files.
     """
 
     index: int
@@ -412,6 +557,45 @@ class Frame:
     pixels: np.ndarray | None
     decode_ms: float
     error: str = ""
+    timestamp_s: float = float("nan")
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """What to ask a live camera for, through OpenCV's capture properties; None keeps the camera's own.
+
+    Attributes
+    ----------
+    size_px : (int, int) or None
+        Width and height, px (``CAP_PROP_FRAME_WIDTH``, ``CAP_PROP_FRAME_HEIGHT``).
+    fps : float or None
+        Frames per second (``CAP_PROP_FPS``).
+    exposure : float or None
+        ``CAP_PROP_EXPOSURE``, in the capture backend's own units.
+    """
+
+    size_px: tuple[int, int] | None = None
+    fps: float | None = None
+    exposure: float | None = None
+
+    def requests(self) -> dict[int, float]:
+        """OpenCV property -> value, for the settings that are given."""
+        wanted: dict[int, float] = {}
+        if self.size_px is not None:
+            wanted[cv2.CAP_PROP_FRAME_WIDTH], wanted[cv2.CAP_PROP_FRAME_HEIGHT] = self.size_px
+        if self.fps is not None:
+            wanted[cv2.CAP_PROP_FPS] = self.fps
+        if self.exposure is not None:
+            wanted[cv2.CAP_PROP_EXPOSURE] = self.exposure
+        return wanted
+
+
+PROPERTY_NAMES = {
+    cv2.CAP_PROP_FRAME_WIDTH: "width",
+    cv2.CAP_PROP_FRAME_HEIGHT: "height",
+    cv2.CAP_PROP_FPS: "fps",
+    cv2.CAP_PROP_EXPOSURE: "exposure",
+}
 
 
 def _sequence_files(source: str) -> list[str] | None:
@@ -424,51 +608,72 @@ def _sequence_files(source: str) -> list[str] | None:
     return None
 
 
-def iter_frames(source: str, *, ring: int = 0) -> Iterator[Frame]:
-    """Decode a sequence in order: a folder or glob of images, a video file, or a camera index.
+def is_live(source: str) -> bool:
+    """Whether ``source`` names a live camera or stream: a camera index, a URL or a GStreamer pipeline."""
+    return source.isdigit() or "://" in source or " ! " in source
+
+
+def iter_frames(
+    source: str, *, ring: int = 0, camera: CameraSettings | None = None, report: Callable[[str], None] | None = None
+) -> Iterator[Frame]:
+    """Decode a sequence in order: a folder or glob of images, a video file, a camera, a URL or a pipeline.
 
     Parameters
     ----------
     source : str
+        A folder or glob of images, a video file, a camera index (``0``), any
+        URL that OpenCV's FFmpeg opens (``rtsp://...``), or a GStreamer
+        pipeline (``... ! appsink``, with an OpenCV built with GStreamer).
     ring : int
         Decode video and camera frames into a ring of this many buffers, as a
         camera driver does: a frame's pixels are then overwritten ``ring``
         frames later (copy them to keep them). Fresh buffers for every frame
         (0, the default) cost a large allocation each, whose zeroing evicts
         the caches the localizer runs from.
+    camera : CameraSettings, optional
+        Settings to ask a live source for.
+    report : callable, optional
+        Receives one line with what a live source says it delivers.
 
     Raises
     ------
     ImageReadError
         If ``source`` names nothing that can be read (an unreadable image
         inside a folder yields a :class:`Frame` with its ``error`` instead).
+    ValueError
+        If ``camera`` settings are given for a source that is not live.
     """
     if ring < 0:
         raise ValueError(f"ring must be at least 0, got {ring}")
+    wanted = camera.requests() if camera is not None else {}
+    if wanted and not is_live(source):
+        raise ValueError(f"{source}: camera settings need a live camera, URL or pipeline, not files")
     files = _sequence_files(source)
     if files is not None:
         if not files:
             raise ImageReadError(f"{source}: no images ({', '.join(IMAGE_SUFFIXES)})")
-        for index, name in enumerate(files):
-            start = time.perf_counter()
-            try:
-                pixels, error = read_image(name), ""
-            except ImageReadError as failure:
-                pixels, error = None, str(failure)
-            yield Frame(index, name, pixels, 1000 * (time.perf_counter() - start), error)
-        return
-    # One decoding thread: threads that decode ahead would compete with the localizer for the cores.
-    single_thread = [cv2.CAP_PROP_N_THREADS, 1]
-    if source.isdigit():
-        capture = cv2.VideoCapture(int(source), cv2.CAP_ANY, single_thread)
-    elif Path(source).is_file() and Path(source).suffix.lower() in VIDEO_SUFFIXES:
-        capture = cv2.VideoCapture(source, cv2.CAP_FFMPEG, single_thread)
-    elif Path(source).is_file():
-        raise ImageReadError(f"{source}: not a video ({', '.join(VIDEO_SUFFIXES)}), folder or glob of images")
-    else:
-        raise ImageReadError(f"{source}: no such file, folder or camera")
-    if not capture.isOpened():
-        raise ImageReadError(f"{source}: cannot open the video or camera")
+        return _read_files(files)
+    capture = _open_capture(source, wanted)
+    if is_live(source) and report is not None:
+        delivered = ", ".join(f"{PROPERTY_NAMES[p]} {capture.get(p):g}" for p in PROPERTY_NAMES)
+        report(f"{source}: the source reports {delivered}")
+        for number, value in wanted.items():
+            if abs(capture.get(number) - value) > 1e-6 * max(abs(value), 1.0):
+                report(f"{source}: asked for {PROPERTY_NAMES[number]} {value:g}, it reports {capture.get(number):g}")
+    return _read_capture(capture, ring, is_live(source))
+
+
+def _read_files(files: Sequence[str]) -> Iterator[Frame]:
+    for index, name in enumerate(files):
+        start = time.perf_counter()
+        try:
+            pixels, error = read_image(name), ""
+        except ImageReadError as failure:
+            pixels, error = None, str(failure)
+        yield Frame(index, display_name(name), pixels, 1000 * (time.perf_counter() - start), error)
+
+
+def _read_capture(capture: cv2.VideoCapture, ring: int, live: bool) -> Iterator[Frame]:
     buffers: list[np.ndarray | None] = [None] * max(ring, 1)
     decoded: np.ndarray | None = None
     try:
@@ -478,14 +683,42 @@ def iter_frames(source: str, *, ring: int = 0) -> Iterator[Frame]:
             ok, decoded = capture.read(decoded if ring else None)
             if not ok:
                 return
+            stamp = time.time() if live else capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
             slot = index % len(buffers)
             pixels = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=buffers[slot])
             if ring:
                 buffers[slot] = pixels
-            yield Frame(index, "", pixels, 1000 * (time.perf_counter() - start))
+            yield Frame(index, "", pixels, 1000 * (time.perf_counter() - start), timestamp_s=stamp)
             index += 1
     finally:
         capture.release()
+
+
+def _open_capture(source: str, wanted: Mapping[int, float]) -> cv2.VideoCapture:
+    """An opened capture of a video file, camera index, URL or GStreamer pipeline, with ``wanted`` properties."""
+    # One decoding thread: threads that decode ahead would compete with the localizer for the cores.
+    params = [cv2.CAP_PROP_N_THREADS, 1]
+    if source.isdigit():
+        capture = cv2.VideoCapture(int(source), cv2.CAP_ANY, params)
+    elif " ! " in source:
+        if "GStreamer:                   YES" not in cv2.getBuildInformation():
+            raise ImageReadError(f"{source}: this OpenCV has no GStreamer (cv2.getBuildInformation())")
+        capture = cv2.VideoCapture(source, cv2.CAP_GSTREAMER)
+    elif "://" in source:
+        capture = cv2.VideoCapture(source, cv2.CAP_FFMPEG, params)
+    elif Path(source).is_file() and Path(source).suffix.lower() in VIDEO_SUFFIXES:
+        capture = cv2.VideoCapture(source, cv2.CAP_FFMPEG, params)
+    elif Path(source).is_file():
+        raise ImageReadError(f"{source}: not a video ({', '.join(VIDEO_SUFFIXES)}), folder or glob of images")
+    elif Path(source).exists():
+        raise ImageReadError(f"{source}: not a file, folder or glob of images")
+    else:
+        raise ImageReadError(f"{source}: no such file, folder, camera or URL")
+    if not capture.isOpened():
+        raise ImageReadError(f"{source}: cannot open the video, camera, URL or pipeline")
+    for number, value in wanted.items():
+        capture.set(number, value)
+    return capture
 
 
 class SequenceWriter:
@@ -540,7 +773,7 @@ def write_truth_csv(path: str | Path, rows: Iterable[tuple[int, str, InstrumentP
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle)
+        writer = csv.writer(handle, lineterminator="\n")
         writer.writerow(TRUTH_COLUMNS)
         for frame, image, pose in rows:
             writer.writerow([frame, image, *(_format(v) for v in (*pose.tip_in_eye, *pose.axis))])

@@ -273,7 +273,7 @@ def write_results_csv(path: Path, rows: Sequence[tuple[dict[str, object], FrameR
     columns += ["rot_error_y_deg", "rot_error_z_deg", "axis_error_deg", "sigma_mm", "rms_px"]
     columns += ["render_ms", "localize_ms", "detail"]
     with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle)
+        writer = csv.writer(handle, lineterminator="\n")
         labels = list(rows[0][0]) if rows else []
         writer.writerow(labels + columns)
         for tags, r in rows:
@@ -441,7 +441,7 @@ def run_ellipse(options: Options) -> Experiment:
     header = ["case", "thesis: candidates", "thesis method, 1 beam: candidates", "thesis method, 3 beams"]
     lines += ["", *markdown_table([*header, "precise, 1 beam", "precise, 3 beams"], tips_rows)]
     with (options.out / "ellipse.csv").open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle)
+        writer = csv.writer(handle, lineterminator="\n")
         writer.writerow(ELLIPSE_COLUMNS)
         writer.writerows([[f"{v:.6f}" if isinstance(v, float) else v for v in row] for row in csv_rows])
     return Experiment("ellipse", "\n".join(lines), f"ellipse tests: nearest candidate within {worst:.4f} mm")

@@ -177,7 +177,7 @@ def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     table = out / "errors.csv"
     with table.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle)
+        writer = csv.writer(handle, lineterminator="\n")
         writer.writerow(["image", "status", "error_mm", "error_x_mm", "error_y_mm", "error_z_mm", "axis_error_deg"])
         for f in evaluation.frames:
             values = [f.error_mm, *f.error_xyz_mm, f.axis_error_deg]

@@ -82,7 +82,7 @@ def write_sweep_report(directory: Path | str) -> str:
     table = read_sweep_table(directory)
     header, rows = summary_rows(table)
     with (directory / "summary.csv").open("w", newline="") as handle:
-        csv.writer(handle).writerows([header, *rows])
+        csv.writer(handle, lineterminator="\n").writerows([header, *rows])
     plots = (
         ("error_vs_cone_angle.png", _ANGLE, "cone half-angle beta [deg]", False),
         ("error_vs_power.png", _POWER, "light power [W]", True),
