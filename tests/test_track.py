@@ -13,7 +13,7 @@ from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.precise import localize_precise
 from spotnav.render import Renderer
-from spotnav.track import ConstantVelocityFilter, Tracker, track_frame
+from spotnav.track import Tracker, track_frame
 
 SIZE_PX = 1024
 
@@ -103,35 +103,9 @@ def test_a_lost_spot_is_reacquired_where_it_was_last_seen_else_on_the_whole_fram
     assert far.mode == "acquired" and np.linalg.norm(far.estimate.tip_in_eye - poses[3].tip_in_eye) < 0.03
 
 
-def test_constant_velocity_filter_follows_a_ramp_and_averages_noise() -> None:
-    rng = np.random.default_rng(0)
-    truth = 0.01 * np.arange(200)[:, None] * np.ones(3)
-    kalman = ConstantVelocityFilter(3, acceleration=1e-4)
-    filtered = []
-    for value in truth + rng.normal(0.0, 0.01, truth.shape):
-        kalman.predict()
-        filtered.append(kalman.update(value, 0.01**2))
-    late = np.array(filtered[100:]) - truth[100:]
-    assert np.std(late) < 0.5 * 0.01  # at least halves the noise
-    assert abs(np.mean(late)) < 0.002  # and does not lag the ramp
-
-
-def test_smoothing_keeps_the_axis_through_the_insertion_point() -> None:
-    setup = world()
-    renderer, tracker = Renderer(setup), Tracker(setup, smooth=True)
-    for i, pose in enumerate(poses_through_insertion(helix_tips(300)[:4], setup.instrument.insertion_in_eye)):
-        estimate = tracker.update(renderer.render(pose, seed=i)).estimate
-        assert estimate.ok and estimate.tip_in_eye is not None and estimate.axis is not None
-        expected = estimate.tip_in_eye - setup.instrument.insertion_in_eye
-        assert np.allclose(estimate.axis, expected / np.linalg.norm(expected))
-        assert np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < 0.02
-
-
 def test_tracker_rejects_bad_options() -> None:
     with pytest.raises(ValueError, match="max_jump_mm"):
         Tracker(world(), max_jump_mm=0.0)
-    with pytest.raises(ValueError, match="acceleration"):
-        Tracker(world(), smooth=True, acceleration_mm=-1.0)
 
 
 def test_a_new_tracker_has_its_compiled_kernels_ready_before_the_first_frame() -> None:

@@ -228,7 +228,7 @@ class _TrackRun:
 def _cmd_track(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
     camera = _track_limits(args)
-    tracker = Tracker(setup, through_insertion=args.method == "precise", smooth=args.smooth)
+    tracker = Tracker(setup, through_insertion=args.method == "precise")
     report = partial(print, file=sys.stderr)
     frames = iter_frames(args.source, ring=2, camera=camera, report=report)  # the tracker keeps no image
     with _StopSignals() as signals:
@@ -612,7 +612,6 @@ def _parser() -> argparse.ArgumentParser:
         choices=["precise", "precise-free"],
         help="default precise (axis through the insertion point)",
     )
-    track.add_argument("--smooth", action="store_true", help="smooth the tip with a constant-velocity Kalman filter")
     track.add_argument(
         "--igtl",
         type=int,

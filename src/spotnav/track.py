@@ -13,9 +13,6 @@ the same call. After a loss (the spot hidden, or refused) the next frames are
 first read where the spot was last seen, with the same rays and checks
 (*re-acquisition*; up to ``_MAX_LOST_FRAMES`` lost frames later), and only
 then on the whole image.
-
-:class:`ConstantVelocityFilter` optionally smooths the poses (a Kalman filter
-with a constant-velocity model).
 """
 
 from __future__ import annotations
@@ -35,7 +32,7 @@ from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
 from spotnav.precise import localize_precise, pose_problem
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 
-__all__ = ["TRACK_MODES", "ConstantVelocityFilter", "TrackedFrame", "Tracker", "track_frame"]
+__all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "track_frame"]
 
 TRACK_MODES = ("tracked", "reacquired", "acquired", "lost")
 _CURVE_POINTS = 90
@@ -54,7 +51,7 @@ class TrackedFrame:
     Attributes
     ----------
     estimate : PoseEstimate
-        The pose (smoothed with ``smooth``), or why there is none.
+        The pose, or why there is none.
     mode : str
         ``tracked`` (region of interest), ``reacquired`` (after a loss, where
         the spot was last seen), ``acquired`` (whole image) or ``lost`` (no
@@ -194,59 +191,6 @@ def _prepare_kernels(setup: Setup) -> None:
     localize_precise(frame, setup)
 
 
-class ConstantVelocityFilter:
-    """Kalman filter with a constant-velocity model for each coordinate of a vector.
-
-    The state is the vector and its velocity per frame; white acceleration of
-    standard deviation ``acceleration`` per frame squared drives it.
-
-    Parameters
-    ----------
-    size : int
-        Length of the filtered vector.
-    acceleration : float
-        Process noise: standard deviation of the acceleration, units per frame^2.
-    """
-
-    def __init__(self, size: int, acceleration: float) -> None:
-        if not (np.isfinite(acceleration) and acceleration > 0):
-            raise ValueError(f"acceleration must be a finite number > 0, got {acceleration}")
-        self.size = size
-        self._transition = np.array([[1.0, 1.0], [0.0, 1.0]])
-        self._process = acceleration**2 * np.array([[0.25, 0.5], [0.5, 1.0]])
-        self._state: np.ndarray | None = None  # (size, 2): value and velocity
-        self._covariance = np.zeros((size, 2, 2))
-
-    def predict(self, frames: int = 1) -> np.ndarray | None:
-        """Advance the state by ``frames`` and return the predicted vector (None before the first update)."""
-        if self._state is None:
-            return None
-        for _ in range(frames):
-            self._state = self._state @ self._transition.T
-            self._covariance = self._transition @ self._covariance @ self._transition.T + self._process
-        return self._state[:, 0].copy()
-
-    def update(self, measured: np.ndarray, variance: np.ndarray) -> np.ndarray:
-        """Fuse a measurement (shape (size,), with per-coordinate ``variance``) and return the filtered vector."""
-        measured = np.asarray(measured, dtype=float)
-        variance = np.broadcast_to(np.asarray(variance, dtype=float), measured.shape)
-        if self._state is None:
-            self._state = np.column_stack([measured, np.zeros_like(measured)])
-            self._covariance = np.zeros((self.size, 2, 2))
-            self._covariance[:, 0, 0] = variance
-            self._covariance[:, 1, 1] = 1e6 * variance + 1.0
-            return measured.copy()
-        gain = self._covariance[:, :, 0] / (self._covariance[:, 0, 0] + variance)[:, None]  # (size, 2)
-        innovation = measured - self._state[:, 0]
-        self._state = self._state + gain * innovation[:, None]
-        self._covariance = self._covariance - gain[:, :, None] * self._covariance[:, None, 0, :]
-        return self._state[:, 0].copy()
-
-    def reset(self) -> None:
-        """Forget the track."""
-        self._state = None
-
-
 @dataclass
 class Tracker:
     """Track the instrument over consecutive frames (see the module's docstring).
@@ -257,12 +201,6 @@ class Tracker:
     through_insertion : bool
         Constrain the axis through the insertion point (method ``precise``);
         ``False`` fits it (``precise-free``).
-    smooth : bool
-        Smooth the tip with :class:`ConstantVelocityFilter` (measurement
-        variance from each estimate's ``sigma_mm``); the axis follows the tip
-        through the insertion point when constrained.
-    acceleration_mm : float
-        The filter's process noise, mm per frame^2.
     max_jump_mm : float
         A tracked tip further than this from the prediction (re-acquired:
         from where it was last seen) is localized on the whole image instead.
@@ -272,23 +210,18 @@ class Tracker:
 
     setup: Setup
     through_insertion: bool = True
-    smooth: bool = False
-    acceleration_mm: float = 0.02
     max_jump_mm: float = 0.5
     max_rays: int = 128
     _last: PoseEstimate | None = field(default=None, init=False, repr=False)
     _last_seen: PoseEstimate | None = field(default=None, init=False, repr=False)
     _lost_frames: int = field(default=0, init=False, repr=False)
     _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
-    _filter: ConstantVelocityFilter | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.max_jump_mm) and self.max_jump_mm > 0):
             raise ValueError(f"max_jump_mm must be a finite number > 0, got {self.max_jump_mm}")
         if self.max_rays < 64:
             raise ValueError(f"max_rays must be at least 64, got {self.max_rays}")
-        if self.smooth:
-            self._filter = ConstantVelocityFilter(3, self.acceleration_mm)
         _prepare_kernels(self.setup)
 
     def update(self, image: np.ndarray) -> TrackedFrame:
@@ -321,34 +254,19 @@ class Tracker:
         last = self._last
         if last is None or last.tip_in_eye is None or last.axis is None:
             return None
-        if self._filter is not None:
-            tip_in_eye = self._filter.predict()
-            assert tip_in_eye is not None
-            return replace(last, tip_in_eye=tip_in_eye, axis=self._axis_of(tip_in_eye, last.axis))
         if self._velocity is None:
             return last
         return replace(last, tip_in_eye=last.tip_in_eye + self._velocity)
 
     def _remember(self, estimate: PoseEstimate) -> PoseEstimate:
         assert estimate.tip_in_eye is not None and estimate.axis is not None
-        if self._filter is not None:
-            tip_in_eye = self._filter.update(estimate.tip_in_eye, estimate.sigma_mm**2)
-            estimate = replace(estimate, tip_in_eye=tip_in_eye, axis=self._axis_of(tip_in_eye, estimate.axis))
-        elif self._last is not None and self._last.tip_in_eye is not None:
+        if self._last is not None and self._last.tip_in_eye is not None:
             self._velocity = estimate.tip_in_eye - self._last.tip_in_eye
         self._last = self._last_seen = estimate
         return estimate
-
-    def _axis_of(self, tip_in_eye: np.ndarray, axis: np.ndarray) -> np.ndarray:
-        """The axis for a smoothed tip: through the insertion point when constrained, else ``axis``."""
-        if self.through_insertion:
-            return normalize(tip_in_eye - self.setup.instrument.insertion_in_eye)
-        return axis
 
     def _forget(self) -> None:
         self._last, self._velocity = None, None
         self._lost_frames += 1
         if self._lost_frames > _MAX_LOST_FRAMES:
             self._last_seen = None
-        if self._filter is not None:
-            self._filter.reset()
