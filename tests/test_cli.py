@@ -400,19 +400,18 @@ def test_track_limits_and_capture_timestamps(
 ) -> None:
     scene, video = long_video
     poses = tmp_path / "poses.csv"
+    start = time.time()
     assert main(["track", "--scene", str(scene), str(video), "--out", str(poses), "--max-frames", "30"]) == 0
     rows = _complete_rows(poses)
     assert len(rows) == 30 and "(--max-frames 30)" in capsys.readouterr().err
-    stamps = np.array([float(row["timestamp_s"]) for row in rows])
-    np.testing.assert_allclose(np.diff(stamps), 0.01, atol=1e-6)  # the video's 100 fps
+    stamps = np.array([float(row["timestamp_s"]) for row in rows])  # when each frame arrived
+    assert np.all(np.diff(stamps) > 0) and start <= stamps[0] and stamps[-1] <= time.time()
     assert main(["track", "--scene", str(scene), str(video), "--out", str(poses), "--duration", "0.2"]) == 0
     assert 1 <= len(_complete_rows(poses)) < 1200 and "(--duration 0.2 s)" in capsys.readouterr().err
-    # A URL is a live stream: its frames carry the time they arrived.
-    start = time.time()
+    # Any URL that OpenCV's FFmpeg opens is a source.
     url = video.resolve().as_uri()
     assert main(["track", "--scene", str(scene), url, "--out", str(poses), "--max-frames", "5"]) == 0
-    stamps = np.array([float(row["timestamp_s"]) for row in _complete_rows(poses)])
-    assert np.all(np.diff(stamps) >= 0) and start <= stamps[0] <= time.time()
+    assert [row["status"] for row in _complete_rows(poses)] == ["ok"] * 5
     assert main(["track", "--scene", str(scene), str(video), "--out", str(poses), "--fps", "30"]) == 2
     assert "camera settings need a live camera" in capsys.readouterr().err
 

@@ -7,8 +7,10 @@ arguments or setups end with one line ``spotnav: error: ...`` and exit code 2.
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import os
 import signal
+import socket
 import sys
 import time
 from collections import Counter
@@ -61,7 +63,7 @@ from spotnav.files import (
     write_truth_json,
 )
 from spotnav.geometry import InstrumentPose, beam_axes
-from spotnav.igtl import DEFAULT_PORT, DEVICE_NAME, PoseServer
+from spotnav.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT, PoseServer
 from spotnav.localize import DEFAULT_METHOD, METHODS, localize
 from spotnav.render import Renderer
 from spotnav.track import TrackedFrame, Tracker
@@ -232,16 +234,15 @@ def _cmd_track(args: argparse.Namespace) -> int:
     report = partial(print, file=sys.stderr)
     frames = iter_frames(args.source, ring=2, camera=camera, report=report)  # the tracker keeps no image
     with _StopSignals() as signals:
-        server = PoseServer(args.igtl, args.igtl_wait) if args.igtl is not None else None
-        if server is not None:
-            state = "connected" if server.connected else "waiting for a client"
-            print(f"OpenIGTLink: {DEVICE_NAME} on 127.0.0.1:{server.port} ({state})", file=sys.stderr)
+        server = _igtl_server(args)
         try:
             with PosesWriter(args.out, TRACK_COLUMNS) as out:
                 run = _track_frames(args, tracker, frames, server, signals, out)
         finally:
             if server is not None:
                 server.close()
+                dropped = f", {server.clients_dropped} dropped for not reading" if server.clients_dropped else ""
+                print(f"OpenIGTLink: {server.clients_served} clients served{dropped}", file=sys.stderr)
     counts = ", ".join(f"{n} {s}" for s, n in run.statuses.most_common()) or "no frames"
     latencies = run.latencies
     timing = (
@@ -255,6 +256,26 @@ def _cmd_track(args: argparse.Namespace) -> int:
         print(f"spotnav: error: {run.wrong_size} frames in a row are not the setup's camera size", file=sys.stderr)
         return 2
     return 0
+
+
+def _igtl_server(args: argparse.Namespace) -> PoseServer | None:
+    """The OpenIGTLink server that ``--igtl`` asks for (None without it), with what it tells the user."""
+    if args.igtl is None:
+        return None
+    server = PoseServer(args.igtl, host=args.igtl_host, device=args.igtl_device, wait_s=args.igtl_wait)
+    state = "connected" if server.connected else "waiting for a client"
+    print(
+        f"OpenIGTLink: {server.device} (TRANSFORM) and {server.device}Status (STRING) on "
+        f"{server.host}:{server.port} ({state})",
+        file=sys.stderr,
+    )
+    if not ipaddress.ip_address(socket.gethostbyname(server.host)).is_loopback:
+        print(
+            f"spotnav: warning: OpenIGTLink has no authentication: anyone who reaches {server.host}:{server.port} "
+            "receives the poses",
+            file=sys.stderr,
+        )
+    return server
 
 
 def _track_frames(
@@ -277,7 +298,7 @@ def _track_frames(
             tracked = tracker.update(frame.pixels)
         latency = 1000 * (time.perf_counter() - start)
         if server is not None:
-            server.send(tracked.estimate, frame.index)
+            server.send(tracked.estimate, frame.index, frame.timestamp_s, tracked.mode)
         out.write(track_row(frame, tracked.estimate, tracked.mode, latency))
         run.statuses[tracked.estimate.status] += 1
         run.latencies.append(latency)
@@ -621,6 +642,18 @@ def _parser() -> argparse.ArgumentParser:
         help=f"send each pose to OpenIGTLink clients such as 3D Slicer (default port {DEFAULT_PORT})",
     )
     track.add_argument("--igtl-wait", type=float, default=0.0, metavar="S", help="wait for a client first (s)")
+    track.add_argument(
+        "--igtl-host",
+        default=DEFAULT_HOST,
+        metavar="ADDRESS",
+        help=f"address to serve OpenIGTLink on (default {DEFAULT_HOST}; the protocol has no authentication)",
+    )
+    track.add_argument(
+        "--igtl-device",
+        default=DEFAULT_DEVICE,
+        metavar="NAME",
+        help=f"the TRANSFORM's device name (default {DEFAULT_DEVICE}, PLUS's FromToTo convention)",
+    )
     track.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
     track.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     track.add_argument(

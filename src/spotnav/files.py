@@ -527,7 +527,7 @@ def track_row(frame: Frame, estimate: PoseEstimate, mode: str, latency_ms: float
     """One ``poses.csv`` row of ``spotnav track``, in :data:`TRACK_COLUMNS` order."""
     row = dict(zip(POSES_COLUMNS, pose_row(frame.image, estimate), strict=True))
     row.update(frame=str(frame.index), mode=mode, latency_ms=f"{latency_ms:.2f}", decode_ms=f"{frame.decode_ms:.2f}")
-    row["timestamp_s"] = "" if not np.isfinite(frame.timestamp_s) else f"{frame.timestamp_s:.6f}"
+    row["timestamp_s"] = f"{frame.timestamp_s:.6f}"
     return [row[column] for column in TRACK_COLUMNS]
 
 
@@ -548,8 +548,9 @@ class Frame:
     error : str
         Why ``pixels`` is None.
     timestamp_s : float
-        When the frame was captured, s: Unix time when a live camera or stream
-        delivered it, the position in a video file; NaN for image files.
+        When the frame arrived, Unix seconds: a live camera's or stream's frame
+        when it was delivered (its capture time, as near as OpenCV tells), a
+        file's frame when it was decoded.
     """
 
     index: int
@@ -557,7 +558,7 @@ class Frame:
     pixels: np.ndarray | None
     decode_ms: float
     error: str = ""
-    timestamp_s: float = float("nan")
+    timestamp_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -660,7 +661,7 @@ def iter_frames(
         for number, value in wanted.items():
             if abs(capture.get(number) - value) > 1e-6 * max(abs(value), 1.0):
                 report(f"{source}: asked for {PROPERTY_NAMES[number]} {value:g}, it reports {capture.get(number):g}")
-    return _read_capture(capture, ring, is_live(source))
+    return _read_capture(capture, ring)
 
 
 def _read_files(files: Sequence[str]) -> Iterator[Frame]:
@@ -670,10 +671,10 @@ def _read_files(files: Sequence[str]) -> Iterator[Frame]:
             pixels, error = read_image(name), ""
         except ImageReadError as failure:
             pixels, error = None, str(failure)
-        yield Frame(index, display_name(name), pixels, 1000 * (time.perf_counter() - start), error)
+        yield Frame(index, display_name(name), pixels, 1000 * (time.perf_counter() - start), error, time.time())
 
 
-def _read_capture(capture: cv2.VideoCapture, ring: int, live: bool) -> Iterator[Frame]:
+def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
     buffers: list[np.ndarray | None] = [None] * max(ring, 1)
     decoded: np.ndarray | None = None
     try:
@@ -683,7 +684,7 @@ def _read_capture(capture: cv2.VideoCapture, ring: int, live: bool) -> Iterator[
             ok, decoded = capture.read(decoded if ring else None)
             if not ok:
                 return
-            stamp = time.time() if live else capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
+            stamp = time.time()
             slot = index % len(buffers)
             pixels = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=buffers[slot])
             if ring:

@@ -1,88 +1,258 @@
 """Stream poses to 3D Slicer (OpenIGTLinkIF) or any OpenIGTLink client, as PLUS does.
 
-Each pose goes out as a TRANSFORM message named :data:`DEVICE_NAME`: the
-homogeneous transform from the instrument's frame to the eye frame
-(:func:`spotnav.geometry.instrument_to_eye`), translation in millimetres.
-The server listens on the loopback interface; a frame without a pose sends
-nothing.
+Every frame sends two messages to every connected client:
+
+- a TRANSFORM named ``device`` (``TipToEye`` by default, PLUS's ``FromToTo``
+  convention): the homogeneous transform from the instrument's frame to the
+  eye frame (:func:`spotnav.geometry.instrument_to_eye`), translation in
+  millimetres. Its metadata (OpenIGTLink 3, header version 2) carries
+  ``TransformStatus`` = ``OK`` or ``INVALID`` as PLUS marks it; a frame without
+  a pose repeats the last pose (identity before the first) as ``INVALID``.
+- a STRING named ``device + "Status"``: the frame's status as JSON
+  (``{"frame": 12, "status": "ok", "sigma_mm": 0.0021, "mode": "tracked"}``).
+
+Both carry the frame's capture time as their timestamp. The server is spotnav's
+own loop around pyigtl's message classes, on its own thread: it never reads
+what clients send (garbage, half headers and commands are discarded), a client
+that closes or fails is dropped, and a client that stops reading is dropped
+once 1 MiB waits for it, so that no client can stall tracking or starve
+another. OpenIGTLink has no authentication: the server listens on the
+loopback interface unless told otherwise.
 """
 
 from __future__ import annotations
 
-import logging
-import signal
+import json
+import selectors
+import socket
+import threading
 import time
+from collections import deque
+from dataclasses import dataclass
 
+import numpy as np
 import pyigtl
 
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import instrument_to_eye
 
-__all__ = ["DEFAULT_PORT", "DEVICE_NAME", "PoseServer"]
+__all__ = ["DEFAULT_DEVICE", "DEFAULT_HOST", "DEFAULT_PORT", "IgtlError", "PoseServer"]
 
 DEFAULT_PORT = 18944
-DEVICE_NAME = "SpotnavTip"
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_DEVICE = "TipToEye"
+_DEVICE_BYTES = 20  # OpenIGTLink's device name field
+_STATUS_SUFFIX = "Status"
+MAX_BACKLOG_BYTES = 1 << 20  # a client with this much unread is dropped
 _FLUSH_TIMEOUT_S = 2.0
+_POLL_S = 0.05
 
-_log = logging.getLogger("spotnav.igtl")
+
+class IgtlError(ValueError):
+    """The OpenIGTLink server cannot be set up as asked (a bad name, a port in use)."""
+
+
+@dataclass(frozen=True)
+class _Pose:
+    frame: int
+    estimate: PoseEstimate
+    timestamp_s: float
+    mode: str
 
 
 class PoseServer:
-    """An OpenIGTLink server that sends each ``ok`` pose as a TRANSFORM message.
+    """An OpenIGTLink server that sends each frame's pose and status (see the module's docstring).
 
     Parameters
     ----------
     port : int
-        TCP port on 127.0.0.1 (OpenIGTLink's default is 18944).
+        TCP port (OpenIGTLink's default is 18944).
+    host : str
+        Address to listen on; the loopback interface by default.
+    device : str
+        The TRANSFORM's device name, ASCII, at most 14 characters (its STRING adds ``Status``).
     wait_s : float
         Wait up to this long for a client before returning from the constructor.
 
-    Use it as a context manager; leaving it sends what is queued and closes the server.
+    Raises
+    ------
+    IgtlError
+        For a bad device name or port, or an address it cannot listen on (naming it).
+
+    Use it as a context manager; leaving it sends what is queued (up to 2 s) and stops the server.
     """
 
-    def __init__(self, port: int = DEFAULT_PORT, wait_s: float = 0.0) -> None:
+    def __init__(
+        self, port: int = DEFAULT_PORT, *, host: str = DEFAULT_HOST, device: str = DEFAULT_DEVICE, wait_s: float = 0.0
+    ) -> None:
         if not 0 < port < 65536:
-            raise ValueError(f"--igtl port must be in 1..65535, got {port}")
-        handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-        self._server = pyigtl.OpenIGTLinkServer(port=port, local_server=True)
-        for number, handler in handlers.items():  # pyigtl installs its own; keep the caller's
-            signal.signal(number, handler)
-        self.port = port
+            raise IgtlError(f"--igtl port must be in 1..65535, got {port}")
+        if not (device.isascii() and device.isprintable() and 0 < len(device + _STATUS_SUFFIX) <= _DEVICE_BYTES):
+            limit = _DEVICE_BYTES - len(_STATUS_SUFFIX)
+            raise IgtlError(f"--igtl-device must be 1 to {limit} printable ASCII characters, got {device!r}")
+        try:
+            self._listener = socket.create_server((host, port))
+        except OSError as error:
+            raise IgtlError(f"OpenIGTLink: cannot listen on {host}:{port}: {error.strerror or error}") from None
+        self._listener.setblocking(False)
+        self.host, self.port, self.device = host, port, device
+        self.clients_served = 0
+        self.clients_dropped = 0
+        self._clients: dict[socket.socket, bytearray] = {}
+        self._queue: deque[_Pose] = deque()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._wake_read, self._wake_write = socket.socketpair()
+        self._wake_write.setblocking(False)
+        self._last_matrix = np.eye(4)
+        self._selector = selectors.DefaultSelector()  # used by the server thread only
+        self._selector.register(self._listener, selectors.EVENT_READ)
+        self._selector.register(self._wake_read, selectors.EVENT_READ)
+        self._thread = threading.Thread(target=self._serve, name="spotnav-igtl", daemon=True)
+        self._thread.start()
         deadline = time.monotonic() + wait_s
-        while not self._server.is_connected() and time.monotonic() < deadline:
+        while not self.connected and time.monotonic() < deadline:
             time.sleep(0.01)
 
     @property
     def connected(self) -> bool:
         """Whether a client is connected."""
-        return bool(self._server.is_connected())
+        with self._lock:
+            return bool(self._clients)
 
-    def send(self, estimate: PoseEstimate, frame: int) -> bool:
-        """Queue the estimate's pose; returns whether it was sent (an ``ok`` pose and a client)."""
-        if not estimate.ok:
-            reason = f"{estimate.status}: {estimate.detail}" if estimate.detail else estimate.status
-            _log.info("frame %d: no pose sent (%s)", frame, reason)
-            return False
-        if not self.connected:
-            _log.info("frame %d: no OpenIGTLink client connected", frame)
-            return False
-        assert estimate.tip_in_eye is not None and estimate.axis is not None
-        matrix = instrument_to_eye(estimate.tip_in_eye, estimate.axis, estimate.roll)
-        message = pyigtl.TransformMessage(matrix, device_name=DEVICE_NAME, timestamp=time.time())
-        return bool(self._server.send_message(message, wait=False))
+    def send(self, estimate: PoseEstimate, frame: int, timestamp_s: float, mode: str = "") -> None:
+        """Queue a frame's pose and status for every client (returns at once; the server thread sends).
+
+        Parameters
+        ----------
+        estimate : PoseEstimate
+        frame : int
+            The frame's index.
+        timestamp_s : float
+            The frame's capture time, Unix seconds.
+        mode : str
+            The tracker's mode for the frame (``tracked``, ...).
+        """
+        with self._lock:
+            self._queue.append(_Pose(frame, estimate, timestamp_s, mode))
+        self._wake()
 
     def close(self) -> None:
-        """Send what is queued (up to 2 s) and stop the server."""
-        deadline = time.monotonic() + _FLUSH_TIMEOUT_S
-        while self.connected and time.monotonic() < deadline:
-            with self._server.lock_outgoing_messages:
-                if not self._server.outgoing_messages:
-                    break
-            time.sleep(0.005)
-        self._server.stop()
+        """Send what is queued (up to 2 s), then stop the server and close every connection."""
+        self._stop.set()
+        self._wake()
+        self._thread.join(_FLUSH_TIMEOUT_S + 1.0)
+        for sock in (self._listener, self._wake_read, self._wake_write):
+            sock.close()
 
     def __enter__(self) -> PoseServer:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def _wake(self) -> None:
+        try:
+            self._wake_write.send(b"\0")
+        except OSError:  # the pipe is full (the server is awake anyway) or closed
+            pass
+
+    def _serve(self) -> None:
+        """The server thread: accept, discard what clients send, write what waits for them, until closed."""
+        selector = self._selector
+        deadline = None
+        try:
+            while True:
+                if self._stop.is_set() and deadline is None:
+                    deadline = time.monotonic() + _FLUSH_TIMEOUT_S
+                self._pack_queued()
+                with self._lock:
+                    pending = {sock: bool(buffer) for sock, buffer in self._clients.items()}
+                if deadline is not None and (not any(pending.values()) or time.monotonic() > deadline):
+                    break
+                for sock, has_data in pending.items():
+                    events = selectors.EVENT_READ | (selectors.EVENT_WRITE if has_data else 0)
+                    selector.modify(sock, events)
+                for key, events in selector.select(_POLL_S):
+                    self._handle(key.fileobj, events)  # type: ignore[arg-type]
+        finally:
+            with self._lock:
+                clients = list(self._clients)
+                self._clients.clear()
+            for sock in clients:
+                selector.unregister(sock)
+                sock.close()
+            selector.close()
+
+    def _handle(self, sock: socket.socket, events: int) -> None:
+        if sock is self._listener:
+            self._accept()
+        elif sock is self._wake_read:
+            try:
+                sock.recv(4096)
+            except OSError:
+                pass
+        else:
+            try:
+                if events & selectors.EVENT_READ and not sock.recv(65536):  # the client closed
+                    raise ConnectionResetError
+                if events & selectors.EVENT_WRITE:
+                    with self._lock:
+                        buffer = self._clients[sock]
+                        sent = sock.send(buffer)
+                        del buffer[:sent]
+            except BlockingIOError:
+                pass
+            except OSError:
+                self._drop(sock)
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                sock, _ = self._listener.accept()
+            except OSError:  # nobody waiting (BlockingIOError) or the client gave up
+                return
+            sock.setblocking(False)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self._lock:
+                self._clients[sock] = bytearray()
+                self.clients_served += 1
+            self._selector.register(sock, selectors.EVENT_READ)
+
+    def _drop(self, sock: socket.socket) -> None:
+        with self._lock:
+            self._clients.pop(sock, None)
+        self._selector.unregister(sock)
+        sock.close()
+
+    def _pack_queued(self) -> None:
+        with self._lock:
+            poses = list(self._queue)
+            self._queue.clear()
+        if not poses:
+            return
+        data = b"".join(self._pack(pose) for pose in poses)
+        with self._lock:
+            stalled = []
+            for sock, buffer in self._clients.items():
+                buffer += data
+                if len(buffer) > MAX_BACKLOG_BYTES:
+                    stalled.append(sock)
+        for sock in stalled:
+            self.clients_dropped += 1
+            self._drop(sock)
+
+    def _pack(self, pose: _Pose) -> bytes:
+        estimate = pose.estimate
+        if estimate.tip_in_eye is not None and estimate.axis is not None and estimate.ok:
+            self._last_matrix = instrument_to_eye(estimate.tip_in_eye, estimate.axis, estimate.roll)
+        transform = pyigtl.TransformMessage(self._last_matrix, timestamp=pose.timestamp_s, device_name=self.device)
+        status = {"frame": pose.frame, "status": estimate.status, "mode": pose.mode}
+        if np.isfinite(estimate.sigma_mm):
+            status["sigma_mm"] = round(float(estimate.sigma_mm), 6)
+        text = pyigtl.StringMessage(
+            json.dumps(status), timestamp=pose.timestamp_s, device_name=self.device + _STATUS_SUFFIX
+        )
+        transform.header_version = 2
+        transform.metadata = {"TransformStatus": "OK" if estimate.ok else "INVALID", "Status": estimate.status}
+        return transform.pack() + text.pack()
