@@ -19,6 +19,7 @@ import pytest
 from spotnav.cli import main
 from spotnav.config import EXAMPLE_SETUP, THESIS_EXPOSURE_STOPS, Render, Setup, Uncertainty, setup_from_toml
 from spotnav.experiments.faults import SILENT_ERROR_MM
+from spotnav.files import iter_frames
 from spotnav.geometry import edge_angle_of_blend
 
 
@@ -401,7 +402,10 @@ def test_track_limits_and_capture_timestamps(
     scene, video = long_video
     poses = tmp_path / "poses.csv"
     start = time.time()
-    assert main(["track", "--scene", str(scene), str(video), "--out", str(poses), "--max-frames", "30"]) == 0
+    overlay = tmp_path / "overlay.mkv"
+    argv = ["track", "--scene", str(scene), str(video), "--out", str(poses), "--overlay", str(overlay)]
+    assert main([*argv, "--max-frames", "30"]) == 0
+    assert sum(1 for _ in iter_frames(str(overlay))) == 30  # every frame, drawn on
     rows = _complete_rows(poses)
     assert len(rows) == 30 and "(--max-frames 30)" in capsys.readouterr().err
     stamps = np.array([float(row["timestamp_s"]) for row in rows])  # when each frame arrived
@@ -471,3 +475,15 @@ def _png(width: int, height: int, raw: bytes) -> bytes:
 
     header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
+
+
+def test_show_draws_a_frame_and_prints_its_fit(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=512, blend=0.15)
+    frame = tmp_path / "frame.png"
+    assert main(["render", "--scene", str(scene), "--tip", "0.5", "0", "4.5", "--out", str(frame)]) == 0
+    capsys.readouterr()
+    assert main(["show", "--scene", str(scene), str(frame), "--out", str(tmp_path / "o.png"), "--crop"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("ok: tip 0.5") and "beam 0:" in out and "fitted points kept" in out
+    overlay = cv2.imread(str(tmp_path / "o.png"))
+    assert overlay is not None and max(overlay.shape[:2]) < 300  # cropped to the spot

@@ -95,7 +95,7 @@ def test_evaluate_command_joins_on_file_names_and_writes_its_files(
     assert "frames: 2 (1 ok, 1 no_spot)" in printed and "max 0.0100" in printed
     rows = (out / "errors.csv").read_text().splitlines()
     assert rows[1].startswith("test_00.png,ok,0.010000") and rows[2] == "test_01.png,no_spot,,,,,"
-    assert (out / "errors.png").stat().st_size > 0
+    assert (out / "errors.png").stat().st_size > 0 and (out / "track.png").read_bytes()[:4] == b"\x89PNG"
     truth_csv.write_text("image,x_mm,y_mm,z_mm\ntest_00.png,0,0,4\n")
     assert main(["evaluate", str(poses), str(truth_csv)]) == 2
     assert "no truth for 1 image(s): test_01.png" in capsys.readouterr().err

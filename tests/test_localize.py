@@ -14,7 +14,8 @@ from spotnav.estimate import STATUSES
 from spotnav.experiments import helix_tips, working_volume_tips
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.geometry import InstrumentPose, angles_between
-from spotnav.localize import localize
+from spotnav.localize import localize, localize_detailed
+from spotnav.overlay import _cone_edge_px
 from spotnav.precise import detection_decimation, smallest_spot_area_px
 from spotnav.render import Renderer
 
@@ -257,3 +258,35 @@ def test_a_frame_blurred_after_its_encoding_is_refused_whatever_the_spot_s_size(
         frame = cv2.GaussianBlur(Renderer(world).render(pose, seed=1), (0, 0), 3.0 * size_px / 1024)
         estimate = localize(frame, setup, "precise")
         assert estimate.status == "blurred", estimate
+
+
+@pytest.mark.parametrize("method", ["precise", "precise-free", "thesis"])
+def test_a_detailed_result_shows_what_the_pose_came_from(method: str) -> None:
+    # The same pose as localize(), each beam's edge points, the fitted cones (whose edges the points lie on),
+    # and, for the precise methods, the residuals, inliers and a tip covariance that is the reported sigma's.
+    setup = _three_beam(small_setup(1024, blend=0.15))
+    setup = with_true_edge(setup) if method != "thesis" else setup
+    pose = InstrumentPose.through_insertion(np.array([1.0, -0.5, 4.5]), setup.instrument.insertion_in_eye)
+    image = Renderer(setup).render(pose, seed=3)
+    result = localize_detailed(image, setup, method)
+    plain = localize(image, setup, method)
+    assert result.estimate.status == plain.status == "ok"
+    np.testing.assert_array_equal(result.estimate.tip_in_eye, plain.tip_in_eye)
+    assert sorted(spot.beam for spot in result.spots) == [0, 1, 2] and len(result.cones) == 3
+    for cone in result.cones:
+        np.testing.assert_array_equal(cone.apex_in_eye, result.estimate.tip_in_eye)
+    if method == "thesis":
+        assert np.all(np.isnan(result.tip_covariance_mm2))
+        return
+    covariance = result.tip_covariance_mm2
+    assert np.isclose(np.sqrt(np.trace(covariance) / 3), result.estimate.sigma_mm)
+    assert np.all(np.linalg.eigvalsh(covariance) > 0)
+    # The robust fit keeps most points (it leaves out the softest part of the tilted beams' far edges) ...
+    assert np.mean(np.concatenate([spot.inliers for spot in result.spots])) > 0.7
+    for spot in result.spots:
+        assert np.sqrt(np.mean(spot.residuals_deg[spot.inliers] ** 2)) < 0.05
+        # each fitted point lies on its fitted cone's projected edge, to a fraction of a pixel
+        curve = _cone_edge_px(setup, result.cones[spot.beam])
+        dense = np.concatenate([np.linspace(a, b, 20) for a, b in zip(curve, np.roll(curve, -1, axis=0), strict=True)])
+        gaps = np.min(np.linalg.norm(spot.fitted_px[spot.inliers][:, None] - dense[None], axis=2), axis=1)
+        assert np.median(gaps) < 0.3

@@ -654,7 +654,8 @@ class RadiusSelfCalibration:
 
 def prepare_self_calibration(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, EdgeFrame | None]:
     """One frame's share of :func:`self_calibrate_radius`: its precise pose and its edges (None if unusable)."""
-    estimate, prepared = localize_precise_with_edges(image, setup)
+    result = localize_precise_with_edges(image, setup)
+    estimate, prepared = result.estimate, result.edges
     return estimate, prepared if estimate.ok else None
 
 

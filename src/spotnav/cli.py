@@ -7,6 +7,7 @@ arguments or setups end with one line ``spotnav: error: ...`` and exit code 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ipaddress
 import os
 import signal
@@ -64,7 +65,8 @@ from spotnav.files import (
 )
 from spotnav.geometry import InstrumentPose, beam_axes
 from spotnav.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT, PoseServer
-from spotnav.localize import DEFAULT_METHOD, METHODS, localize
+from spotnav.localize import DEFAULT_METHOD, METHODS, localize, localize_detailed
+from spotnav.overlay import crop_box, draw_overlay
 from spotnav.render import Renderer
 from spotnav.track import TrackedFrame, Tracker
 
@@ -236,8 +238,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
     with _StopSignals() as signals:
         server = _igtl_server(args)
         try:
-            with PosesWriter(args.out, TRACK_COLUMNS) as out:
-                run = _track_frames(args, tracker, frames, server, signals, out)
+            with PosesWriter(args.out, TRACK_COLUMNS) as out, _overlay_writer(args) as overlay:
+                run = _track_frames(args, tracker, frames, server, signals, out, overlay)
         finally:
             if server is not None:
                 server.close()
@@ -256,6 +258,13 @@ def _cmd_track(args: argparse.Namespace) -> int:
         print(f"spotnav: error: {run.wrong_size} frames in a row are not the setup's camera size", file=sys.stderr)
         return 2
     return 0
+
+
+def _overlay_writer(args: argparse.Namespace) -> contextlib.AbstractContextManager[SequenceWriter | None]:
+    """``track --overlay``'s video (or folder of PNGs), or nothing."""
+    if args.overlay is None:
+        return contextlib.nullcontext()
+    return SequenceWriter(args.overlay, args.fps or 30.0)
 
 
 def _igtl_server(args: argparse.Namespace) -> PoseServer | None:
@@ -285,6 +294,7 @@ def _track_frames(
     server: PoseServer | None,
     signals: _StopSignals,
     out: PosesWriter,
+    overlay: SequenceWriter | None,
 ) -> _TrackRun:
     """Track every frame, writing each row as it is done, until the source ends or a stop is due."""
     run = _TrackRun()
@@ -300,6 +310,9 @@ def _track_frames(
         if server is not None:
             server.send(tracked.estimate, frame.index, frame.timestamp_s, tracked.mode)
         out.write(track_row(frame, tracked.estimate, tracked.mode, latency))
+        if overlay is not None and frame.pixels is not None:
+            label = f"frame {frame.index}, {tracked.mode}"
+            overlay.write(frame.index, draw_overlay(frame.pixels, tracker.setup, tracked.estimate, label=label))
         run.statuses[tracked.estimate.status] += 1
         run.latencies.append(latency)
         progress.set_postfix_str(f"{1000 / max(np.median(run.latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")
@@ -379,6 +392,31 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     counts = ", ".join(f"{n} {s}" for s, n in statuses.most_common()) or "no images"
     ended = f" (stopped by {signals.received})" if signals.received else ""
     print(f"wrote {args.out}: {out.rows} images, {counts}{ended}", file=sys.stderr)
+    return 0
+
+
+def _cmd_show(args: argparse.Namespace) -> int:
+    setup = read_setup(args.scene)
+    image = read_image(args.frame, expected_size=(setup.camera.width_px, setup.camera.height_px))
+    result = localize_detailed(image, setup, args.method)
+    canvas = draw_overlay(image, setup, result.estimate, spots=result.spots, cones=result.cones)
+    if args.crop:
+        x0, y0, x1, y1 = crop_box(setup, result)
+        canvas = canvas[y0:y1, x0:x1]
+    write_image(args.out, canvas)
+    estimate = result.estimate
+    if estimate.tip_in_eye is not None:
+        tip = " ".join(f"{v:.4f}" for v in estimate.tip_in_eye)
+        print(f"ok: tip {tip} mm, sigma {estimate.sigma_mm:.4f} mm")
+    else:
+        print(f"{estimate.status}: {estimate.detail}")
+    for spot in result.spots:
+        line = f"beam {spot.beam}: {len(spot.edge_px)} edge points"
+        if len(spot.fitted_px):
+            rms = float(np.sqrt(np.mean(spot.residuals_deg**2)))
+            line += f", {int(spot.inliers.sum())} of {len(spot.fitted_px)} fitted points kept, RMS {rms:.4f} deg"
+        print(line)
+    print(f"wrote {args.out}", file=sys.stderr)
     return 0
 
 
@@ -654,6 +692,11 @@ def _parser() -> argparse.ArgumentParser:
         metavar="NAME",
         help=f"the TRANSFORM's device name (default {DEFAULT_DEVICE}, PLUS's FromToTo convention)",
     )
+    track.add_argument(
+        "--overlay",
+        metavar="OUT",
+        help="also write every frame with its fitted cones, tip and status drawn on it: a .mkv video or a folder",
+    )
     track.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
     track.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     track.add_argument(
@@ -668,6 +711,14 @@ def _parser() -> argparse.ArgumentParser:
     evaluate.add_argument("truth", metavar="TRUTH.csv", help="image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z][,...]")
     evaluate.add_argument("--out", help="folder for errors.csv (per frame) and errors.png")
     evaluate.set_defaults(run=_cmd_evaluate)
+
+    show = commands.add_parser("show", help="draw a frame's edge points, fitted cones, tip and status over it")
+    show.add_argument("--scene", required=True, help="setup TOML")
+    show.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS), help=f"default {DEFAULT_METHOD}")
+    show.add_argument("--out", required=True, help="the overlay image (PNG)")
+    show.add_argument("--crop", action="store_true", help="only the part of the frame around the spots")
+    show.add_argument("frame", metavar="FRAME", help="the camera frame")
+    show.set_defaults(run=_cmd_show)
 
     bench = commands.add_parser("bench", help="ms per frame: rendering, full-frame methods and tracking")
     bench.add_argument("--sizes", type=int, nargs="+", default=[1024, 2048, 5000], help="image sizes, px")

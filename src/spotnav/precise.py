@@ -37,6 +37,7 @@ from spotnav.thesis import ThesisSolution, solve_thesis
 
 __all__ = [
     "EdgeFrame",
+    "PreciseResult",
     "detect_spots",
     "largest_spot_area_px",
     "localize_precise",
@@ -169,15 +170,33 @@ def pose_problem(
     )
 
 
+@dataclass(frozen=True)
+class PreciseResult:
+    """The precise method's answer for one frame, and what it came from.
+
+    Attributes
+    ----------
+    estimate : PoseEstimate
+    edges : EdgeFrame or None
+        The sub-pixel edges and the start the fit began from; None when the
+        frame gave no edges to fit (see ``estimate.status``).
+    fit : ConeSolution or None
+        The cone fit the estimate reports (its points, residuals, inliers and
+        covariance); None when no fit ran to the end.
+    """
+
+    estimate: PoseEstimate
+    edges: EdgeFrame | None = None
+    fit: ConeSolution | None = None
+
+
 def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PoseEstimate:
     """spotnav's precise method (see :func:`localize_precise_with_edges`)."""
-    return localize_precise_with_edges(image, setup, through_insertion=through_insertion)[0]
+    return localize_precise_with_edges(image, setup, through_insertion=through_insertion).estimate
 
 
-def localize_precise_with_edges(
-    image: np.ndarray, setup: Setup, *, through_insertion: bool = True
-) -> tuple[PoseEstimate, EdgeFrame | None]:
-    """spotnav's precise method (the module's docstring), and the edges it fitted.
+def localize_precise_with_edges(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PreciseResult:
+    """spotnav's precise method (the module's docstring), with the edges and the fit it came from.
 
     The coarse detection accepts fainter spots than the thesis's; more bright
     regions than beams are ``ambiguous`` unless the extra ones are less than a
@@ -196,14 +215,11 @@ def localize_precise_with_edges(
 
     Returns
     -------
-    estimate : PoseEstimate
-    edges : EdgeFrame or None
-        What the fit started from (for joint fits over frames); None when the
-        frame gave no edges to fit.
+    PreciseResult
     """
     wrong = check_image_size(image, setup)
     if wrong is not None:
-        return wrong, None
+        return PreciseResult(wrong)
     detection = detect_spots(image, setup)
     beams = setup.instrument.beam_count
     spots = detection.spots
@@ -211,16 +227,16 @@ def localize_precise_with_edges(
         extra = spots[beams].area_px
         if extra > _MAX_CLUTTER_AREA * spots[beams - 1].area_px or extra >= smallest_spot_area_px(setup):
             detail = f"{detection.regions}, {beams} beam{'s' if beams > 1 else ''}: more spots than beams"
-            return PoseEstimate("ambiguous", spots=len(spots), detail=detail), None
+            return PreciseResult(PoseEstimate("ambiguous", spots=len(spots), detail=detail))
         detection = replace(detection, spots=spots[:beams])
     prepared = prepare_edges(image, detection, setup, through_insertion)
     if isinstance(prepared, PoseEstimate):
-        return prepared, None
-    estimate = _fit_precise(prepared, setup, through_insertion)
+        return PreciseResult(prepared)
+    estimate, fit = _fit_precise(prepared, setup, through_insertion)
     if estimate.ok and len(spots) > beams:
         ignored = f"{len(spots) - beams} much smaller bright regions ignored"
         estimate = replace(estimate, detail="; ".join(filter(None, [estimate.detail, ignored])))
-    return estimate, prepared
+    return PreciseResult(estimate, prepared, fit)
 
 
 def prepare_edges(
@@ -291,14 +307,17 @@ def _fit_unhidden(
     return fit, used
 
 
-def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> PoseEstimate:
+def _fit_precise(
+    prepared: EdgeFrame, setup: Setup, through_insertion: bool
+) -> tuple[PoseEstimate, ConeSolution | None]:
+    """The pose from the prepared edges, and the fit it comes from (None when none ran to the end)."""
     start, beams = prepared.start, prepared.beams
     assert start.tip_in_eye is not None
     # Leave out the edge the shaft hides; if the fit fails its checks, leave out a wider band around it.
     for margin_mm in _SHAFT_MARGINS_MM:
         unhidden = _fit_unhidden(prepared, setup, margin_mm)
         if isinstance(unhidden, PoseEstimate):
-            return unhidden
+            return unhidden, None
         constrained, visible = unhidden
         if judge_fit(constrained, setup, spots=start.spots).status != "unreliable":
             break
@@ -311,11 +330,13 @@ def _fit_precise(prepared: EdgeFrame, setup: Setup, through_insertion: bool) -> 
     free = fit_cones(problem, solver="gauss-newton" if steps else "trust-region")
     if through_insertion:
         estimate = judge_fit(constrained, setup, spots=start.spots, detail=start.detail, other_axis=free.axis())
-        return _check_insertion(estimate, constrained, free, setup)
+        return _check_insertion(estimate, constrained, free, setup), constrained
     return _fit_free(prepared, setup, constrained, free)
 
 
-def _fit_free(prepared: EdgeFrame, setup: Setup, constrained: ConeSolution, free: ConeSolution) -> PoseEstimate:
+def _fit_free(
+    prepared: EdgeFrame, setup: Setup, constrained: ConeSolution, free: ConeSolution
+) -> tuple[PoseEstimate, ConeSolution | None]:
     """``precise-free``: the axis fitted too, from the free fit and (one beam) both mirror-image starts.
 
     A cone and its mirror image fit one contour almost equally; ``ambiguous`` when they do.
@@ -326,7 +347,7 @@ def _fit_free(prepared: EdgeFrame, setup: Setup, constrained: ConeSolution, free
     hidden = hidden_by_shaft(setup, prepared.edges_px, free.tip(), free.axis())
     visible = visible_edge_points(setup, prepared.edges_px, hidden)
     if isinstance(visible, PoseEstimate):
-        return visible
+        return visible, None
     starts = [(free.tip(), free.axis(), free.roll())]
     if setup.instrument.beam_count == 1:
         candidates = prepared.solution.candidates[0]
@@ -346,14 +367,14 @@ def _fit_free(prepared: EdgeFrame, setup: Setup, constrained: ConeSolution, free
         (f for f in fits if setup.contains_point(f.tip())), key=lambda f: float(np.mean(np.abs(f.residuals)))
     )
     if not inside:
-        return PoseEstimate("unreliable", spots=start.spots, detail="every fitted tip lies outside the eye")
+        return PoseEstimate("unreliable", spots=start.spots, detail="every fitted tip lies outside the eye"), None
     best = inside[0]
     for other in inside[1:]:
         close_fit = np.mean(np.abs(other.residuals)) < _MIRROR_RESIDUAL_RATIO * np.mean(np.abs(best.residuals))
         if close_fit and np.linalg.norm(other.tip() - best.tip()) > _MIRROR_DISTANCE_MM:
             detail = "a cone and its mirror image fit alike: fix the axis by the insertion point (method precise)"
-            return PoseEstimate("ambiguous", spots=start.spots, detail=detail)
-    return judge_fit(best, setup, spots=start.spots, detail=start.detail, other_axis=constrained.axis())
+            return PoseEstimate("ambiguous", spots=start.spots, detail=detail), best
+    return judge_fit(best, setup, spots=start.spots, detail=start.detail, other_axis=constrained.axis()), best
 
 
 def _check_insertion(

@@ -13,12 +13,12 @@ from __future__ import annotations
 import csv
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from spotnav.experiments.figures import plot_errors_by_status
+from spotnav.experiments.figures import plot_errors_by_status, plot_path_3d
 from spotnav.files import KnownPose, PoseRow
 
 __all__ = ["Evaluation", "FrameEvaluation", "evaluate_poses", "evaluation_text", "write_evaluation"]
@@ -39,6 +39,8 @@ class FrameEvaluation:
         Angle between the axes, degrees (NaN without a pose or a true axis).
     sigma_mm : float
         The estimate's own 1-sigma tip uncertainty (NaN without one).
+    true_tip_mm : ndarray, shape (3,)
+        The true tip, eye frame, mm.
     """
 
     image: str
@@ -46,6 +48,7 @@ class FrameEvaluation:
     error_xyz_mm: np.ndarray
     axis_error_deg: float
     sigma_mm: float = float("nan")
+    true_tip_mm: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
 
     @property
     def error_mm(self) -> float:
@@ -130,7 +133,7 @@ def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Eval
             if true.axis is not None:
                 cosine = row.axis @ true.axis / (np.linalg.norm(row.axis) * np.linalg.norm(true.axis))
                 angle = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-        frames.append(FrameEvaluation(name, row.status, error, angle, row.sigma_mm))
+        frames.append(FrameEvaluation(name, row.status, error, angle, row.sigma_mm, true.tip_in_eye))
     ok = [f for f in frames if f.status == "ok"]
     errors = np.array([f.error_mm for f in ok])
     angles = np.array([f.axis_error_deg for f in ok if np.isfinite(f.axis_error_deg)])
@@ -173,7 +176,8 @@ def evaluation_text(evaluation: Evaluation) -> str:
 
 
 def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:
-    """Write ``errors.csv`` (one row per frame) and ``errors.png`` (error per frame by status) into ``out``."""
+    """Write ``errors.csv`` (one row per frame), ``errors.png`` (error per frame by status) and
+    ``track.png`` (the estimated tips against the true path, in 3D) into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     table = out / "errors.csv"
     with table.open("w", newline="", encoding="utf-8") as handle:
@@ -190,4 +194,9 @@ def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:
         [f.status for f in evaluation.frames],
         f"tip error per frame: mean {evaluation.mean_mm:.4f} mm, max {evaluation.max_mm:.4f} mm over ok frames",
     )
-    return [table, figure]
+    truth = np.array([f.true_tip_mm for f in evaluation.frames])
+    estimated = truth + np.array([f.error_xyz_mm for f in evaluation.frames])
+    track = out / "track.png"
+    title = f"estimated tips ({evaluation.counts.get('ok', 0)} ok frames) against the true path"
+    plot_path_3d(track, truth, {"estimate": estimated}, title)
+    return [table, figure, track]
