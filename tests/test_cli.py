@@ -487,3 +487,17 @@ def test_show_draws_a_frame_and_prints_its_fit(tmp_path: Path, capsys: pytest.Ca
     assert out.startswith("ok: tip 0.5") and "beam 0:" in out and "fitted points kept" in out
     overlay = cv2.imread(str(tmp_path / "o.png"))
     assert overlay is not None and max(overlay.shape[:2]) < 300  # cropped to the spot
+
+
+def test_a_bug_is_not_dressed_up_as_a_user_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Only spotnav's own user errors become one-line messages with exit 2; anything else keeps its traceback.
+    scene = write_scene(tmp_path / "setup.toml", size_px=256)
+    frame = tmp_path / "frame.png"
+    assert main(["render", "--scene", str(scene), "--tip", "0", "0", "4", "--out", str(frame)]) == 0
+
+    def broken(*_: object) -> None:
+        raise ValueError("a bug")
+
+    monkeypatch.setattr("spotnav.cli.localize", broken)
+    with pytest.raises(ValueError, match="a bug"):
+        main(["localize", "--scene", str(scene), str(frame), "--out", str(tmp_path / "poses.csv")])

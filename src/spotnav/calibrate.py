@@ -64,6 +64,7 @@ from spotnav.conefit import (
 )
 from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup
 from spotnav.detect import detect_edge_subpixel
+from spotnav.errors import InputError
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import assign_beams, normalize
 from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges
@@ -247,7 +248,7 @@ def insertion_from_axes(tips_in_eye: np.ndarray, axes: np.ndarray) -> tuple[np.n
     projectors = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
     normal = projectors.sum(axis=0)
     if np.linalg.cond(normal) > _MAX_AXES_CONDITION:
-        raise ValueError("the known axes are (nearly) parallel: they do not fix the insertion point")
+        raise InputError("the known axes are (nearly) parallel: they do not fix the insertion point")
     point = np.linalg.solve(normal, np.einsum("fij,fj->i", projectors, tips_in_eye))
     offsets = np.einsum("fij,fj->fi", projectors, point - tips_in_eye)
     squares = float(np.sum(offsets**2))
@@ -351,10 +352,10 @@ def calibrate(
     """
     for name in (*fit, *fix):
         if name not in PARAMETER_GROUPS:
-            raise ValueError(f"{name!r} is not a parameter group, allowed: {', '.join(PARAMETER_GROUPS)}")
+            raise InputError(f"{name!r} is not a parameter group, allowed: {', '.join(PARAMETER_GROUPS)}")
     both = sorted(set(fit) & set(fix))
     if both:
-        raise ValueError(f"{both[0]} cannot be both fitted and fixed")
+        raise InputError(f"{both[0]} cannot be both fitted and fixed")
     if setup.camera.response is not None:
         return _finish(_fit_geometry(frames, setup, fit, fix))
     fits: list[_GeometryFit | None] = []
@@ -412,7 +413,7 @@ def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str]
         (skipped if isinstance(result, str) else edges).append(result)
     if len(edges) < MIN_FRAMES:
         reasons = "; ".join(skipped) if skipped else "none given"
-        raise ValueError(f"calibration needs at least {MIN_FRAMES} usable frames, got {len(edges)} ({reasons})")
+        raise InputError(f"calibration needs at least {MIN_FRAMES} usable frames, got {len(edges)} ({reasons})")
     reasons = {i: "fixed (--fix)" for name in fix for i in PARAMETER_GROUPS[name]}
     prior = np.sqrt(np.diag(geometry_covariance(setup, one_frame=False)))
     reasons.update({i: "known exactly ([uncertainty] 0)" for i in range(SHARED_SIZE) if prior[i] == 0})
@@ -420,7 +421,7 @@ def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str]
     lines = None
     if known_axes:
         if "insertion-point" in fit:
-            raise ValueError("with known axes the insertion point is where they meet: it cannot be --fit")
+            raise InputError("with known axes the insertion point is where they meet: it cannot be --fit")
         if "insertion-point" not in fix:
             lines = insertion_from_axes(np.array([e.tip for e in edges]), np.array([e.axis for e in edges]))
             setup = replace(setup, instrument=replace(setup.instrument, insertion_point_mm=tuple(lines[0])))
@@ -429,7 +430,7 @@ def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str]
     forced = [i for name in fit for i in PARAMETER_GROUPS[name]]
     candidates = [i for i in PRIORITY if i in forced or i not in reasons]
     if not candidates:
-        raise ValueError(
+        raise InputError(
             "nothing to calibrate: the setup's [uncertainty] says its geometry is known exactly "
             "(leave the section out for a real microscope, or force parameters with --fit)"
         )
@@ -443,7 +444,7 @@ def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str]
     chosen, ratios = _chosen(held, candidates, forced)
     unresolved = [i for i in forced if not ratios[i] < DETERMINED_RATIO]
     if unresolved:
-        raise ValueError(
+        raise InputError(
             f"the known frames cannot determine {group_of(unresolved[0])} (they give it "
             f"{ratios[unresolved[0]]:.2f} of its prior uncertainty, under {DETERMINED_RATIO} is needed): too few "
             f"frames, or degenerate poses ({_describe_poses(edges)})"
@@ -525,7 +526,7 @@ def _calibration(
     calibrated = setup_with_geometry(setup, solution.shared)
     rms_px = float(np.sqrt(np.mean(_residuals_px(calibrated, solution)[inliers] ** 2)))
     if inliers.mean() < _MIN_INLIER_FRACTION or (np.degrees(rms_after) > MAX_RMS_DEG and rms_px > MAX_RMS_PX):
-        raise ValueError(
+        raise InputError(
             f"the calibrated model does not fit the frames: RMS {np.degrees(rms_after):.3f} deg ({rms_px:.2f} px) "
             f"after, {np.degrees(rms_before):.3f} deg before, {100 * inliers.mean():.0f} % of the edge points fit; "
             "check known.csv (tips in the eye frame, images in its order) and the setup's beam (count, angles)"
@@ -626,7 +627,7 @@ def calibrate_height_correction(frames: Sequence[KnownFrame], setup: Setup) -> H
         except ValueError as error:
             skipped.append(f"{frame.name}: {error}")
     if not factors:
-        raise ValueError(f"no frame gives a height correction ({'; '.join(skipped)})")
+        raise InputError(f"no frame gives a height correction ({'; '.join(skipped)})")
     return HeightCorrection(float(np.mean(factors)), float(np.std(factors)), len(factors), tuple(skipped))
 
 
@@ -686,7 +687,7 @@ def self_calibrate_radius(
     estimates = [estimate for estimate, _ in shares]
     used = [index for index, (_, prepared) in enumerate(shares) if prepared is not None]
     if len(used) < MIN_FRAMES_FOR_SELF_CALIBRATION:
-        raise ValueError(
+        raise InputError(
             f"fitting the radius from the frames alone needs at least {MIN_FRAMES_FOR_SELF_CALIBRATION} frames "
             f"with a pose, got {len(used)}"
         )

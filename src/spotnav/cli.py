@@ -34,6 +34,7 @@ from spotnav.calibrate import (
 )
 from spotnav.conefit import PARAMETER_GROUPS
 from spotnav.config import EXAMPLES, GEOMETRY_PARAMETERS, Camera, Setup
+from spotnav.errors import SpotnavError
 from spotnav.estimate import PoseEstimate
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.experiments.bench import bench_markdown, run_bench, run_stress, stress_markdown
@@ -73,7 +74,7 @@ from spotnav.track import TrackedFrame, Tracker
 __all__ = ["main"]
 
 
-class UsageError(ValueError):
+class UsageError(SpotnavError):
     """Arguments that cannot be used."""
 
 
@@ -800,7 +801,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         return args.run(args)
-    except (ValueError, OSError) as error:
+    except (SpotnavError, OSError) as error:
         message = str(error).splitlines()[0] if str(error) else type(error).__name__
         print(f"spotnav: error: {message}", file=sys.stderr)
         return 2

@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from spotnav.errors import SpotnavError
+
 __all__ = [
     "EXAMPLES",
     "EXAMPLE_SETUP",
@@ -42,7 +44,7 @@ __all__ = [
 ]
 
 
-class SetupError(ValueError):
+class SetupError(SpotnavError):
     """A setup value is missing, of the wrong type or out of range."""
 
 

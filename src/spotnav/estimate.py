@@ -106,3 +106,15 @@ class PoseEstimate:
     def ok(self) -> bool:
         """Whether a pose was found."""
         return self.status == "ok"
+
+    def pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """The tip (mm) and the unit axis of an ``ok`` estimate.
+
+        Raises
+        ------
+        ValueError
+            For an estimate without a pose (a bug in the caller: check :attr:`ok` first).
+        """
+        if self.tip_in_eye is None or self.axis is None:
+            raise ValueError(f"a {self.status!r} estimate has no pose")
+        return self.tip_in_eye, self.axis

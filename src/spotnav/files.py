@@ -22,6 +22,7 @@ import numpy as np
 import PIL.Image
 
 from spotnav.config import Setup, SetupError, setup_from_toml
+from spotnav.errors import InputError
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import InstrumentPose
 
@@ -64,7 +65,7 @@ POSES_COLUMNS = (
 )
 
 
-class ImageReadError(ValueError):
+class ImageReadError(InputError):
     """An image file is missing, empty, too large, not an image, or not the camera's size.
 
     ``status`` is the ``poses.csv`` status of its row: ``unreadable`` or ``wrong_size``.
@@ -198,7 +199,7 @@ def write_image(path: str | Path, rgb: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     image = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if rgb.ndim == 3 else rgb
     if not cv2.imwrite(str(path), image):
-        raise ValueError(f"{path}: cannot write the image")
+        raise InputError(f"{path}: cannot write the image")
 
 
 def setup_to_dict(setup: Setup) -> dict:
@@ -227,8 +228,7 @@ def _format(value: float) -> str:
 def pose_row(image: str, estimate: PoseEstimate, time_ms: float | None = None) -> list[str]:
     """One ``poses.csv`` row, in :data:`POSES_COLUMNS` order."""
     if estimate.ok:
-        assert estimate.tip_in_eye is not None and estimate.axis is not None
-        numbers = [_format(v) for v in (*estimate.tip_in_eye, *estimate.axis)]
+        numbers = [_format(v) for v in np.concatenate(estimate.pose())]
     else:
         numbers = [""] * 6
     quality = ["" if not np.isfinite(v) else _format(v) for v in (estimate.sigma_mm, estimate.rms_px)]
@@ -295,9 +295,9 @@ def _read_csv_rows(path: Path, needed: Sequence[str]) -> list[dict[str, str]]:
         with path.open(newline="", encoding="utf-8") as handle:
             rows = list(csv.DictReader(handle))
     except OSError as error:
-        raise ValueError(f"{path}: cannot read: {error.strerror}") from None
+        raise InputError(f"{path}: cannot read: {error.strerror}") from None
     if not rows or any(name not in rows[0] for name in needed):
-        raise ValueError(f"{path}: needs a header with the columns {', '.join(needed)} and at least one row")
+        raise InputError(f"{path}: needs a header with the columns {', '.join(needed)} and at least one row")
     return rows
 
 
@@ -318,7 +318,7 @@ def _frame_number(row: dict[str, str], path: Path, number: int) -> int | None:
     try:
         return int(row["frame"])
     except ValueError:
-        raise ValueError(f"{path}, line {number}: the frame must be a whole number") from None
+        raise InputError(f"{path}, line {number}: the frame must be a whole number") from None
 
 
 def _read_truth_json(path: Path) -> KnownPose:
@@ -329,11 +329,11 @@ def _read_truth_json(path: Path) -> KnownPose:
         axis = np.array(record["axis"], dtype=float)
         image = path.parent / record.get("image", path.with_suffix(".png").name)
     except (OSError, UnicodeDecodeError) as error:
-        raise ValueError(f"{path}: cannot read the truth: {getattr(error, 'strerror', None) or error}") from None
+        raise InputError(f"{path}: cannot read the truth: {getattr(error, 'strerror', None) or error}") from None
     except (json.JSONDecodeError, KeyError, TypeError, ValueError):
-        raise ValueError(f"{path}: not a truth file of spotnav render (tip_mm, axis, image)") from None
+        raise InputError(f"{path}: not a truth file of spotnav render (tip_mm, axis, image)") from None
     if tip.shape != (3,) or axis.shape != (3,) or not (np.all(np.isfinite(tip)) and np.all(np.isfinite(axis))):
-        raise ValueError(f"{path}: tip_mm and axis must be three finite numbers each")
+        raise InputError(f"{path}: tip_mm and axis must be three finite numbers each")
     return KnownPose(image, tip, axis, None)
 
 
@@ -361,9 +361,9 @@ def read_known_poses(path: str | Path) -> list[KnownPose]:
             tip = np.array([float(row[k]) for k in ("x_mm", "y_mm", "z_mm")])
             axis = np.array([float(row[f"dir_{k}"]) for k in "xyz"]) if has_axis else None
         except (TypeError, ValueError):
-            raise ValueError(f"{path}, line {number}: the position must be numbers") from None
+            raise InputError(f"{path}, line {number}: the position must be numbers") from None
         if not np.all(np.isfinite(tip)) or (axis is not None and not np.all(np.isfinite(axis))):
-            raise ValueError(f"{path}, line {number}: the position must be finite")
+            raise InputError(f"{path}, line {number}: the position must be finite")
         image = Path(row["image"])
         if row["image"] and not image.is_absolute():
             image = path.parent / image
@@ -405,16 +405,16 @@ def read_poses_csv(path: str | Path) -> list[PoseRow]:
         try:
             sigma = float(row.get("sigma_mm") or "nan")
         except ValueError:
-            raise ValueError(f"{path}, line {number}: sigma_mm must be a number") from None
+            raise InputError(f"{path}, line {number}: sigma_mm must be a number") from None
         if not any(values) and row["status"] != "ok":
             parsed.append(PoseRow(row["image"], row["status"], None, None, frame, sigma))
             continue
         try:
             numbers = np.array([float(v) for v in values])
         except (TypeError, ValueError):
-            raise ValueError(f"{path}, line {number}: the pose must be six numbers") from None
+            raise InputError(f"{path}, line {number}: the pose must be six numbers") from None
         if not np.all(np.isfinite(numbers)):
-            raise ValueError(f"{path}, line {number}: the pose must be finite")
+            raise InputError(f"{path}, line {number}: the pose must be finite")
         parsed.append(PoseRow(row["image"], row["status"], numbers[:3], numbers[3:], frame, sigma))
     return parsed
 
@@ -445,14 +445,14 @@ def read_opencv_camera(path: str | Path) -> tuple[int, int, np.ndarray, np.ndarr
     """
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"{path}: no such file")
+        raise InputError(f"{path}: no such file")
     try:
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError):  # OpenCV's parser raises its error through a SystemError
-        raise ValueError(f"{path}: not a file cv2.FileStorage reads (YAML, XML or JSON)") from None
+        raise InputError(f"{path}: not a file cv2.FileStorage reads (YAML, XML or JSON)") from None
     try:
         if not storage.isOpened():
-            raise ValueError(f"{path}: not a file cv2.FileStorage reads (YAML, XML or JSON)")
+            raise InputError(f"{path}: not a file cv2.FileStorage reads (YAML, XML or JSON)")
 
         def first(keys: Sequence[str]) -> cv2.FileNode | None:
             for key in keys:
@@ -464,18 +464,18 @@ def read_opencv_camera(path: str | Path) -> tuple[int, int, np.ndarray, np.ndarr
         matrix_node, distortion_node = first(_OPENCV_MATRIX_KEYS), first(_OPENCV_DISTORTION_KEYS)
         if matrix_node is None or distortion_node is None:
             missing = "camera_matrix" if matrix_node is None else "distortion_coefficients"
-            raise ValueError(f"{path}: no {missing} (OpenCV's calibration keys)")
+            raise InputError(f"{path}: no {missing} (OpenCV's calibration keys)")
         matrix, distortion = matrix_node.mat(), distortion_node.mat()
         sizes = [first(keys) for keys in _OPENCV_SIZE_KEYS]
         if any(node is None for node in sizes):
-            raise ValueError(f"{path}: no image_width and image_height")
+            raise InputError(f"{path}: no image_width and image_height")
         width, height = (int(node.real()) for node in sizes)  # type: ignore[union-attr]
     finally:
         storage.release()
     if matrix is None or matrix.shape != (3, 3):
-        raise ValueError(f"{path}: camera_matrix must be 3 x 3")
+        raise InputError(f"{path}: camera_matrix must be 3 x 3")
     if distortion is None:
-        raise ValueError(f"{path}: distortion_coefficients is not a matrix")
+        raise InputError(f"{path}: distortion_coefficients is not a matrix")
     return width, height, np.asarray(matrix, dtype=float), np.asarray(distortion, dtype=float).ravel()
 
 
@@ -648,7 +648,7 @@ def iter_frames(
         raise ValueError(f"ring must be at least 0, got {ring}")
     wanted = camera.requests() if camera is not None else {}
     if wanted and not is_live(source):
-        raise ValueError(f"{source}: camera settings need a live camera, URL or pipeline, not files")
+        raise InputError(f"{source}: camera settings need a live camera, URL or pipeline, not files")
     files = _sequence_files(source)
     if files is not None:
         if not files:
@@ -738,7 +738,7 @@ class SequenceWriter:
         self.fps = fps
         self.video = self.out.suffix.lower() in VIDEO_SUFFIXES
         if self.video and self.out.suffix.lower() != ".mkv":
-            raise ValueError(f"{self.out}: lossless video is written as FFV1 in Matroska: use .mkv")
+            raise InputError(f"{self.out}: lossless video is written as FFV1 in Matroska: use .mkv")
         self._writer: cv2.VideoWriter | None = None
         (self.out.parent if self.video else self.out).mkdir(parents=True, exist_ok=True)
 
@@ -753,7 +753,7 @@ class SequenceWriter:
             fourcc = cv2.VideoWriter.fourcc(*"FFV1")
             self._writer = cv2.VideoWriter(str(self.out), fourcc, self.fps, (width, height))
             if not self._writer.isOpened():
-                raise ValueError(f"{self.out}: cannot write an FFV1 video")
+                raise InputError(f"{self.out}: cannot write an FFV1 video")
         self._writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         return ""
 
@@ -790,21 +790,21 @@ def read_path_csv(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"{path}: no such file")
+        raise InputError(f"{path}: no such file")
     with path.open(newline="", encoding="utf-8") as handle:
         reader = csv.DictReader(handle)
         missing = [c for c in ("x_mm", "y_mm", "z_mm") if c not in (reader.fieldnames or [])]
         if missing:
-            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
+            raise InputError(f"{path}: missing column(s) {', '.join(missing)}")
         tips = []
         for line, row in enumerate(reader, start=2):
             try:
                 tip = [float(row[c]) for c in ("x_mm", "y_mm", "z_mm")]
             except (TypeError, ValueError):
-                raise ValueError(f"{path}: row {line}: x_mm, y_mm, z_mm must be numbers") from None
+                raise InputError(f"{path}: row {line}: x_mm, y_mm, z_mm must be numbers") from None
             if not np.all(np.isfinite(tip)):
-                raise ValueError(f"{path}: row {line}: x_mm, y_mm, z_mm must be finite")
+                raise InputError(f"{path}: row {line}: x_mm, y_mm, z_mm must be finite")
             tips.append(tip)
     if len(tips) < 2:
-        raise ValueError(f"{path}: a path needs at least two rows")
+        raise InputError(f"{path}: a path needs at least two rows")
     return np.array(tips)

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyigtl
 
+from spotnav.errors import SpotnavError
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import instrument_to_eye
 
@@ -48,7 +49,7 @@ _FLUSH_TIMEOUT_S = 2.0
 _POLL_S = 0.05
 
 
-class IgtlError(ValueError):
+class IgtlError(SpotnavError):
     """The OpenIGTLink server cannot be set up as asked (a bad name, a port in use)."""
 
 

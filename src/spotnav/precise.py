@@ -253,8 +253,7 @@ def prepare_edges(
     start = solution.estimate
     if not start.ok:
         return start
-    assert start.tip_in_eye is not None and start.axis is not None
-    axis = start.axis
+    axis = start.pose()[1]
     chosen_axes = np.array([c.cone_axes[i] for c, i in zip(solution.candidates, solution.chosen, strict=True)])
     if not through_insertion and len(solution.candidates) == 3:
         # Three symmetric beam axes sum along the instrument's axis, wherever the insertion point is.
@@ -285,9 +284,7 @@ def _fit_unhidden(
     many). ``occluded`` when the shaft hides too much of a spot's edge at a
     fitted pose.
     """
-    start = prepared.start
-    assert start.tip_in_eye is not None and start.axis is not None
-    tip, axis, roll = start.tip_in_eye, start.axis, prepared.roll
+    (tip, axis), roll = prepared.start.pose(), prepared.roll
     hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
     visible = visible_edge_points(setup, prepared.edges_px, hidden)
     if isinstance(visible, PoseEstimate):  # judge the shaft at a fitted pose instead
@@ -312,7 +309,6 @@ def _fit_precise(
 ) -> tuple[PoseEstimate, ConeSolution | None]:
     """The pose from the prepared edges, and the fit it comes from (None when none ran to the end)."""
     start, beams = prepared.start, prepared.beams
-    assert start.tip_in_eye is not None
     # Leave out the edge the shaft hides; if the fit fails its checks, leave out a wider band around it.
     for margin_mm in _SHAFT_MARGINS_MM:
         unhidden = _fit_unhidden(prepared, setup, margin_mm)
@@ -342,7 +338,6 @@ def _fit_free(
     A cone and its mirror image fit one contour almost equally; ``ambiguous`` when they do.
     """
     start, beams = prepared.start, prepared.beams
-    assert start.tip_in_eye is not None
     # The shaft runs along the free axis (which the constrained fit does not know, off the insertion line).
     hidden = hidden_by_shaft(setup, prepared.edges_px, free.tip(), free.axis())
     visible = visible_edge_points(setup, prepared.edges_px, hidden)
@@ -354,7 +349,7 @@ def _fit_free(
         mirrors = zip(candidates.apexes, candidates.cone_axes, strict=True)
         starts += [(apex, cone_axis, 0.0) for apex, cone_axis in mirrors]
     else:
-        starts.append((start.tip_in_eye, prepared.axis, prepared.roll))
+        starts.append((start.pose()[0], prepared.axis, prepared.roll))
     fits = [
         fit_cones(
             pose_problem(

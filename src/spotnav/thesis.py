@@ -18,6 +18,7 @@ from spotnav.camera import unproject_pixels_to_plane, unproject_pixels_to_sphere
 from spotnav.checks import check_image_size
 from spotnav.config import Setup
 from spotnav.detect import Spot, SpotDetection, detect_spots_otsu
+from spotnav.errors import InputError
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import normalize
 from spotnav.reconstruct import ConeCandidates, apex_candidates, choose_by_insertion, sphere_normal
@@ -179,14 +180,14 @@ def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarra
     """
     wrong = check_image_size(image, setup)
     if wrong is not None:
-        raise ValueError(wrong.detail)
+        raise InputError(wrong.detail)
     detection = detect_spots_otsu(image, response=setup.camera.pixel_response)
     if len(detection.spots) > setup.instrument.beam_count:
-        raise ValueError(f"the calibration frame shows {len(detection.spots)} spots")
+        raise InputError(f"the calibration frame shows {len(detection.spots)} spots")
     plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
     fits = [c for c in (spot_candidates(s, plain) for s in detection.spots) if c]
     if not fits:
-        raise ValueError("the calibration frame shows no whole spot")
+        raise InputError("the calibration frame shows no whole spot")
     tip_in_eye = np.asarray(tip_in_eye, dtype=float)
     factors = [float((tip_in_eye - c.plane_origin_in_eye) @ c.plane_normal_in_eye) / c.s2 for c in fits]
     return float(np.mean(factors))

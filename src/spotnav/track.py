@@ -103,8 +103,7 @@ def track_frame(
     if wrong is not None:
         return wrong
     estimate = _track_once(image, setup, predicted, through_insertion, max_rays)
-    assert predicted.tip_in_eye is not None
-    if estimate.ok and np.linalg.norm(estimate.tip_in_eye - predicted.tip_in_eye) > _REREAD_MM:
+    if estimate.ok and np.linalg.norm(estimate.pose()[0] - predicted.pose()[0]) > _REREAD_MM:
         # The rays crossed the edge aslant, from a centre that was off: read them again across the fitted edge.
         estimate = _track_once(image, setup, estimate, through_insertion, max_rays)
     return estimate
@@ -114,14 +113,14 @@ def _track_once(
     image: np.ndarray, setup: Setup, predicted: PoseEstimate, through_insertion: bool, max_rays: int
 ) -> PoseEstimate:
     """One pass of :func:`track_frame`: the edges along rays across the predicted edge curves, and the fit."""
-    assert predicted.tip_in_eye is not None and predicted.axis is not None
+    predicted_tip, predicted_axis = predicted.pose()
     camera, instrument = setup.camera, setup.instrument
     angle = edge_angle(setup)
-    axes = beam_axes(predicted.axis, instrument.beam_count, instrument.beam_tilt, predicted.roll)
+    axes = beam_axes(predicted_axis, instrument.beam_count, instrument.beam_tilt, predicted.roll)
     edges, sigmas = [], []
     for beam_axis in axes:
         try:
-            apex_in_eye = predicted.tip_in_eye - beam_axis * instrument.light_radius_mm / np.tan(angle)
+            apex_in_eye = predicted_tip - beam_axis * instrument.light_radius_mm / np.tan(angle)
             curve_in_eye = cone_sphere_curve(
                 apex_in_eye, beam_axis, angle, setup.eye.center_in_eye, setup.eye.radius_mm, _CURVE_POINTS
             )
@@ -145,15 +144,15 @@ def _track_once(
             return PoseEstimate(verdict[0], detail=verdict[1])
         edges.append(edge.pixels)
         sigmas.append(verdict)
-    visible = visible_edge_points(setup, edges, hidden_by_shaft(setup, edges, predicted.tip_in_eye, predicted.axis))
+    visible = visible_edge_points(setup, edges, hidden_by_shaft(setup, edges, predicted_tip, predicted_axis))
     if isinstance(visible, PoseEstimate):
         return visible
     problem = pose_problem(
         setup,
         visible,
         list(range(instrument.beam_count)),
-        predicted.tip_in_eye,
-        predicted.axis,
+        predicted_tip,
+        predicted_axis,
         predicted.roll,
         through_insertion=through_insertion,
         edge_sigmas=sigmas,
@@ -239,8 +238,7 @@ class Tracker:
             tracked = track_frame(
                 image, self.setup, start, through_insertion=self.through_insertion, max_rays=self.max_rays
             )
-            assert start.tip_in_eye is not None
-            if tracked.ok and np.linalg.norm(tracked.tip_in_eye - start.tip_in_eye) <= self.max_jump_mm:
+            if tracked.ok and np.linalg.norm(tracked.pose()[0] - start.pose()[0]) <= self.max_jump_mm:
                 estimate, mode = tracked, found
         if estimate is None:
             estimate = localize_precise(image, self.setup, through_insertion=self.through_insertion)
@@ -259,9 +257,8 @@ class Tracker:
         return replace(last, tip_in_eye=last.tip_in_eye + self._velocity)
 
     def _remember(self, estimate: PoseEstimate) -> PoseEstimate:
-        assert estimate.tip_in_eye is not None and estimate.axis is not None
         if self._last is not None and self._last.tip_in_eye is not None:
-            self._velocity = estimate.tip_in_eye - self._last.tip_in_eye
+            self._velocity = estimate.pose()[0] - self._last.tip_in_eye
         self._last = self._last_seen = estimate
         return estimate
 

@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
 
+from spotnav.errors import InputError
 from spotnav.experiments.calibration import run_calibration
 from spotnav.experiments.chapter6 import Experiment, Options, run_ellipse, run_paths, run_world
 from spotnav.experiments.core import THESIS_TABLE_4_1_UM, approximation_rows, run_approximation, run_volume
@@ -76,7 +77,7 @@ def reproduce(
     """
     unknown = sorted(set(only) - set(EXPERIMENTS))
     if unknown:
-        raise ValueError(f"unknown experiment {unknown[0]!r}, allowed: {', '.join(EXPERIMENTS)}")
+        raise InputError(f"unknown experiment {unknown[0]!r}, allowed: {', '.join(EXPERIMENTS)}")
     out.mkdir(parents=True, exist_ok=True)
     size_px = size_px or (1024 if quick else 5000)
     count = poses or (25 if quick else 100)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spotnav.errors import InputError
 from spotnav.experiments.figures import plot_errors_by_status, plot_path_3d
 from spotnav.files import KnownPose, PoseRow
 
@@ -98,7 +99,7 @@ def _by_name(keys: Sequence[str], what: str) -> dict[str, int]:
     index: dict[str, int] = {}
     for position, key in enumerate(keys):
         if key in index:
-            raise ValueError(f"{what}: the image {key} appears twice")
+            raise InputError(f"{what}: the image {key} appears twice")
         index[key] = position
     return index
 
@@ -120,9 +121,9 @@ def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Eval
     missing_truth = sorted(set(estimated) - set(known))
     missing_pose = sorted(set(known) - set(estimated))
     if missing_truth:
-        raise ValueError(f"no truth for {len(missing_truth)} image(s): {_listed(missing_truth)}")
+        raise InputError(f"no truth for {len(missing_truth)} image(s): {_listed(missing_truth)}")
     if missing_pose:
-        raise ValueError(f"no pose row for {len(missing_pose)} image(s): {_listed(missing_pose)}")
+        raise InputError(f"no pose row for {len(missing_pose)} image(s): {_listed(missing_pose)}")
     frames = []
     for name, position in estimated.items():
         row, true = poses[position], truth[known[name]]

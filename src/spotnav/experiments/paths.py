@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from spotnav.errors import InputError
 from spotnav.geometry import InstrumentPose
 
 __all__ = [
@@ -44,7 +45,7 @@ def resample_polyline(points: np.ndarray, count: int, *, endpoint: bool = True) 
     lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
     along = np.concatenate([[0.0], np.cumsum(lengths)])
     if len(points) < 2 or along[-1] <= 0:
-        raise ValueError("a path needs at least two distinct points")
+        raise InputError("a path needs at least two distinct points")
     s = np.linspace(0.0, along[-1], count, endpoint=endpoint)
     return np.column_stack([np.interp(s, along, points[:, k]) for k in range(3)])
 

@@ -33,6 +33,7 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from spotnav.config import Setup, Uncertainty, setup_from_toml
+from spotnav.errors import InputError
 from spotnav.experiments.chapter6 import with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion, square_tips
 from spotnav.files import read_path_csv
@@ -79,7 +80,7 @@ _CHUNKS, _TABLE, _FILE = "chunks", "frames.parquet", "sweep.toml"
 _WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
 
 
-class SweepError(ValueError):
+class SweepError(InputError):
     """A sweep file's value is missing, of the wrong type or out of range, or a sweep cannot run."""
 
 
