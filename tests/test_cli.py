@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
+from spotnav import cli
 from spotnav.cli import main
 from spotnav.config import EXAMPLE_SETUP, THESIS_EXPOSURE_STOPS, Render, Setup, Uncertainty, setup_from_toml
 from spotnav.experiments.faults import SILENT_ERROR_MM
@@ -501,3 +502,14 @@ def test_a_bug_is_not_dressed_up_as_a_user_error(tmp_path: Path, monkeypatch: py
     monkeypatch.setattr("spotnav.cli.localize", broken)
     with pytest.raises(ValueError, match="a bug"):
         main(["localize", "--scene", str(scene), str(frame), "--out", str(tmp_path / "poses.csv")])
+
+
+def test_a_slow_start_says_it_is_compiling(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(cli, "_SLOW_START_S", 0.01)
+    with cli._compiling_note():
+        time.sleep(0.2)
+    assert "compiling the numerical kernels, once after an install" in capsys.readouterr().err
+    with cli._compiling_note():
+        pass
+    time.sleep(0.05)
+    assert capsys.readouterr().err == ""  # a quick start says nothing

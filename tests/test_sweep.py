@@ -156,7 +156,9 @@ def test_random_text_parses_or_raises_a_sweep_error(text: str) -> None:
 
 
 def test_results_do_not_depend_on_the_number_of_workers(tmp_path: Path) -> None:
-    one = run_sweep(TINY, tmp_path / "one", workers=1)
+    lines: list[str] = []
+    one = run_sweep(TINY, tmp_path / "one", workers=1, dashboard="127.0.0.1:0", log=lines.append)
+    assert len(lines) == 1 and lines[0].startswith("Dask dashboard: http://127.0.0.1:")  # issue 20
     two = run_sweep(TINY, tmp_path / "two", workers=2)
     serial = run_sweep(TINY, tmp_path / "serial", workers=0)
     assert (one.workers, two.workers, serial.workers) == (1, 2, 0)
@@ -219,7 +221,19 @@ def test_the_report_summarises_each_design_point_and_plots_both_curves(tmp_path:
     assert "| 8 | 0.3 | helix | precise | 3 |" in text
     for name in ("error_vs_cone_angle.png", "error_vs_power.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / name).stat().st_size > 20000
+    assert "](error_vs_power.png)" in text
     assert (tmp_path / "summary.csv").read_text().splitlines()[0].startswith("instrument.beam_half_angle_deg,")
+
+
+def test_the_report_plots_against_what_was_swept(tmp_path: Path) -> None:
+    # Issue 20: a sweep over size and read noise plots against size and read noise, not angle and power.
+    text = TINY.replace("samples = 2", "samples = 1").replace("light.power_w = [0.5, 1.5]", "")
+    text = text.replace("size_px = [256]", "size_px = [256, 384]\nrender.read_noise_e = [2.0, 30.0]")
+    text = text.replace("instrument.beam_half_angle_deg = [8.0, 10.0]", "")
+    run_sweep(text, tmp_path, workers=0)
+    report = write_sweep_report(tmp_path)
+    assert sorted(p.name for p in tmp_path.glob("error_vs_*.png")) == ["error_vs_read_noise.png", "error_vs_size.png"]
+    assert "](error_vs_size.png)" in report and "](error_vs_read_noise.png)" in report
 
 
 def test_cli_sweep_example_runs_serially_and_reports(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -13,15 +13,15 @@ import os
 import signal
 import socket
 import sys
+import threading
 import time
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from spotnav import __version__
 from spotnav.calibrate import (
@@ -68,8 +68,9 @@ from spotnav.geometry import InstrumentPose, beam_axes
 from spotnav.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT, PoseServer
 from spotnav.localize import DEFAULT_METHOD, METHODS, localize, localize_detailed
 from spotnav.overlay import crop_box, draw_overlay
+from spotnav.progress import progress
 from spotnav.render import Renderer
-from spotnav.track import TrackedFrame, Tracker
+from spotnav.track import TrackedFrame, Tracker, prepare_kernels
 
 __all__ = ["main"]
 
@@ -166,13 +167,35 @@ def _render_sequence(args: argparse.Namespace, setup: Setup) -> int:
     out = Path(args.out)
     truth = []
     with SequenceWriter(out, args.fps) as writer:
-        for index, tip in enumerate(tqdm(tips, desc="render", unit="frame", disable=None)):
+        for index, tip in enumerate(progress(tips, desc="render", unit="frame")):
             pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
             truth.append((index, writer.write(index, renderer.render(pose, seed=args.seed + index)), pose))
     truth_path = out.with_suffix(".truth.csv") if writer.video else out / "truth.csv"  # each output its own
     write_truth_csv(truth_path, truth)
     print(f"wrote {len(tips)} frames to {out} and the truth to {truth_path}", file=sys.stderr)
     return 0
+
+
+_SLOW_START_S = 2.0  # a start slower than this is compiling: say so
+
+
+@contextlib.contextmanager
+def _compiling_note() -> Iterator[None]:
+    """Say what a slow start is doing: Numba compiles the kernels once after an install (about 20 s)."""
+    note = "spotnav: compiling the numerical kernels, once after an install (about 20 s) ..."
+    timer = threading.Timer(_SLOW_START_S, partial(print, note, file=sys.stderr, flush=True))
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+
+
+def _ready(setup: Setup) -> None:
+    """Compile (or load) the kernels before the first frame, saying so when that takes long."""
+    with _compiling_note():
+        prepare_kernels(setup)
 
 
 class _StopSignals:
@@ -233,7 +256,8 @@ class _TrackRun:
 def _cmd_track(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
     camera = _track_limits(args)
-    tracker = Tracker(setup, through_insertion=args.method == "precise")
+    with _compiling_note():
+        tracker = Tracker(setup, through_insertion=args.method == "precise")
     report = partial(print, file=sys.stderr)
     frames = iter_frames(args.source, ring=2, camera=camera, report=report)  # the tracker keeps no image
     with _StopSignals() as signals:
@@ -300,8 +324,8 @@ def _track_frames(
     """Track every frame, writing each row as it is done, until the source ends or a stop is due."""
     run = _TrackRun()
     started = time.monotonic()
-    progress = tqdm(frames, desc="track", unit="frame", disable=None)
-    for frame in progress:
+    bar = progress(frames, desc="track", unit="frame")
+    for frame in bar:
         start = time.perf_counter()
         if frame.pixels is None:
             tracked = TrackedFrame(PoseEstimate("unreadable", detail=frame.error), "lost")
@@ -316,14 +340,14 @@ def _track_frames(
             overlay.write(frame.index, draw_overlay(frame.pixels, tracker.setup, tracked.estimate, label=label))
         run.statuses[tracked.estimate.status] += 1
         run.latencies.append(latency)
-        progress.set_postfix_str(f"{1000 / max(np.median(run.latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")
+        bar.set_postfix_str(f"{1000 / max(np.median(run.latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")
         run.wrong_size = run.wrong_size + 1 if tracked.estimate.status == "wrong_size" else 0
         if run.wrong_size == 1:
             print(f"spotnav: warning: frame {frame.index}: {tracked.estimate.detail}", file=sys.stderr)
         run.stop = _track_stop(args, signals, out.rows, time.monotonic() - started, run.wrong_size)
         if run.stop:
             break
-    progress.close()
+    bar.close()
     return run
 
 
@@ -346,12 +370,13 @@ def _cmd_localize(args: argparse.Namespace) -> int:
         raise UsageError("--fit-radius works with --method precise")
     statuses: Counter[str] = Counter()
     camera_size = (setup.camera.width_px, setup.camera.height_px)
+    _ready(setup)
     # --fit-radius: rows wait for the joint fit; each frame's edges are kept, not the frame (memory).
     waiting: list[tuple[str, float]] = []
     done: dict[int, PoseEstimate] = {}
     shares: list[tuple[int, tuple]] = []
     with _StopSignals() as signals, PosesWriter(args.out) as out:
-        for name in tqdm(args.images, desc="localize", unit="image", disable=None):
+        for name in progress(args.images, desc="localize", unit="image"):
             if signals.received:
                 break
             start = time.perf_counter()
@@ -399,6 +424,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
 def _cmd_show(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
     image = read_image(args.frame, expected_size=(setup.camera.width_px, setup.camera.height_px))
+    _ready(setup)
     result = localize_detailed(image, setup, args.method)
     canvas = draw_overlay(image, setup, result.estimate, spots=result.spots, cones=result.cones)
     if args.crop:
@@ -446,7 +472,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
             raise UsageError(f"{missing[0]} is not in {args.poses}")
         known = [by_path[Path(name).resolve()] for name in args.images]
     frames = []
-    for pose in tqdm(known, desc="calibrate", unit="image", disable=None):
+    _ready(setup)
+    for pose in progress(known, desc="calibrate", unit="image"):
         try:
             image = read_image(pose.image, expected_size=(setup.camera.width_px, setup.camera.height_px))
         except ImageReadError as error:
@@ -564,6 +591,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise UsageError("sweep needs FILE and --out DIR (or --example)")
     if args.scheduler is not None and args.workers is not None:
         raise UsageError("--workers sizes the local cluster; it cannot be used with --scheduler")
+    if args.dashboard is not None and (args.scheduler is not None or args.workers == 0):
+        raise UsageError("--dashboard serves the local Dask cluster's: not with --scheduler or --workers 0")
     path = Path(args.file)
     run = run_sweep(
         path.read_text(encoding="utf-8"),
@@ -572,6 +601,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         scheduler=args.scheduler,
         workers=args.workers,
         resume=args.resume,
+        dashboard=args.dashboard,
+        log=partial(print, file=sys.stderr),
     )
     where = "in this process" if run.workers == 0 else f"on {run.workers} Dask workers"
     resumed = f" ({run.chunks_resumed} chunks done before)" if run.chunks_resumed else ""
@@ -584,7 +615,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 def _cmd_sweep_report(args: argparse.Namespace) -> int:
     print(write_sweep_report(args.directory))
-    print(f"wrote {Path(args.directory) / 'summary.md'}, summary.csv and two plots", file=sys.stderr)
+    print(f"wrote {Path(args.directory) / 'summary.md'}, summary.csv and a plot per swept parameter", file=sys.stderr)
     return 0
 
 
@@ -788,6 +819,13 @@ def _parser() -> argparse.ArgumentParser:
         "--workers", type=int, help="local cluster's worker processes (default: one per core; 0: no Dask)"
     )
     sweep.add_argument("--resume", action="store_true", help="finish an interrupted sweep in --out")
+    sweep.add_argument(
+        "--dashboard",
+        nargs="?",
+        const=":8787",
+        metavar="ADDRESS",
+        help="serve the local Dask cluster's dashboard (default address :8787) and print its link",
+    )
     sweep.set_defaults(run=_cmd_sweep)
 
     report = commands.add_parser("sweep-report", help="summary tables and plots of a sweep's results")

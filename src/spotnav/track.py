@@ -32,7 +32,7 @@ from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
 from spotnav.precise import localize_precise, pose_problem
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 
-__all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "track_frame"]
+__all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "prepare_kernels", "track_frame"]
 
 TRACK_MODES = ("tracked", "reacquired", "acquired", "lost")
 _CURVE_POINTS = 90
@@ -160,7 +160,7 @@ def _track_once(
     return judge_fit(fit_cones(problem, solver="gauss-newton"), setup, spots=instrument.beam_count)
 
 
-def _prepare_kernels(setup: Setup) -> None:
+def prepare_kernels(setup: Setup) -> None:
     """Run tracking's compiled kernels, and the whole-frame method, once on synthetic spots and cones.
 
     They are compiled (or loaded from Numba's cache) on their first call: here, before the first
@@ -221,7 +221,7 @@ class Tracker:
             raise ValueError(f"max_jump_mm must be a finite number > 0, got {self.max_jump_mm}")
         if self.max_rays < 64:
             raise ValueError(f"max_rays must be at least 64, got {self.max_rays}")
-        _prepare_kernels(self.setup)
+        prepare_kernels(self.setup)
 
     def update(self, image: np.ndarray) -> TrackedFrame:
         """Localize the next frame.

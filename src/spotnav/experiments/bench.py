@@ -12,12 +12,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.localize import localize
+from spotnav.progress import progress
 from spotnav.render import Renderer
 from spotnav.track import Tracker
 
@@ -107,7 +107,7 @@ def run_bench(
         times: dict[str, list[float]] = {stage: [] for stage in STAGES}
         poses = poses_through_insertion(helix_tips(HELIX_FRAMES)[:frames], setup.instrument.insertion_in_eye)
         kept: list[np.ndarray] = []
-        for index, pose in enumerate(tqdm(poses, desc=f"bench {size} px", unit="frame", disable=None)):
+        for index, pose in enumerate(progress(poses, desc=f"bench {size} px", unit="frame")):
             start = time.perf_counter()
             image = renderer.render(pose, seed=index)
             times["render"].append(_ms_since(start))
@@ -220,7 +220,7 @@ def run_stress(size: int, frames: int = 300, hide_every: int = 8, beams: int = 1
     renderer.render(poses[0])  # warm caches
     times, reacquisitions, errors, hidden, ghosts, nearby = [], [], [], 0, 0, 0
     was_lost = False
-    for index, pose in enumerate(tqdm(poses, desc=f"stress {size} px", unit="frame", disable=None)):
+    for index, pose in enumerate(progress(poses, desc=f"stress {size} px", unit="frame")):
         image = renderer.render(pose, seed=index)
         dark = index % hide_every == hide_every - 1
         if dark:

@@ -14,12 +14,12 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from spotnav.config import Setup
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import InstrumentPose, angles_between, axis_rotations
 from spotnav.localize import localize
+from spotnav.progress import progress
 from spotnav.render import Renderer
 from spotnav.thesis import fit_height_correction
 
@@ -231,7 +231,7 @@ class FrameRunner:
 
     def map(self, function: Callable[[FrameJob], Any], jobs: Sequence[FrameJob], label: str) -> list[Any]:
         """``[function(job) for job in jobs]``, in order, with a progress bar named ``label``."""
-        bar = tqdm(total=len(jobs), desc=label, unit="frame", leave=False, disable=None)
+        bar = progress(total=len(jobs), desc=label, unit="frame", leave=False)
         try:
             if self._pool is None:
                 outputs: Iterable[Any] = map(function, jobs)

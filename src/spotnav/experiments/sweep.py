@@ -30,7 +30,6 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-from tqdm import tqdm
 
 from spotnav.config import Setup, Uncertainty, setup_from_toml
 from spotnav.errors import InputError
@@ -39,6 +38,7 @@ from spotnav.experiments.paths import helix_tips, poses_through_insertion, squar
 from spotnav.files import read_path_csv
 from spotnav.geometry import InstrumentPose, angles_between
 from spotnav.localize import METHODS, localize
+from spotnav.progress import progress
 from spotnav.render import Renderer
 
 __all__ = [
@@ -484,6 +484,8 @@ def run_sweep(
     workers: int | None = None,
     resume: bool = False,
     on_chunk: Callable[[Chunk], None] | None = None,
+    dashboard: str | None = None,
+    log: Callable[[str], None] = print,
 ) -> SweepRun:
     """Run a sweep file's frames and write ``directory/frames.parquet``.
 
@@ -504,6 +506,12 @@ def run_sweep(
         Finish a sweep that ``directory`` already holds, skipping its finished chunks.
     on_chunk : callable, optional
         Called with each chunk once its file is written.
+    dashboard : str, optional
+        Serve the local cluster's Dask dashboard at this address (``:8787``;
+        ``:0`` picks a free port); its link goes to ``log``. With
+        ``scheduler``, the scheduler's own dashboard link is logged.
+    log : callable
+        Receives the dashboard's link.
     """
     if workers is not None and workers < 0:
         raise SweepError(f"workers must be >= 0, got {workers}")
@@ -513,7 +521,7 @@ def run_sweep(
     chunks = plan_chunks(sweep)
     todo = [c for c in chunks if c.name not in finished]
     start = time.perf_counter()
-    bar = tqdm(total=len(chunks), initial=len(chunks) - len(todo), desc="sweep", unit="chunk", disable=None)
+    bar = progress(total=len(chunks), initial=len(chunks) - len(todo), desc="sweep", unit="chunk")
 
     def done(chunk: Chunk, rows: list[dict[str, Any]]) -> None:
         _write_chunk(directory / _CHUNKS, chunk, rows)
@@ -527,7 +535,7 @@ def run_sweep(
                 done(chunk, run_chunk(sweep, chunk))
             used = 0
         else:
-            used = _run_on_dask(sweep, todo, done, scheduler, workers)
+            used = _run_on_dask(sweep, todo, done, scheduler, workers, dashboard, log)
     finally:
         bar.close()
     table = pa.concat_tables([pq.read_table(directory / _CHUNKS / c.name) for c in chunks])
@@ -544,6 +552,8 @@ def _run_on_dask(
     done: Callable[[Chunk, list[dict[str, Any]]], None],
     scheduler: str | None,
     workers: int | None,
+    dashboard: str | None,
+    log: Callable[[str], None],
 ) -> int:
     """Run the chunks as Dask tasks, handing each result to ``done`` as it arrives; return the worker count."""
     import dask.config
@@ -562,9 +572,12 @@ def _run_on_dask(
     else:
         count = workers or os.cpu_count() or 1
         with dask.config.set({"distributed.nanny.pre-spawn-environ": _WORKER_ENVIRONMENT}):
-            cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, dashboard_address=None)
+            cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, dashboard_address=dashboard)
         client = Client(cluster)
     try:
+        if dashboard is not None or scheduler is not None:
+            link = client.dashboard_link
+            log(f"Dask dashboard: {link}" if link else "Dask dashboard: not served (is bokeh installed?)")
         client.register_plugin(OneThreadPerWorker())
         token = hashlib.blake2b(repr(sweep).encode(), digest_size=8).hexdigest()
         futures = {client.submit(run_chunk, sweep, c, key=f"spotnav-sweep-{token}-{c.index}"): c for c in chunks}

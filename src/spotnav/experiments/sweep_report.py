@@ -1,4 +1,4 @@
-"""Summarise a sweep: error per design point, and plots of error against cone angle and against power."""
+"""Summarise a sweep: error per design point, and a plot of the error against each parameter it swept."""
 
 from __future__ import annotations
 
@@ -13,10 +13,24 @@ from spotnav.experiments.chapter6 import markdown_table
 from spotnav.experiments.figures import plot_error_against
 from spotnav.experiments.sweep import SWEEP_PARAMETERS, read_sweep_table
 
-__all__ = ["SUMMARY_COLUMNS", "error_curves", "summary_rows", "varied_parameters", "write_sweep_report"]
+__all__ = ["SUMMARY_COLUMNS", "error_curves", "plot_name", "summary_rows", "varied_parameters", "write_sweep_report"]
 
 SUMMARY_COLUMNS = ("frames", "ok", "availability", "mean_mm", "max_mm", "localize_ms")
-_ANGLE, _BEAMS, _POWER = "instrument.beam_half_angle_deg", "instrument.beam_count", "light.power_w"
+_BEAMS = "instrument.beam_count"  # one curve per beam count: never an x axis
+# Axis labels and file names of the parameters; any other is named by its key.
+_LABELS = {
+    "size_px": ("image size [px]", "size"),
+    "instrument.beam_half_angle_deg": ("cone half-angle beta [deg]", "cone_angle"),
+    "instrument.beam_tilt_deg": ("beam tilt [deg]", "beam_tilt"),
+    "light.power_w": ("light power [W]", "power"),
+    "light.blend": ("blend of the beam's edge", "blend"),
+    "render.full_well_e": ("full well [electrons]", "full_well"),
+    "render.read_noise_e": ("read noise [electrons]", "read_noise"),
+    "render.exposure_stops": ("exposure [stops]", "exposure"),
+    "eye.radius_mm": ("assumed eye radius [mm]", "eye_radius"),
+    "world.eye_radius_mm": ("true eye radius [mm]", "true_eye_radius"),
+}
+_LOG_RANGE = 20.0  # positive values spanning more than this factor are plotted on a log axis
 
 
 def _columns(table: pa.Table, names: Sequence[str]) -> list[np.ndarray]:
@@ -71,7 +85,11 @@ def error_curves(table: pa.Table, x_name: str) -> dict[str, tuple[np.ndarray, np
 
 
 def write_sweep_report(directory: Path | str) -> str:
-    """Write ``summary.csv``, ``summary.md`` and the two plots into a sweep's folder; return the summary.
+    """Write ``summary.csv``, ``summary.md`` and one plot per swept parameter into a sweep's folder.
+
+    The plots are ``error_vs_<name>.png`` (:func:`plot_name`), against every
+    parameter that took more than one value but the beam count (one curve per
+    beam count and method). Returns the summary's Markdown.
 
     Raises
     ------
@@ -83,13 +101,16 @@ def write_sweep_report(directory: Path | str) -> str:
     header, rows = summary_rows(table)
     with (directory / "summary.csv").open("w", newline="") as handle:
         csv.writer(handle, lineterminator="\n").writerows([header, *rows])
-    plots = (
-        ("error_vs_cone_angle.png", _ANGLE, "cone half-angle beta [deg]", False),
-        ("error_vs_power.png", _POWER, "light power [W]", True),
-    )
-    for name, column, xlabel, log_x in plots:
+    figures = []
+    for column in varied_parameters(table):
+        if column == _BEAMS:
+            continue
+        xlabel, _ = _LABELS.get(column, (column, ""))
+        values = table[column].to_numpy().astype(float)
+        log_x = bool(values.min() > 0 and values.max() > _LOG_RANGE * values.min())
         title = f"Tip error against {xlabel.split(' [')[0]} (ok frames; other parameters pooled)"
-        plot_error_against(directory / name, error_curves(table, column), xlabel, title, log_x=log_x)
+        plot_error_against(directory / plot_name(column), error_curves(table, column), xlabel, title, log_x=log_x)
+        figures += [f"![error against {xlabel.split(' [')[0]}]({plot_name(column)})", ""]
     statuses = table["status"].to_numpy(zero_copy_only=False)
     text = "\n".join(
         [
@@ -97,14 +118,17 @@ def write_sweep_report(directory: Path | str) -> str:
             "",
             *markdown_table(header, [[_format(v) for v in row] for row in rows]),
             "",
-            "![error against cone angle](error_vs_cone_angle.png)",
-            "",
-            "![error against power](error_vs_power.png)",
-            "",
+            *(figures or ["No parameter took more than one value: nothing to plot against.", ""]),
         ]
     )
     (directory / "summary.md").write_text(text)
     return text
+
+
+def plot_name(parameter: str) -> str:
+    """The file name of the plot against a sweep parameter: ``error_vs_power.png`` for ``light.power_w``."""
+    short = _LABELS.get(parameter, ("", parameter.replace(".", "_")))[1]
+    return f"error_vs_{short}.png"
 
 
 def _format(value: object) -> str:
