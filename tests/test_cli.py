@@ -513,3 +513,16 @@ def test_a_slow_start_says_it_is_compiling(monkeypatch: pytest.MonkeyPatch, caps
         pass
     time.sleep(0.05)
     assert capsys.readouterr().err == ""  # a quick start says nothing
+
+
+def test_the_readme_first_try_runs_as_written(tmp_path: Path) -> None:
+    # Issue 20: the README's first "Use" block, top to bottom, in a fresh folder (it works at 512 px).
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    block = readme.split("## Use", 1)[1].split("```sh\n", 1)[1].split("```", 1)[0]
+    (tmp_path / ".venv").symlink_to(Path(sys.prefix))
+    result = subprocess.run(["bash", "-e", "-c", block], cwd=tmp_path, capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr[-2000:]
+    try_folder = tmp_path / "try"
+    for name in ("poses.csv", "overlay.png", "calibrated.toml", "track.csv", "overlay.mkv", "sweep/summary.md"):
+        assert (try_folder / name).stat().st_size > 0, name
+    assert "tip error over the 1 ok frames" in result.stdout and "Traceback" not in result.stderr

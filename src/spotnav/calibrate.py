@@ -39,7 +39,7 @@ which the edge angle absorbs): a linear or gamma camera must be stated.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 from scipy.stats import chi2
@@ -62,7 +62,7 @@ from spotnav.conefit import (
     scatter_covariance,
     setup_with_geometry,
 )
-from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup
+from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup, Uncertainty
 from spotnav.detect import detect_edge_subpixel
 from spotnav.errors import InputError
 from spotnav.estimate import PoseEstimate
@@ -405,6 +405,10 @@ class _GeometryFit:
         return float(np.sqrt(np.mean(np.square(offsets)))) if offsets else float("nan")
 
 
+# The [uncertainty] key of each parameter group (the same order).
+_UNCERTAINTY_KEYS = dict(zip(PARAMETER_GROUPS, (f.name for f in fields(Uncertainty)), strict=True))
+
+
 def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str], fix: Sequence[str]) -> _GeometryFit:
     """The edges read with the setup's response, the parameters the frames determine, and the last fit."""
     edges, skipped = [], []
@@ -416,6 +420,11 @@ def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str]
         raise InputError(f"calibration needs at least {MIN_FRAMES} usable frames, got {len(edges)} ({reasons})")
     reasons = {i: "fixed (--fix)" for name in fix for i in PARAMETER_GROUPS[name]}
     prior = np.sqrt(np.diag(geometry_covariance(setup, one_frame=False)))
+    exact = [name for name in fit if np.any(prior[PARAMETER_GROUPS[name]] == 0)]
+    if exact:  # --fit overrules [uncertainty] 0: judge what the frames tell against a real microscope's prior
+        typical = {_UNCERTAINTY_KEYS[name]: getattr(Uncertainty(), _UNCERTAINTY_KEYS[name]) for name in exact}
+        setup = replace(setup, uncertainty=replace(setup.uncertainty, **typical))
+        prior = np.sqrt(np.diag(geometry_covariance(setup, one_frame=False)))
     reasons.update({i: "known exactly ([uncertainty] 0)" for i in range(SHARED_SIZE) if prior[i] == 0})
     known_axes = all(frame.axis is not None for frame in frames)
     lines = None
