@@ -67,7 +67,7 @@ from spotnav.files import (
 from spotnav.geometry import InstrumentPose, beam_axes
 from spotnav.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT, PoseServer
 from spotnav.localize import DEFAULT_METHOD, METHODS, localize, localize_detailed
-from spotnav.overlay import crop_box, draw_overlay
+from spotnav.overlay import crop_box, draw_overlay, fitted_spots
 from spotnav.progress import progress
 from spotnav.render import Renderer
 from spotnav.track import TrackedFrame, Tracker, prepare_kernels
@@ -337,7 +337,9 @@ def _track_frames(
         out.write(track_row(frame, tracked.estimate, tracked.mode, latency))
         if overlay is not None and frame.pixels is not None:
             label = f"frame {frame.index}, {tracked.mode}"
-            overlay.write(frame.index, draw_overlay(frame.pixels, tracker.setup, tracked.estimate, label=label))
+            spots = fitted_spots(tracked.edges_px)
+            canvas = draw_overlay(frame.pixels, tracker.setup, tracked.estimate, spots=spots, label=label)
+            overlay.write(frame.index, canvas)
         run.statuses[tracked.estimate.status] += 1
         run.latencies.append(latency)
         bar.set_postfix_str(f"{1000 / max(np.median(run.latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")

@@ -19,7 +19,7 @@ from spotnav.estimate import PoseEstimate
 from spotnav.geometry import cone_sphere_curve
 from spotnav.localize import Cone, Localization, SpotDetail, cones_of_estimate
 
-__all__ = ["crop_box", "draw_overlay"]
+__all__ = ["crop_box", "draw_overlay", "fitted_spots"]
 
 _GREEN, _RED, _ORANGE = (0, 220, 0), (255, 40, 40), (255, 150, 0)
 _CYAN, _YELLOW, _WHITE = (0, 230, 255), (255, 255, 0), (255, 255, 255)
@@ -51,6 +51,14 @@ def _cone_edge_px(setup: Setup, cone: Cone) -> np.ndarray:
         return np.zeros((0, 2))
     pixels = project_points(setup.camera, curve)
     return pixels[np.all(np.isfinite(pixels), axis=1)]
+
+
+def fitted_spots(edges_px: Sequence[np.ndarray]) -> tuple[SpotDetail, ...]:
+    """Spots from the edge points a fit used, per beam (a tracked frame's): all fitted, residuals unknown."""
+    return tuple(
+        SpotDetail(beam, edge, edge, np.ones(len(edge), dtype=bool), np.full(len(edge), np.nan))
+        for beam, edge in enumerate(edges_px)
+    )
 
 
 def _status_text(estimate: PoseEstimate, label: str) -> str:

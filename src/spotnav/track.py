@@ -29,7 +29,7 @@ from spotnav.config import Setup
 from spotnav.detect import detect_edge_along_rays, edge_window_px, rays_through_curve
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
-from spotnav.precise import localize_precise, pose_problem
+from spotnav.precise import localize_precise, localize_precise_with_edges, pose_problem
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 
 __all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "prepare_kernels", "track_frame"]
@@ -57,10 +57,14 @@ class TrackedFrame:
         the spot was last seen), ``acquired`` (whole image) or ``lost`` (no
         pose; the next frame tries where it was last seen, then the whole
         image).
+    edges_px : tuple of ndarray, shape (N_k, 2)
+        The edge points the frame's fit used, per beam, pixels (for an
+        overlay); empty when no fit ran.
     """
 
     estimate: PoseEstimate
     mode: str
+    edges_px: tuple[np.ndarray, ...] = ()
 
 
 def track_frame(
@@ -99,19 +103,26 @@ def track_frame(
         failed), or ``occluded`` (the shaft, at the predicted pose, hides too
         much of a spot's edge; its hidden edge points are never used).
     """
+    return _track_with_edges(image, setup, predicted, through_insertion, max_rays)[0]
+
+
+def _track_with_edges(
+    image: np.ndarray, setup: Setup, predicted: PoseEstimate, through_insertion: bool, max_rays: int
+) -> tuple[PoseEstimate, tuple[np.ndarray, ...]]:
+    """:func:`track_frame`, and the edge points its fit used (empty when none ran)."""
     wrong = check_image_size(image, setup)
     if wrong is not None:
-        return wrong
-    estimate = _track_once(image, setup, predicted, through_insertion, max_rays)
+        return wrong, ()
+    estimate, edges = _track_once(image, setup, predicted, through_insertion, max_rays)
     if estimate.ok and np.linalg.norm(estimate.pose()[0] - predicted.pose()[0]) > _REREAD_MM:
         # The rays crossed the edge aslant, from a centre that was off: read them again across the fitted edge.
-        estimate = _track_once(image, setup, estimate, through_insertion, max_rays)
-    return estimate
+        estimate, edges = _track_once(image, setup, estimate, through_insertion, max_rays)
+    return estimate, edges
 
 
 def _track_once(
     image: np.ndarray, setup: Setup, predicted: PoseEstimate, through_insertion: bool, max_rays: int
-) -> PoseEstimate:
+) -> tuple[PoseEstimate, tuple[np.ndarray, ...]]:
     """One pass of :func:`track_frame`: the edges along rays across the predicted edge curves, and the fit."""
     predicted_tip, predicted_axis = predicted.pose()
     camera, instrument = setup.camera, setup.instrument
@@ -125,28 +136,28 @@ def _track_once(
                 apex_in_eye, beam_axis, angle, setup.eye.center_in_eye, setup.eye.radius_mm, _CURVE_POINTS
             )
         except ValueError:
-            return PoseEstimate("unreliable", detail="the predicted tip lies outside the eye")
+            return PoseEstimate("unreliable", detail="the predicted tip lies outside the eye"), ()
         curve_px = project_points(camera, curve_in_eye)
         if not np.all(np.isfinite(curve_px)):
-            return PoseEstimate("clipped", detail="a predicted spot leaves the retina")
+            return PoseEstimate("clipped", detail="a predicted spot leaves the retina"), ()
         perimeter = float(np.sum(np.linalg.norm(np.diff(curve_px, axis=0, append=curve_px[:1]), axis=1)))
         centre, ray_angles, radii = rays_through_curve(curve_px, int(np.clip(perimeter / 2.0, 64, max_rays)))
         reach = float(np.max(radii)) + edge_window_px(radii, align=True) + _BORDER_PX
         low, high = centre - reach, centre + reach
         if np.any(low < 0) or high[0] > camera.width_px - 1 or high[1] > camera.height_px - 1:
-            return PoseEstimate("clipped", detail="a predicted spot reaches the image's border")
+            return PoseEstimate("clipped", detail="a predicted spot reaches the image's border"), ()
         edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True, response=camera.pixel_response)
         if len(edge.pixels) < _MIN_EDGE_RAY_FRACTION * edge.rays:
             found = f"an edge on only {100 * len(edge.pixels) / edge.rays:.0f} % of the rays near the predicted spot"
-            return PoseEstimate("unreliable", detail=found)
+            return PoseEstimate("unreliable", detail=found), ()
         verdict = judge_edge(edge, setup, float(np.mean(radii)), angle)
         if isinstance(verdict, tuple):
-            return PoseEstimate(verdict[0], detail=verdict[1])
+            return PoseEstimate(verdict[0], detail=verdict[1]), ()
         edges.append(edge.pixels)
         sigmas.append(verdict)
     visible = visible_edge_points(setup, edges, hidden_by_shaft(setup, edges, predicted_tip, predicted_axis))
     if isinstance(visible, PoseEstimate):
-        return visible
+        return visible, ()
     problem = pose_problem(
         setup,
         visible,
@@ -157,7 +168,8 @@ def _track_once(
         through_insertion=through_insertion,
         edge_sigmas=sigmas,
     )
-    return judge_fit(fit_cones(problem, solver="gauss-newton"), setup, spots=instrument.beam_count)
+    fit = judge_fit(fit_cones(problem, solver="gauss-newton"), setup, spots=instrument.beam_count)
+    return fit, tuple(visible)
 
 
 def prepare_kernels(setup: Setup) -> None:
@@ -234,19 +246,19 @@ class Tracker:
         predicted = self._predict()
         estimate, mode = None, "acquired"
         start, found = (predicted, "tracked") if predicted is not None else (self._last_seen, "reacquired")
+        edges: tuple[np.ndarray, ...] = ()
         if start is not None:
-            tracked = track_frame(
-                image, self.setup, start, through_insertion=self.through_insertion, max_rays=self.max_rays
-            )
+            tracked, edges = _track_with_edges(image, self.setup, start, self.through_insertion, self.max_rays)
             if tracked.ok and np.linalg.norm(tracked.pose()[0] - start.pose()[0]) <= self.max_jump_mm:
                 estimate, mode = tracked, found
         if estimate is None:
-            estimate = localize_precise(image, self.setup, through_insertion=self.through_insertion)
+            result = localize_precise_with_edges(image, self.setup, through_insertion=self.through_insertion)
+            estimate, edges = result.estimate, result.edges.edges_px if result.edges is not None else ()
         if not estimate.ok:
             self._forget()
-            return TrackedFrame(estimate, "lost")
+            return TrackedFrame(estimate, "lost", edges)
         self._lost_frames = 0
-        return TrackedFrame(self._remember(estimate), mode)
+        return TrackedFrame(self._remember(estimate), mode, edges)
 
     def _predict(self) -> PoseEstimate | None:
         last = self._last
