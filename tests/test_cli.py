@@ -521,7 +521,7 @@ def test_the_readme_first_try_runs_as_written(tmp_path: Path) -> None:
     block = readme.split("## Use", 1)[1].split("```sh\n", 1)[1].split("```", 1)[0]
     (tmp_path / ".venv").symlink_to(Path(sys.prefix))
     result = subprocess.run(["bash", "-e", "-c", block], cwd=tmp_path, capture_output=True, text=True, check=False)
-    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.returncode == 0, result.stdout[-1500:] + result.stderr[-3000:]
     try_folder = tmp_path / "try"
     for name in ("poses.csv", "overlay.png", "calibrated.toml", "track.csv", "overlay.mkv", "sweep/summary.md"):
         assert (try_folder / name).stat().st_size > 0, name
