@@ -25,7 +25,6 @@ from spotnav.files import (
     read_setup,
     setup_to_toml,
     write_image,
-    write_poses_csv,
 )
 
 
@@ -96,7 +95,9 @@ def test_read_setup_names_the_file(tmp_path: Path) -> None:
 def test_poses_csv_has_the_contract_columns_first(tmp_path: Path) -> None:
     ok = PoseEstimate("ok", tip_in_eye=np.array([1.0, 2.0, 3.0]), axis=np.array([0.0, 0.0, -1.0]), spots=1)
     rows = [pose_row("a.png", ok, 12.0), pose_row("b.png", PoseEstimate("no_spot", detail="dark"))]
-    write_poses_csv(tmp_path / "poses.csv", rows)
+    with PosesWriter(tmp_path / "poses.csv") as writer:
+        for row in rows:
+            writer.write(row)
     with (tmp_path / "poses.csv").open() as handle:
         table = list(csv.DictReader(handle))
     assert list(table[0])[:8] == ["image", "status", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z"]

@@ -107,8 +107,8 @@ def test_a_pyigtl_client_receives_every_frame_as_poses_csv_holds_it(
 def test_bad_clients_neither_stop_nor_starve_tracking(capsys: pytest.CaptureFixture[str]) -> None:
     # Issue 20: garbage, a half header and a clean close, a header claiming a 2^62-byte body, an idle
     # client that holds its connection, 200 connects and closes: the good client gets every message.
-    port = free_port()
-    server = PoseServer(port)
+    server = PoseServer(0)
+    port = server.port
     with recording_client(port) as messages:
         assert wait_for(lambda: server.connected)
         idle = socket.create_connection(("127.0.0.1", port))
@@ -140,9 +140,10 @@ def test_bad_clients_neither_stop_nor_starve_tracking(capsys: pytest.CaptureFixt
 
 
 def test_a_client_that_connects_late_leaves_and_comes_back_gets_the_frames_while_connected() -> None:
-    port = free_port()
-    with PoseServer(port) as server:
+    with PoseServer(0) as server:
+        port = server.port
         server.send(pose(0), 0, time.time())  # nobody listening: dropped, nothing breaks
+        assert wait_for(lambda: server.pending_frames == 0)
         with recording_client(port) as first:
             assert wait_for(lambda: server.connected)
             for frame in range(1, 11):
@@ -159,22 +160,40 @@ def test_a_client_that_connects_late_leaves_and_comes_back_gets_the_frames_while
     assert server.clients_served == 2
 
 
-def test_a_client_that_stops_reading_is_dropped() -> None:
-    port = free_port()
-    with PoseServer(port) as server:
-        stalled = socket.create_connection(("127.0.0.1", port))
+def test_a_client_that_stops_reading_is_dropped_and_one_that_reads_gets_everything() -> None:
+    frames = 30_000  # some 9 MB: more than the kernel's buffers and the server's 1 MiB
+    received = bytearray()
+
+    def read_all(sock: socket.socket) -> None:
+        while chunk := sock.recv(1 << 16):
+            received.extend(chunk)
+
+    with PoseServer(0) as server:
+        stalled = socket.socket()
         stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        assert wait_for(lambda: server.connected)
-        for frame in range(20_000):  # some 5 MB: more than the kernel's buffers and the server's 1 MiB
+        stalled.connect(("127.0.0.1", server.port))
+        reader = socket.create_connection(("127.0.0.1", server.port))
+        reading = threading.Thread(target=read_all, args=(reader,))
+        reading.start()
+        assert wait_for(lambda: server.clients_served == 2)
+        for frame in range(frames):  # at a pace the server thread keeps up with (its queue drops the oldest)
             server.send(pose(frame), frame, time.time())
-        assert wait_for(lambda: server.clients_dropped == 1)
-        stalled.close()
+            if frame % 1000 == 999:
+                assert wait_for(lambda: server.pending_frames == 0)
+        assert wait_for(lambda: server.clients_dropped == 1, timeout_s=60.0)
+    reading.join(10.0)
+    for sock in (stalled, reader):
+        sock.close()
+    kinds, offset = [], 0
+    while offset + 58 <= len(received):  # OpenIGTLink: a 58-byte header, its body's size at bytes 42-50
+        kinds.append(bytes(received[offset + 2 : offset + 14]).rstrip(b"\0"))
+        offset += 58 + int.from_bytes(received[offset + 42 : offset + 50], "big")
+    assert offset == len(received) and kinds.count(b"TRANSFORM") == kinds.count(b"STRING") == frames
 
 
 def test_server_errors_name_the_address_and_the_device() -> None:
-    port = free_port()
-    with PoseServer(port), pytest.raises(IgtlError, match=f"cannot listen on 127.0.0.1:{port}"):
-        PoseServer(port)
+    with PoseServer(0) as server, pytest.raises(IgtlError, match=f"cannot listen on 127.0.0.1:{server.port}"):
+        PoseServer(server.port)
     with pytest.raises(IgtlError, match="--igtl-device"):
         PoseServer(free_port(), device="ThisNameIsFarTooLong")
 

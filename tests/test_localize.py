@@ -15,7 +15,7 @@ from spotnav.experiments import helix_tips, working_volume_tips
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.geometry import InstrumentPose, angles_between
 from spotnav.localize import localize, localize_detailed
-from spotnav.overlay import _cone_edge_px
+from spotnav.overlay import cone_edge_px
 from spotnav.precise import detection_decimation, smallest_spot_area_px
 from spotnav.render import Renderer
 
@@ -286,7 +286,7 @@ def test_a_detailed_result_shows_what_the_pose_came_from(method: str) -> None:
     for spot in result.spots:
         assert np.sqrt(np.mean(spot.residuals_deg[spot.inliers] ** 2)) < 0.05
         # each fitted point lies on its fitted cone's projected edge, to a fraction of a pixel
-        curve = _cone_edge_px(setup, result.cones[spot.beam])
+        curve = cone_edge_px(setup, result.cones[spot.beam])
         dense = np.concatenate([np.linspace(a, b, 20) for a, b in zip(curve, np.roll(curve, -1, axis=0), strict=True)])
         gaps = np.min(np.linalg.norm(spot.fitted_px[spot.inliers][:, None] - dense[None], axis=2), axis=1)
         assert np.median(gaps) < 0.3

@@ -29,5 +29,6 @@ def test_a_short_run_writes_nothing() -> None:
     assert stream.getvalue() == "" and bar.n == 3
 
 
-def test_not_a_terminal_means_plain_lines() -> None:
-    assert isinstance(progress(range(2), desc="x", unit="it"), PlainProgress)  # pytest captures stderr
+def test_not_a_terminal_means_plain_lines(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("sys.stderr", io.StringIO())
+    assert isinstance(progress(range(2), desc="x", unit="it"), PlainProgress)

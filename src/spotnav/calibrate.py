@@ -39,7 +39,7 @@ which the edge angle absorbs): a linear or gamma camera must be stated.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import chi2
@@ -405,8 +405,18 @@ class _GeometryFit:
         return float(np.sqrt(np.mean(np.square(offsets)))) if offsets else float("nan")
 
 
-# The [uncertainty] key of each parameter group (the same order).
-_UNCERTAINTY_KEYS = dict(zip(PARAMETER_GROUPS, (f.name for f in fields(Uncertainty)), strict=True))
+# The [uncertainty] key of each parameter group.
+_UNCERTAINTY_KEYS = {
+    "edge-angle": "edge_half_angle_deg",
+    "light-radius": "light_radius_mm",
+    "eye-radius": "eye_radius_mm",
+    "camera-rotation": "camera_rotation_deg",
+    "camera-position": "camera_position_mm",
+    "focal-length": "focal_length_percent",
+    "principal-point": "principal_point_percent",
+    "distortion": "distortion_px",
+    "insertion-point": "insertion_point_mm",
+}
 
 
 def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str], fix: Sequence[str]) -> _GeometryFit:

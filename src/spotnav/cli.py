@@ -1,4 +1,4 @@
-"""Command line: ``spotnav scene|render|localize|track|calibrate|evaluate|analyze|reproduce|bench|sweep|sweep-report``.
+"""Command line: ``spotnav scene|render|localize|show|track|calibrate|evaluate|analyze|reproduce|bench|sweep|...``.
 
 ``main(argv)`` returns the exit code, so tests call it in-process. Unusable
 arguments or setups end with one line ``spotnav: error: ...`` and exit code 2.
@@ -109,6 +109,8 @@ def _finite_vector(name: str, values: Sequence[float]) -> np.ndarray:
 
 def _cmd_render(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
+    if args.seed < 0:
+        raise UsageError(f"--seed must be at least 0, got {args.seed}")
     if args.power is not None:
         if not np.isfinite(args.power) or args.power < 0:
             raise UsageError(f"--power must be a finite number >= 0, got {args.power}")
@@ -256,20 +258,26 @@ class _TrackRun:
 def _cmd_track(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
     camera = _track_limits(args)
-    with _compiling_note():
-        tracker = Tracker(setup, through_insertion=args.method == "precise")
-    report = partial(print, file=sys.stderr)
-    frames = iter_frames(args.source, ring=2, camera=camera, report=report)  # the tracker keeps no image
     with _StopSignals() as signals:
-        server = _igtl_server(args)
-        try:
-            with PosesWriter(args.out, TRACK_COLUMNS) as out, _overlay_writer(args) as overlay:
-                run = _track_frames(args, tracker, frames, server, signals, out, overlay)
-        finally:
-            if server is not None:
-                server.close()
-                dropped = f", {server.clients_dropped} dropped for not reading" if server.clients_dropped else ""
-                print(f"OpenIGTLink: {server.clients_served} clients served{dropped}", file=sys.stderr)
+        with _compiling_note():
+            tracker = Tracker(setup, through_insertion=args.method == "precise")
+        report = partial(print, file=sys.stderr)
+        size = (setup.camera.width_px, setup.camera.height_px)
+        # The tracker keeps no image: frames are decoded into a ring of two buffers.
+        source = iter_frames(args.source, ring=2, camera=camera, report=report, expected_size=size)
+        with contextlib.closing(source) as frames:
+            server = None
+            try:
+                server = _igtl_server(args, signals)
+                with PosesWriter(args.out, TRACK_COLUMNS) as out, _overlay_writer(args) as overlay:
+                    run = _track_frames(args, tracker, frames, server, signals, out, overlay)
+            finally:
+                if server is not None:
+                    server.close()
+                    extra = [f"{server.clients_dropped} dropped for not reading"] if server.clients_dropped else []
+                    extra += [f"{server.clients_refused} refused (too many)"] if server.clients_refused else []
+                    served = ", ".join([f"{server.clients_served} clients served", *extra])
+                    print(f"OpenIGTLink: {served}", file=sys.stderr)
     counts = ", ".join(f"{n} {s}" for s, n in run.statuses.most_common()) or "no frames"
     latencies = run.latencies
     timing = (
@@ -286,21 +294,19 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 
 def _overlay_writer(args: argparse.Namespace) -> contextlib.AbstractContextManager[SequenceWriter | None]:
-    """``track --overlay``'s video (or folder of PNGs), or nothing."""
+    """``track --overlay``'s video (or folder of PNGs), at ``--fps`` or 30 frames per second, or nothing."""
     if args.overlay is None:
         return contextlib.nullcontext()
     return SequenceWriter(args.overlay, args.fps or 30.0)
 
 
-def _igtl_server(args: argparse.Namespace) -> PoseServer | None:
+def _igtl_server(args: argparse.Namespace, signals: _StopSignals) -> PoseServer | None:
     """The OpenIGTLink server that ``--igtl`` asks for (None without it), with what it tells the user."""
     if args.igtl is None:
         return None
-    server = PoseServer(args.igtl, host=args.igtl_host, device=args.igtl_device, wait_s=args.igtl_wait)
-    state = "connected" if server.connected else "waiting for a client"
+    server = PoseServer(args.igtl, host=args.igtl_host, device=args.igtl_device)
     print(
-        f"OpenIGTLink: {server.device} (TRANSFORM) and {server.device}Status (STRING) on "
-        f"{server.host}:{server.port} ({state})",
+        f"OpenIGTLink: {server.device} (TRANSFORM) and {server.device}Status (STRING) on {server.host}:{server.port}",
         file=sys.stderr,
     )
     if not ipaddress.ip_address(socket.gethostbyname(server.host)).is_loopback:
@@ -309,6 +315,10 @@ def _igtl_server(args: argparse.Namespace) -> PoseServer | None:
             "receives the poses",
             file=sys.stderr,
         )
+    if args.igtl_wait > 0:
+        print(f"OpenIGTLink: waiting up to {args.igtl_wait:g} s for a client ...", file=sys.stderr)
+        connected = server.wait_for_client(args.igtl_wait, stop=lambda: bool(signals.received))
+        print(f"OpenIGTLink: {'a client is connected' if connected else 'no client yet'}", file=sys.stderr)
     return server
 
 
@@ -326,9 +336,12 @@ def _track_frames(
     started = time.monotonic()
     bar = progress(frames, desc="track", unit="frame")
     for frame in bar:
+        if signals.received:  # before the first frame (a signal while compiling or opening the source)
+            run.stop = f"stopped by {signals.received}"
+            break
         start = time.perf_counter()
         if frame.pixels is None:
-            tracked = TrackedFrame(PoseEstimate("unreadable", detail=frame.error), "lost")
+            tracked = TrackedFrame(PoseEstimate(frame.error_status, detail=frame.error), "lost")
         else:
             tracked = tracker.update(frame.pixels)
         latency = 1000 * (time.perf_counter() - start)
@@ -343,7 +356,8 @@ def _track_frames(
         run.statuses[tracked.estimate.status] += 1
         run.latencies.append(latency)
         bar.set_postfix_str(f"{1000 / max(np.median(run.latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")
-        run.wrong_size = run.wrong_size + 1 if tracked.estimate.status == "wrong_size" else 0
+        streamed = not frame.image  # a video's or a camera's frame, not a file of a batch
+        run.wrong_size = run.wrong_size + 1 if tracked.estimate.status == "wrong_size" and streamed else 0
         if run.wrong_size == 1:
             print(f"spotnav: warning: frame {frame.index}: {tracked.estimate.detail}", file=sys.stderr)
         run.stop = _track_stop(args, signals, out.rows, time.monotonic() - started, run.wrong_size)
@@ -403,20 +417,23 @@ def _cmd_localize(args: argparse.Namespace) -> int:
             else:
                 out.write(pose_row(display_name(name), estimate, elapsed_ms))
                 statuses[estimate.status] += 1
-        if waiting and not signals.received:
-            start = time.perf_counter()
-            fitted = self_calibrate_radius([share for _, share in shares], setup)
-            share_ms = 1000 * (time.perf_counter() - start) / max(len(shares), 1)
-            failed = set(done)
-            for (index, _), estimate in zip(shares, fitted.estimates, strict=True):
-                done[index] = estimate
+        if waiting:
+            failed, share_ms = set(done), 0.0
+            if signals.received:  # no joint fit: each frame's own pose
+                done |= {index: estimate for index, (estimate, _) in shares}
+                print("spotnav: warning: stopped before the joint radius fit: each frame's own pose", file=sys.stderr)
+            else:
+                start = time.perf_counter()
+                fitted = self_calibrate_radius([share for _, share in shares], setup)
+                share_ms = 1000 * (time.perf_counter() - start) / max(len(shares), 1)
+                done |= {index: estimate for (index, _), estimate in zip(shares, fitted.estimates, strict=True)}
+                print(
+                    f"eye.radius_mm = {fitted.radius_mm:.4f} +- {fitted.radius_sigma_mm:.4f} (1 sigma, "
+                    f"{fitted.frames} frames)"
+                )
             for index, (name, elapsed_ms) in enumerate(waiting):
                 out.write(pose_row(display_name(name), done[index], elapsed_ms + share_ms * (index not in failed)))
                 statuses[done[index].status] += 1
-            print(
-                f"eye.radius_mm = {fitted.radius_mm:.4f} +- {fitted.radius_sigma_mm:.4f} (1 sigma, "
-                f"{fitted.frames} frames)"
-            )
     counts = ", ".join(f"{n} {s}" for s, n in statuses.most_common()) or "no images"
     ended = f" (stopped by {signals.received})" if signals.received else ""
     print(f"wrote {args.out}: {out.rows} images, {counts}{ended}", file=sys.stderr)
@@ -452,6 +469,12 @@ def _cmd_show(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     if any(size < 128 for size in args.sizes):
         raise UsageError(f"--sizes must be at least 128 px, got {' '.join(map(str, args.sizes))}")
+    if args.frames < 2:
+        raise UsageError(f"--frames must be at least 2, got {args.frames}")
+    if args.full_every < 1:
+        raise UsageError(f"--full-every must be at least 1, got {args.full_every}")
+    if not (np.isfinite(args.memory_mb) and args.memory_mb >= 0):
+        raise UsageError(f"--memory-mb must be a number >= 0, got {args.memory_mb}")
     if args.stress:
         if args.hide_every < 2:
             raise UsageError(f"--hide-every must be at least 2, got {args.hide_every}")
@@ -467,6 +490,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
     known = read_known_poses(args.poses)
+    if any(pose.image == Path() for pose in known):
+        raise UsageError(
+            f"{args.poses} names a video's frames, not image files: calibrate reads images "
+            "(render the known poses into a folder: render --path ... --out DIR)"
+        )
     if args.images:
         by_path = {pose.image.resolve(): pose for pose in known}
         missing = [name for name in args.images if Path(name).resolve() not in by_path]
@@ -743,7 +771,7 @@ def _parser() -> argparse.ArgumentParser:
     evaluate = commands.add_parser("evaluate", help="compare a poses.csv with the truth: error statistics")
     evaluate.add_argument("poses", metavar="POSES.csv", help="poses.csv from localize or track")
     evaluate.add_argument("truth", metavar="TRUTH.csv", help="image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z][,...]")
-    evaluate.add_argument("--out", help="folder for errors.csv (per frame) and errors.png")
+    evaluate.add_argument("--out", help="folder for errors.csv (per frame), errors.png and track.png (3D)")
     evaluate.set_defaults(run=_cmd_evaluate)
 
     show = commands.add_parser("show", help="draw a frame's edge points, fitted cones, tip and status over it")
@@ -845,6 +873,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         message = str(error).splitlines()[0] if str(error) else type(error).__name__
         print(f"spotnav: error: {message}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # before a command could stop cleanly, or a second Ctrl-C
+        print("spotnav: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

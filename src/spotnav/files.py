@@ -54,7 +54,6 @@ __all__ = [
     "setup_to_toml",
     "track_row",
     "write_image",
-    "write_poses_csv",
     "write_truth_csv",
     "write_truth_json",
 ]
@@ -136,6 +135,11 @@ def image_size(path: str | Path) -> tuple[int, int] | None:
         return None
 
 
+def _wrong_size(name: str, size: Sequence[int], expected: Sequence[int]) -> ImageReadError:
+    message = f"{name}: image is {size[0]}x{size[1]} px, the setup's camera is {expected[0]}x{expected[1]} px"
+    return ImageReadError(message, "wrong_size")
+
+
 def read_image(
     path: str | Path, *, expected_size: tuple[int, int] | None = None, max_bytes: int = MAX_IMAGE_BYTES
 ) -> np.ndarray:
@@ -161,8 +165,7 @@ def read_image(
     size = image_size(path)
     if size is not None:
         if expected_size is not None and tuple(size) != tuple(expected_size):
-            message = f"{name}: image is {size[0]}x{size[1]} px, the setup's camera is {expected_size[0]}x"
-            raise ImageReadError(f"{message}{expected_size[1]} px", "wrong_size")
+            raise _wrong_size(name, size, expected_size)
         if 8 * size[0] * size[1] > max_bytes:
             raise ImageReadError(f"{name}: {size[0]}x{size[1]} px would take more than {max_bytes >> 20} MB")
     try:
@@ -182,8 +185,7 @@ def read_image(
     if image.dtype not in (np.uint8, np.uint16):
         raise ImageReadError(f"{name}: {image.dtype} pixels, expected 8 or 16 bits")
     if expected_size is not None and image.shape[1::-1] != tuple(expected_size):
-        message = f"{name}: image is {image.shape[1]}x{image.shape[0]} px, the setup's camera is {expected_size[0]}x"
-        raise ImageReadError(f"{message}{expected_size[1]} px", "wrong_size")
+        raise _wrong_size(name, image.shape[1::-1], expected_size)
     if image.ndim == 3 and image.shape[2] == 3:
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     if image.ndim == 3 and image.shape[2] == 4:
@@ -241,7 +243,11 @@ class PosesWriter:
     """``poses.csv`` written row by row, each row on disk as soon as it is written.
 
     A run that stops early (Ctrl-C, SIGTERM, a crash) leaves every finished row.
-    Lines end in LF. Use it as a context manager.
+    Lines end in LF. Use it as a context manager. The contract's columns come
+    first; ``sigma_mm`` is the precise method's 1-sigma tip uncertainty,
+    ``rms_px`` its edge points' RMS distance from the fitted cones,
+    ``other_dir_*`` its cross-check axis (fitted without the insertion point,
+    or with it for ``precise-free``); all empty for the thesis's method.
 
     Parameters
     ----------
@@ -276,26 +282,15 @@ class PosesWriter:
         self.close()
 
 
-def write_poses_csv(path: str | Path, rows: Iterable[Sequence[str]], columns: Sequence[str] = POSES_COLUMNS) -> None:
-    """Write ``poses.csv``: the contract's columns first, then :data:`POSES_COLUMNS`' own.
-
-    ``sigma_mm`` is the precise method's 1-sigma tip uncertainty, ``rms_px`` its
-    edge points' RMS distance from the fitted cones, ``other_dir_*`` its
-    cross-check axis (fitted without the insertion point, or with it for
-    ``precise-free``); all empty for the thesis's method.
-    """
-    with PosesWriter(path, columns) as writer:
-        for row in rows:
-            writer.write(row)
-
-
 def _read_csv_rows(path: Path, needed: Sequence[str]) -> list[dict[str, str]]:
-    """A CSV file's rows as dicts; ValueError naming the file when it cannot be read or lacks a column."""
+    """A CSV file's rows as dicts; InputError naming the file when it cannot be read or lacks a column."""
     try:
         with path.open(newline="", encoding="utf-8") as handle:
             rows = list(csv.DictReader(handle))
     except OSError as error:
         raise InputError(f"{path}: cannot read: {error.strerror}") from None
+    except (UnicodeDecodeError, csv.Error) as error:
+        raise InputError(f"{path}: not a UTF-8 CSV file ({error})") from None
     if not rows or any(name not in rows[0] for name in needed):
         raise InputError(f"{path}: needs a header with the columns {', '.join(needed)} and at least one row")
     return rows
@@ -347,7 +342,7 @@ def read_known_poses(path: str | Path) -> list[KnownPose]:
 
     Raises
     ------
-    ValueError
+    InputError
         Naming the file and the row for a missing column or a bad number.
     """
     path = Path(path)
@@ -392,7 +387,7 @@ def read_poses_csv(path: str | Path) -> list[PoseRow]:
 
     Raises
     ------
-    ValueError
+    InputError
         Naming the file and the line for a missing column, a bad number or an ``ok`` row without a pose.
     """
     path = Path(path)
@@ -440,7 +435,7 @@ def read_opencv_camera(path: str | Path) -> tuple[int, int, np.ndarray, np.ndarr
 
     Raises
     ------
-    ValueError
+    InputError
         Naming the file and what is missing.
     """
     path = Path(path)
@@ -548,9 +543,11 @@ class Frame:
     error : str
         Why ``pixels`` is None.
     timestamp_s : float
-        When the frame arrived, Unix seconds: a live camera's or stream's frame
-        when it was delivered (its capture time, as near as OpenCV tells), a
-        file's frame when it was decoded.
+        When the frame arrived, Unix seconds: when OpenCV grabbed a video's or
+        a live source's frame (before decoding it; a camera's driver may have
+        held it a few frames before), when a file was read.
+    error_status : str
+        The status of a frame without ``pixels``: ``unreadable`` or ``wrong_size``.
     """
 
     index: int
@@ -559,6 +556,7 @@ class Frame:
     decode_ms: float
     error: str = ""
     timestamp_s: float = 0.0
+    error_status: str = "unreadable"
 
 
 @dataclass(frozen=True)
@@ -615,7 +613,12 @@ def is_live(source: str) -> bool:
 
 
 def iter_frames(
-    source: str, *, ring: int = 0, camera: CameraSettings | None = None, report: Callable[[str], None] | None = None
+    source: str,
+    *,
+    ring: int = 0,
+    camera: CameraSettings | None = None,
+    report: Callable[[str], None] | None = None,
+    expected_size: tuple[int, int] | None = None,
 ) -> Iterator[Frame]:
     """Decode a sequence in order: a folder or glob of images, a video file, a camera, a URL or a pipeline.
 
@@ -635,6 +638,9 @@ def iter_frames(
         Settings to ask a live source for.
     report : callable, optional
         Receives one line with what a live source says it delivers.
+    expected_size : (int, int), optional
+        Width and height an image file must have: one that is not is not
+        decoded (its frame's ``error_status`` is ``wrong_size``).
 
     Raises
     ------
@@ -653,7 +659,7 @@ def iter_frames(
     if files is not None:
         if not files:
             raise ImageReadError(f"{source}: no images ({', '.join(IMAGE_SUFFIXES)})")
-        return _read_files(files)
+        return _read_files(files, expected_size)
     capture = _open_capture(source, wanted)
     if is_live(source) and report is not None:
         delivered = ", ".join(f"{PROPERTY_NAMES[p]} {capture.get(p):g}" for p in PROPERTY_NAMES)
@@ -664,14 +670,16 @@ def iter_frames(
     return _read_capture(capture, ring)
 
 
-def _read_files(files: Sequence[str]) -> Iterator[Frame]:
+def _read_files(files: Sequence[str], expected_size: tuple[int, int] | None) -> Iterator[Frame]:
     for index, name in enumerate(files):
         start = time.perf_counter()
+        stamp = time.time()
         try:
-            pixels, error = read_image(name), ""
+            pixels, error, status = read_image(name, expected_size=expected_size), "", "unreadable"
         except ImageReadError as failure:
-            pixels, error = None, str(failure)
-        yield Frame(index, display_name(name), pixels, 1000 * (time.perf_counter() - start), error, time.time())
+            pixels, error, status = None, str(failure), failure.status
+        elapsed_ms = 1000 * (time.perf_counter() - start)
+        yield Frame(index, display_name(name), pixels, elapsed_ms, error, stamp, status)
 
 
 def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
@@ -681,10 +689,12 @@ def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
         index = 0
         while True:
             start = time.perf_counter()
-            ok, decoded = capture.read(decoded if ring else None)
-            if not ok:
+            if not capture.grab():
                 return
             stamp = time.time()
+            ok, decoded = capture.retrieve(decoded if ring else None)
+            if not ok:
+                return
             slot = index % len(buffers)
             pixels = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=buffers[slot])
             if ring:
@@ -699,8 +709,8 @@ def _open_capture(source: str, wanted: Mapping[int, float]) -> cv2.VideoCapture:
     """An opened capture of a video file, camera index, URL or GStreamer pipeline, with ``wanted`` properties."""
     # One decoding thread: threads that decode ahead would compete with the localizer for the cores.
     params = [cv2.CAP_PROP_N_THREADS, 1]
-    if source.isdigit():
-        capture = cv2.VideoCapture(int(source), cv2.CAP_ANY, params)
+    if source.isdigit():  # a camera backend (V4L2) may refuse open parameters: none
+        capture = cv2.VideoCapture(int(source), cv2.CAP_ANY)
     elif " ! " in source:
         if "GStreamer:                   YES" not in cv2.getBuildInformation():
             raise ImageReadError(f"{source}: this OpenCV has no GStreamer (cv2.getBuildInformation())")
@@ -785,26 +795,29 @@ def read_path_csv(path: str | Path) -> np.ndarray:
 
     Raises
     ------
-    ValueError
+    InputError
         Naming the file, the row or the missing column.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    with path.open(newline="", encoding="utf-8") as handle:
-        reader = csv.DictReader(handle)
-        missing = [c for c in ("x_mm", "y_mm", "z_mm") if c not in (reader.fieldnames or [])]
-        if missing:
-            raise InputError(f"{path}: missing column(s) {', '.join(missing)}")
-        tips = []
-        for line, row in enumerate(reader, start=2):
-            try:
-                tip = [float(row[c]) for c in ("x_mm", "y_mm", "z_mm")]
-            except (TypeError, ValueError):
-                raise InputError(f"{path}: row {line}: x_mm, y_mm, z_mm must be numbers") from None
-            if not np.all(np.isfinite(tip)):
-                raise InputError(f"{path}: row {line}: x_mm, y_mm, z_mm must be finite")
-            tips.append(tip)
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            reader = csv.DictReader(handle)
+            missing = [c for c in ("x_mm", "y_mm", "z_mm") if c not in (reader.fieldnames or [])]
+            if missing:
+                raise InputError(f"{path}: missing column(s) {', '.join(missing)}")
+            tips = []
+            for line, row in enumerate(reader, start=2):
+                try:
+                    tip = [float(row[c]) for c in ("x_mm", "y_mm", "z_mm")]
+                except (TypeError, ValueError):
+                    raise InputError(f"{path}: row {line}: x_mm, y_mm, z_mm must be numbers") from None
+                if not np.all(np.isfinite(tip)):
+                    raise InputError(f"{path}: row {line}: x_mm, y_mm, z_mm must be finite")
+                tips.append(tip)
+    except (UnicodeDecodeError, csv.Error) as error:
+        raise InputError(f"{path}: not a UTF-8 CSV file ({error})") from None
     if len(tips) < 2:
         raise InputError(f"{path}: a path needs at least two rows")
     return np.array(tips)

@@ -19,7 +19,7 @@ from spotnav.estimate import PoseEstimate
 from spotnav.geometry import cone_sphere_curve
 from spotnav.localize import Cone, Localization, SpotDetail, cones_of_estimate
 
-__all__ = ["crop_box", "draw_overlay", "fitted_spots"]
+__all__ = ["cone_edge_px", "crop_box", "draw_overlay", "fitted_spots"]
 
 _GREEN, _RED, _ORANGE = (0, 220, 0), (255, 40, 40), (255, 150, 0)
 _CYAN, _YELLOW, _WHITE = (0, 230, 255), (255, 255, 0), (255, 255, 255)
@@ -36,7 +36,7 @@ def _rgb8(image: np.ndarray) -> np.ndarray:
     return pixels[:, :, :3].copy()
 
 
-def _cone_edge_px(setup: Setup, cone: Cone) -> np.ndarray:
+def cone_edge_px(setup: Setup, cone: Cone) -> np.ndarray:
     """The cone's edge on the retina, projected into the image, shape (K, 2) px (empty if it misses)."""
     try:
         curve = cone_sphere_curve(
@@ -101,7 +101,7 @@ def draw_overlay(
     size = max(canvas.shape[:2])
     thick = max(1, round(size / 1500))
     for cone in cones_of_estimate(setup, estimate) if cones is None else cones:
-        curve = _cone_edge_px(setup, cone)
+        curve = cone_edge_px(setup, cone)
         if len(curve) > 1:
             cv2.polylines(canvas, [np.round(curve).astype(np.int32)], True, _CYAN, thick)
     for spot in spots:
@@ -127,7 +127,7 @@ def crop_box(setup: Setup, localization: Localization, margin: float = 0.3) -> t
     The whole frame when there is nothing to frame.
     """
     points = [spot.edge_px for spot in localization.spots]
-    points += [_cone_edge_px(setup, cone) for cone in localization.cones]
+    points += [cone_edge_px(setup, cone) for cone in localization.cones]
     points = [p for p in points if len(p)]
     width, height = setup.camera.width_px, setup.camera.height_px
     if not points:

@@ -189,6 +189,14 @@ class PreciseResult:
     edges: EdgeFrame | None = None
     fit: ConeSolution | None = None
 
+    @property
+    def fitted_edges_px(self) -> tuple[np.ndarray, ...]:
+        """The edge points the fit used, per spot, pixels, shapes (N_k, 2); empty without a fit."""
+        if self.fit is None:
+            return ()
+        points = self.fit.problem.points
+        return tuple(points.pixels[points.spot == spot] for spot in np.unique(points.spot))
+
 
 def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PoseEstimate:
     """spotnav's precise method (see :func:`localize_precise_with_edges`)."""

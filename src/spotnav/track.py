@@ -253,7 +253,7 @@ class Tracker:
                 estimate, mode = tracked, found
         if estimate is None:
             result = localize_precise_with_edges(image, self.setup, through_insertion=self.through_insertion)
-            estimate, edges = result.estimate, result.edges.edges_px if result.edges is not None else ()
+            estimate, edges = result.estimate, result.fitted_edges_px
         if not estimate.ok:
             self._forget()
             return TrackedFrame(estimate, "lost", edges)

@@ -31,7 +31,7 @@ def approximation_rows() -> list[tuple[int, float, float, float, float]]:
 def run_approximation(options: Options) -> Experiment:
     """Table 4.1: the cone-sphere curve against the cone-plane ellipse."""
     rows = approximation_rows()
-    with (options.out / "approximation.csv").open("w", newline="") as handle:
+    with (options.out / "approximation.csv").open("w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle, lineterminator="\n")
         writer.writerow(["beta_deg", "thesis_um", "gap_y_um", "to_plane_um", "along_ray_um"])
         writer.writerows([[b, t, f"{g:.4f}", f"{p:.4f}", f"{a:.4f}"] for b, t, g, p, a in rows])

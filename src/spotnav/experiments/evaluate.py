@@ -75,6 +75,8 @@ class Evaluation:
         Axis angle error, degrees.
     within_3_sigma : float
         Fraction of the ``ok`` frames with a ``sigma_mm`` whose error is within 3 of it (NaN without any).
+    unposed : int
+        Truth rows without a pose row (a run stopped early), left out.
     """
 
     frames: tuple[FrameEvaluation, ...]
@@ -87,6 +89,7 @@ class Evaluation:
     axis_mean_deg: float
     axis_max_deg: float
     within_3_sigma: float = float("nan")
+    unposed: int = 0
 
 
 def _frame_key(image: str, frame: int | None) -> str:
@@ -111,10 +114,12 @@ def _listed(names: Sequence[str]) -> str:
 def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Evaluation:
     """Join estimates and truth on the image's file name (or frame, without one) and measure the errors.
 
+    Truth rows without a pose row (a run that stopped early) are counted and left out.
+
     Raises
     ------
-    ValueError
-        Naming the images that only one of the two lists has, or an image listed twice.
+    InputError
+        Naming the pose rows without truth, or an image listed twice.
     """
     estimated = _by_name([_frame_key(p.image, p.frame) for p in poses], "poses")
     known = _by_name([_frame_key(t.image.name, t.frame) for t in truth], "truth")
@@ -122,8 +127,6 @@ def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Eval
     missing_pose = sorted(set(known) - set(estimated))
     if missing_truth:
         raise InputError(f"no truth for {len(missing_truth)} image(s): {_listed(missing_truth)}")
-    if missing_pose:
-        raise InputError(f"no pose row for {len(missing_pose)} image(s): {_listed(missing_pose)}")
     frames = []
     for name, position in estimated.items():
         row, true = poses[position], truth[known[name]]
@@ -155,6 +158,7 @@ def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Eval
         axis_mean_deg=stat(angles, "mean"),
         axis_max_deg=stat(angles, "max"),
         within_3_sigma=stat(np.array([f.error_mm <= 3 * f.sigma_mm for f in ok if np.isfinite(f.sigma_mm)]), "mean"),
+        unposed=len(missing_pose),
     )
 
 
@@ -164,6 +168,8 @@ def evaluation_text(evaluation: Evaluation) -> str:
     ok = evaluation.counts.get("ok", 0)
     bias = " / ".join(f"{v:+.4f}" for v in evaluation.bias_mm)
     lines = [f"frames: {len(evaluation.frames)} ({counts})"]
+    if evaluation.unposed:
+        lines.append(f"{evaluation.unposed} truth rows have no pose row (a run stopped early?): left out")
     if ok:
         lines += [
             f"tip error over the {ok} ok frames [mm]: mean {evaluation.mean_mm:.4f}, "
@@ -177,8 +183,11 @@ def evaluation_text(evaluation: Evaluation) -> str:
 
 
 def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:
-    """Write ``errors.csv`` (one row per frame), ``errors.png`` (error per frame by status) and
-    ``track.png`` (the estimated tips against the true path, in 3D) into ``out``."""
+    """Write ``errors.csv``, ``errors.png`` and ``track.png`` into ``out``; return their paths.
+
+    ``errors.csv`` has one row per frame, ``errors.png`` the error per frame by
+    status, ``track.png`` the estimated tips against the true path, in 3D.
+    """
     out.mkdir(parents=True, exist_ok=True)
     table = out / "errors.csv"
     with table.open("w", newline="", encoding="utf-8") as handle:

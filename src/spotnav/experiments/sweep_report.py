@@ -99,7 +99,7 @@ def write_sweep_report(directory: Path | str) -> str:
     directory = Path(directory)
     table = read_sweep_table(directory)
     header, rows = summary_rows(table)
-    with (directory / "summary.csv").open("w", newline="") as handle:
+    with (directory / "summary.csv").open("w", newline="", encoding="utf-8") as handle:
         csv.writer(handle, lineterminator="\n").writerows([header, *rows])
     figures = []
     for column in varied_parameters(table):
@@ -121,7 +121,7 @@ def write_sweep_report(directory: Path | str) -> str:
             *(figures or ["No parameter took more than one value: nothing to plot against.", ""]),
         ]
     )
-    (directory / "summary.md").write_text(text)
+    (directory / "summary.md").write_text(text, encoding="utf-8")
     return text
 
 
