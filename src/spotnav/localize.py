@@ -16,14 +16,12 @@ from functools import partial
 
 import numpy as np
 
-from spotnav.checks import check_image_size
 from spotnav.conefit import edge_angle
 from spotnav.config import Setup
-from spotnav.detect import detect_spots_otsu
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import beam_axes
 from spotnav.precise import localize_precise, localize_precise_with_edges
-from spotnav.thesis import localize_thesis, locate_from_spots
+from spotnav.thesis import localize_thesis, localize_thesis_with_spots
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -52,9 +50,13 @@ def localize(image: np.ndarray, setup: Setup, method: str = DEFAULT_METHOD) -> P
     ValueError
         For an unknown method.
     """
+    _check_method(method)
+    return METHODS[method](image, setup)
+
+
+def _check_method(method: str) -> None:
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    return METHODS[method](image, setup)
 
 
 @dataclass(frozen=True)
@@ -135,19 +137,14 @@ def localize_detailed(image: np.ndarray, setup: Setup, method: str = DEFAULT_MET
     ValueError
         For an unknown method.
     """
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    _check_method(method)
     no_covariance = np.full((3, 3), np.nan)
     empty = np.zeros((0, 2))
     if method == "thesis":
-        wrong = check_image_size(image, setup)
-        if wrong is not None:
-            return Localization(wrong, (), (), no_covariance)
-        detection = detect_spots_otsu(image, response=setup.camera.pixel_response)
-        estimate = locate_from_spots(detection, setup)
+        estimate, detection = localize_thesis_with_spots(image, setup)
         spots = tuple(
             SpotDetail(i, spot.contour_px, empty, np.zeros(0, bool), np.zeros(0))
-            for i, spot in enumerate(detection.spots)
+            for i, spot in enumerate(detection.spots if detection is not None else ())
         )
         cones = ()
         if estimate.tip_in_eye is not None and estimate.axis is not None:

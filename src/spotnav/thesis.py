@@ -27,6 +27,7 @@ __all__ = [
     "ThesisSolution",
     "fit_height_correction",
     "localize_thesis",
+    "localize_thesis_with_spots",
     "locate_from_spots",
     "solve_thesis",
     "spot_candidates",
@@ -43,10 +44,16 @@ def localize_thesis(image: np.ndarray, setup: Setup) -> PoseEstimate:
     setup : Setup
         Only ``eye``, ``camera`` and ``instrument`` are used.
     """
+    return localize_thesis_with_spots(image, setup)[0]
+
+
+def localize_thesis_with_spots(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, SpotDetection | None]:
+    """:func:`localize_thesis`, and the spots it detected (None for an image of the wrong size)."""
     wrong = check_image_size(image, setup)
     if wrong is not None:
-        return wrong
-    return locate_from_spots(detect_spots_otsu(image, response=setup.camera.pixel_response), setup)
+        return wrong, None
+    detection = detect_spots_otsu(image, response=setup.camera.pixel_response)
+    return locate_from_spots(detection, setup), detection
 
 
 def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCandidates | None:
