@@ -598,8 +598,9 @@ def _side_by_side(at_1w: Mapping[tuple[str, str], Mapping[str, Mapping[str, list
         "",
         *markdown_table(header, rows),
         "",
-        "The precise method's cells give its frames with a pose; it refuses the frames whose spots are clipped "
-        "(status `clipped`): a clipped edge does not show where the light is half of its full value.",
+        "The precise method's cells give its frames with a pose. It refuses a frame whose spot is at full scale "
+        'inside its edge (status `unreliable`, "... at full scale in every channel"): a clipped edge does not '
+        "show where the light is half of its full value (issue 18's limit).",
     ]
 
 
