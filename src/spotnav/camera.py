@@ -413,21 +413,36 @@ def pixels_behind_segment(
     ends_px = project_points(camera, ends)
     reach = radius_mm * camera.focal_px / float(np.min(camera_depth_mm(camera, ends))) + 2.0
     low, high = ends_px.min(axis=0) - reach, ends_px.max(axis=0) + reach
-    near = np.all((pixels >= low) & (pixels <= high), axis=-1)
-    if not near.any():
-        return near
-    hidden = np.zeros(near.shape, dtype=bool)
-    rays = pixel_rays(camera, pixels[near])
-    along = end - start
-    offset = camera.center_in_eye - start
-    # Closest points of the ray's line and the segment's line, the segment's clamped to its ends.
-    b, c = rays @ along, float(along @ along)
-    d, e = rays @ offset, float(along @ offset)
-    denominator = np.maximum(c - b * b, 1e-12)
-    t = np.clip((e - b * d) / denominator, 0.0, 1.0)
-    s = t[..., None] * along - offset  # from the camera to the segment's point
-    distance2 = np.sum(s * s, axis=-1) - np.sum(s * rays, axis=-1) ** 2
-    hidden[near] = distance2 < radius_mm**2
+    rows = np.ascontiguousarray(pixels.reshape(-1, 2), dtype=float)
+    offset = np.asarray(camera.center_in_eye, dtype=float) - start
+    hidden = _behind_segment(camera_model(camera), rows, end - start, offset, float(radius_mm), low, high)
+    return hidden.reshape(pixels.shape[:-1])
+
+
+@njit(cache=True)
+def _behind_segment(
+    model: np.ndarray,
+    pixels: np.ndarray,
+    along: np.ndarray,
+    offset: np.ndarray,
+    radius: float,
+    low: np.ndarray,
+    high: np.ndarray,
+) -> np.ndarray:
+    """:func:`pixels_behind_segment` of pixels (N, 2) inside the box [low, high], compiled: the segment runs
+    ``along`` from its start, the camera lies ``offset`` from it."""
+    hidden = np.zeros(len(pixels), dtype=np.bool_)
+    c, e = np.sum(along * along), np.sum(along * offset)
+    for n in range(len(pixels)):
+        u, v = pixels[n, 0], pixels[n, 1]
+        if not (low[0] <= u <= high[0] and low[1] <= v <= high[1]):
+            continue
+        ray = np.array(pixel_ray(model, u, v))
+        # Closest points of the ray's line and the segment's line, the segment's clamped to its ends.
+        b, d = np.sum(ray * along), np.sum(ray * offset)
+        t = min(max((e - b * d) / max(c - b * b, 1e-12), 0.0), 1.0)
+        s = t * along - offset  # from the camera to the segment's point
+        hidden[n] = np.sum(s * s) - np.sum(s * ray) ** 2 < radius * radius
     return hidden
 
 

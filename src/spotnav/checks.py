@@ -221,7 +221,11 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
 
 def _mm_per_px(setup: Setup) -> float:
     """Millimetres on the retina per pixel near the pole."""
-    camera = setup.camera
+    return _camera_mm_per_px(setup.camera)
+
+
+@lru_cache(maxsize=32)
+def _camera_mm_per_px(camera: Camera) -> float:
     return float(camera_depth_mm(camera, np.zeros(3))) / camera.focal_px
 
 

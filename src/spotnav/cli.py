@@ -281,7 +281,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
     counts = ", ".join(f"{n} {s}" for s, n in run.statuses.most_common()) or "no frames"
     latencies = run.latencies
     timing = (
-        f"; latency median {np.median(latencies):.2f} ms, 99th percentile {np.percentile(latencies, 99):.2f} ms"
+        f"; latency median {np.median(latencies):.2f} ms, 99th percentile {np.percentile(latencies, 99):.2f} ms, "
+        f"max {np.max(latencies):.2f} ms"
         if latencies
         else ""
     )

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import numpy as np
 from numba import njit
@@ -105,7 +106,7 @@ def group_of(index: int) -> str:
 FRAME_PARAMETERS = ("tip_x_mm", "tip_y_mm", "tip_z_mm", "about_y", "about_z", "roll")
 _FRAME_SIZE = len(FRAME_PARAMETERS)
 AXIS_MODES = {"insertion": 0, "free": 1, "known": 2}
-SOLVERS = ("trust-region", "gauss-newton")
+SOLVERS = ("trust-region", "levenberg-marquardt", "gauss-newton")
 _GROSS_RESIDUAL = 1.0  # radians: a point whose ray misses the bowl
 
 
@@ -184,8 +185,11 @@ def prior_sigmas(setup: Setup) -> np.ndarray:
     )
 
 
+@lru_cache(maxsize=32)
 def _difference_steps(camera: Camera) -> np.ndarray:
-    """Forward-difference steps of the shared parameters, engine units: a hundred-thousandth of a small change."""
+    """Forward-difference steps of the shared parameters, engine units: a hundred-thousandth of a small change.
+
+    Computed once per camera: the array is read-only."""
     small = _shared_scales(
         camera,
         edge_deg=0.1,
@@ -198,7 +202,9 @@ def _difference_steps(camera: Camera) -> np.ndarray:
         distortion_px=1.0,
         insertion_mm=0.1,
     )
-    return 1e-5 * small
+    steps = 1e-5 * small
+    steps.setflags(write=False)
+    return steps
 
 
 def geometry_values(setup: Setup) -> np.ndarray:
@@ -246,6 +252,7 @@ def geometry_to_file_units(values: np.ndarray) -> np.ndarray:
     return np.asarray(values, dtype=float) / _TO_ENGINE
 
 
+@lru_cache(maxsize=32)
 def geometry_covariance(setup: Setup, *, one_frame: bool = True) -> np.ndarray:
     """How well the setup's geometry is known: the shared parameters' covariance, engine units, (SHARED_SIZE,)*2.
 
@@ -253,6 +260,7 @@ def geometry_covariance(setup: Setup, *, one_frame: bool = True) -> np.ndarray:
     for the others, and with ``one_frame`` the edge model's error in one
     frame: the one the calibration measured, at least :data:`EDGE_MODEL_SIGMA`
     (a pose's; a calibration over many frames measures that error itself).
+    Computed once per setup (every tracked frame asks): the array is read-only.
     """
     covariance = np.diag(prior_sigmas(setup) ** 2)
     record = setup.calibration
@@ -265,6 +273,7 @@ def geometry_covariance(setup: Setup, *, one_frame: bool = True) -> np.ndarray:
         covariance[np.ix_(index, index)] = block
     if one_frame:
         covariance[_EDGE, _EDGE] += max(EDGE_MODEL_SIGMA, np.radians(record.frame_edge_sigma_deg)) ** 2
+    covariance.setflags(write=False)
     return covariance
 
 
@@ -301,7 +310,7 @@ class EdgePoints:
             if values.shape != (count,):
                 raise ValueError(f"{name} must have shape ({count},), got {values.shape}")
             object.__setattr__(self, name, values)
-        if count and np.any(np.diff(self.frame) < 0):
+        if count and np.any(self.frame[1:] < self.frame[:-1]):
             raise ValueError("edge points must be in frame order")
         object.__setattr__(self, "pixels", pixels)
         spots = int(self.spot.max()) + 1 if count else 0
@@ -318,19 +327,16 @@ class EdgePoints:
         spot_sigma: Sequence[Sequence[float]] | None = None,
     ) -> EdgePoints:
         """Points from each frame's spots' edges (``spots_px[f][k]``, shape (N_k, 2)), their beams and own sigmas."""
-        pixels, frame, beam, spot = [np.zeros((0, 2))], [], [], []
-        count = 0
+        pixels, frame, beam = [np.zeros((0, 2))], [], []
         for f, (edges, frame_beams) in enumerate(zip(spots_px, beams, strict=True)):
             for edge, b in zip(edges, frame_beams, strict=True):
                 pixels.append(np.asarray(edge, dtype=float).reshape(-1, 2))
-                frame.append(np.full(len(pixels[-1]), f))
-                beam.append(np.full(len(pixels[-1]), b))
-                spot.append(np.full(len(pixels[-1]), count))
-                count += 1
-        empty = np.zeros(0, dtype=np.int64)
+                frame.append(f)
+                beam.append(b)
+        lengths = [len(p) for p in pixels[1:]]
         sigma = None if spot_sigma is None else np.concatenate([np.asarray(s, dtype=float) for s in spot_sigma])
-        arrays = (np.concatenate(v) if v else empty for v in (frame, beam, spot))
-        return cls(np.concatenate(pixels), *arrays, spot_sigma=sigma)
+        labels = (np.repeat(np.asarray(v, dtype=np.int64), lengths) for v in (frame, beam, range(len(lengths))))
+        return cls(np.concatenate(pixels), *labels, spot_sigma=sigma)
 
     def subset(self, keep: np.ndarray) -> EdgePoints:
         """The points where ``keep`` (N,) is true, in order (the spots keep their numbers)."""
@@ -439,7 +445,8 @@ class ConeProblem:
         """The free parameters' start, shape (size,)."""
         frame_index = self._arrays[7]
         x = np.empty(self.size)
-        x[: len(self.free_shared)] = self.shared[list(self.free_shared)]
+        if self.free_shared:
+            x[: len(self.free_shared)] = self.shared[list(self.free_shared)]
         free = frame_index >= 0
         x[frame_index[free]] = self.frames[free]
         return x
@@ -459,9 +466,11 @@ class ConeProblem:
         ``columns[n]``: the free shared parameters, then its frame's own.
         """
         x = np.asarray(x, dtype=float)
+        values, columns = _frame_columns(x, self._arrays, len(self.free_frame))
+        if not self.free_shared:
+            return values, columns
         shared_ids = np.array(self.free_shared, dtype=np.int64)
         shared_columns = _shared_columns(x, self._arrays, shared_ids)
-        values, columns = _frame_columns(x, self._arrays, len(self.free_frame))
         shared_positions = np.broadcast_to(np.arange(len(shared_ids)), shared_columns.shape)
         return np.hstack([shared_columns, values]), np.hstack([shared_positions, columns])
 
@@ -834,8 +843,10 @@ class ConeSolution:
         the fixed geometry's part; zero for parameters that were not fitted."""
         index = self.problem._arrays[7][frame, list(which)]
         covariance = self.covariance if geometry else self.data_covariance
-        block = np.zeros((len(index), len(index)))
         fitted = index >= 0
+        if fitted.all():
+            return covariance[index[:, None], index]
+        block = np.zeros((len(index), len(index)))
         block[np.ix_(fitted, fitted)] = covariance[np.ix_(index[fitted], index[fitted])]
         return block
 
@@ -845,7 +856,9 @@ class ConeSolution:
 
     def tip_sigma_mm(self, frame: int = 0, *, geometry: bool = True) -> float:
         """1-sigma tip uncertainty per axis: the root of a third of the covariance's trace, mm."""
-        return float(np.sqrt(np.trace(self.tip_covariance(frame, geometry=geometry)) / 3))
+        index = self.problem._arrays[7][frame, :3]
+        covariance = self.covariance if geometry else self.data_covariance
+        return float(np.sqrt(covariance[index[index >= 0], index[index >= 0]].sum() / 3))
 
     def frame_solution(self, frame: int) -> ConeSolution:
         """One frame of a joint fit as a one-frame solution: its points, its block of the covariance.
@@ -945,11 +958,79 @@ def _stack_sparse(matrix: csr_matrix, extra: np.ndarray) -> csr_matrix:
 
 @njit(cache=True)
 def _gauss_newton(
-    x: np.ndarray, residuals: np.ndarray, values: np.ndarray, columns: np.ndarray, scale: float
+    x: np.ndarray, arrays: tuple, rows: np.ndarray, scale: float, per_frame: int, steps: int
 ) -> np.ndarray:
-    """One Gauss-Newton step from ``x``; with ``scale`` > 0, reweighted for the soft-L1 loss."""
-    normal, gradient = _normal_equations(values, columns, residuals, len(x), scale)
-    return x - np.linalg.solve(normal, gradient)
+    """``steps`` Gauss-Newton steps from ``x`` on the points ``rows`` (N,), compiled; with ``scale`` > 0 each
+    reweighted for the soft-L1 loss. The problem's frame parameters only (no free shared ones)."""
+    kept = np.flatnonzero(rows)
+    for _ in range(steps):
+        residuals = _residuals(x, arrays)
+        values, columns = _frame_columns(x, arrays, per_frame)
+        normal, gradient = _normal_equations(values[kept], columns[kept], residuals[kept], len(x), scale)
+        x = x - np.linalg.solve(normal, gradient)
+    return x
+
+
+_AT_BOX_MM = 1e-6  # a tip this close to its box's wall is held there
+_LM_MAX_STEPS = 100
+_LM_TRIES = 12  # damping raises per step before the step is given up
+_LM_TOLERANCE = 1e-8  # as SciPy's ftol and xtol
+_LM_FIRST_DAMPING = 1e-6  # of the normal matrix's diagonal: a loose direction (one beam's free axis) needs little
+
+
+@njit(cache=True)
+def _robust_cost(residuals: np.ndarray, rows: np.ndarray, scale: float) -> float:
+    """Half the sum of squares of ``residuals[rows]``, or with ``scale`` > 0 the soft-L1 loss's (as SciPy's)."""
+    cost = 0.0
+    for n in range(len(residuals)):
+        if rows[n]:
+            if scale > 0.0:
+                cost += scale * scale * (np.sqrt(1.0 + (residuals[n] / scale) ** 2) - 1.0)
+            else:
+                cost += 0.5 * residuals[n] ** 2
+    return cost
+
+
+@njit(cache=True)
+def _levenberg_marquardt(
+    x: np.ndarray, arrays: tuple, rows: np.ndarray, scale: float, low: np.ndarray, high: np.ndarray, per_frame: int
+) -> np.ndarray:
+    """Damped Gauss-Newton steps from ``x`` on the points ``rows`` (N,) within the box [low, high], compiled.
+
+    Marquardt's damping scaled by the normal matrix's diagonal (SciPy's
+    ``x_scale="jac"``), steps projected onto the box, reweighted for the
+    soft-L1 loss when ``scale`` > 0; it stops when a step lowers the cost, or
+    moves ``x``, by less than ``_LM_TOLERANCE`` of it. The problem's frame
+    parameters only (no free shared ones).
+    """
+    size = len(x)
+    residuals = _residuals(x, arrays)
+    cost = _robust_cost(residuals, rows, scale)
+    damping = _LM_FIRST_DAMPING
+    for _ in range(_LM_MAX_STEPS):
+        values, columns = _frame_columns(x, arrays, per_frame)
+        kept = np.flatnonzero(rows)
+        normal, gradient = _normal_equations(values[kept], columns[kept], residuals[kept], size, scale)
+        diagonal = np.maximum(np.diag(normal), 1e-300)
+        moved = False
+        for _ in range(_LM_TRIES):
+            damped = normal + damping * np.diag(diagonal)
+            trial = np.minimum(np.maximum(x - np.linalg.solve(damped, gradient), low), high)
+            trial_residuals = _residuals(trial, arrays)
+            trial_cost = _robust_cost(trial_residuals, rows, scale)
+            if trial_cost <= cost:
+                moved = True
+                break
+            damping *= 4.0
+        if not moved:
+            break
+        small_step = np.linalg.norm(trial - x) <= _LM_TOLERANCE * (_LM_TOLERANCE + np.linalg.norm(x))
+        small_gain = cost - trial_cost <= _LM_TOLERANCE * cost
+        x, residuals, cost = trial, trial_residuals, trial_cost
+        damping = max(damping / 10.0, 1e-12)
+        if small_step or small_gain:
+            break
+    return x
 
 
 def fit_cones(
@@ -966,9 +1047,12 @@ def fit_cones(
     ----------
     problem : ConeProblem
     solver : str
-        ``trust-region`` (SciPy's, for any start) or ``gauss-newton`` (a few
-        fixed steps, iteratively reweighted: fast, for a start close to the
-        answer, as in tracking; it has no box and takes no priors).
+        ``trust-region`` (SciPy's, for any start and any problem),
+        ``levenberg-marquardt`` (compiled damped steps within the box, for any
+        start: fast, for problems of the frames' own parameters, no priors) or
+        ``gauss-newton`` (a few fixed steps, iteratively reweighted: fastest,
+        for a start close to the answer, as in tracking; it has no box and
+        takes no priors).
     max_tip_move_mm : float
         The tips may not wander further than this from their start: a short arc
         of edge also fits a narrow far cone (with the axis through the
@@ -983,33 +1067,43 @@ def fit_cones(
     """
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    if solver != "trust-region" and (priors is not None or problem.free_shared):
+        raise ValueError(f"solver {solver!r} fits the frames' own parameters without priors: use trust-region")
     x = problem.start
-    every = np.ones(len(problem.points.pixels), dtype=bool)
     residuals = problem.residuals(x)
-    scale = max(robust_sigma(residuals, True), 1e-6)
     low, high = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
     tip_index = problem._arrays[7][:, :3]
     tip_index = tip_index[tip_index >= 0]
     low[tip_index], high[tip_index] = x[tip_index] - max_tip_move_mm, x[tip_index] + max_tip_move_mm
-    if solver == "trust-region":
-        x = _solve(problem, x, every, scale, (low, high), priors)
-        residuals = problem.residuals(x)
-    else:
-        for _ in range(2):
-            values, columns = problem.jacobian(x)
-            x = _gauss_newton(x, residuals, values, columns, scale)
-            residuals = problem.residuals(x)
-    spread = max(robust_sigma(residuals, False), 1e-7)
-    inliers = np.abs(residuals) < 3.0 * spread
-    if solver == "trust-region":
-        x = _solve(problem, x, inliers, None, (low, high), priors)
-    else:
-        values, columns = problem.jacobian(x)
-        x = _gauss_newton(x, residuals[inliers], values[inliers], columns[inliers], 0.0)
+    per_frame = len(problem.free_frame)
+
+    def solve(x: np.ndarray, rows: np.ndarray, scale: float | None) -> np.ndarray:
+        """From ``x`` on the points ``rows``: soft-L1 at ``scale``, or least squares (None)."""
+        if solver == "trust-region":
+            return _solve(problem, x, rows, scale, (low, high), priors)
+        if solver == "levenberg-marquardt":
+            return _levenberg_marquardt(x, problem._arrays, rows, scale or 0.0, low, high, per_frame)
+        return _gauss_newton(x, problem._arrays, rows, scale or 0.0, per_frame, 1 if scale is None else 2)
+
+    x = solve(x, np.ones(len(residuals), dtype=bool), max(robust_sigma(residuals, True), 1e-6))
     residuals = problem.residuals(x)
-    solution = _solution(problem, x, residuals, inliers, contour_sigma, priors)
-    boxed = np.any(np.isclose(x[tip_index], low[tip_index]) | np.isclose(x[tip_index], high[tip_index]))
-    return replace(solution, settled=not boxed)
+    inliers = np.abs(residuals) < 3.0 * max(robust_sigma(residuals, False), 1e-7)
+    x = solve(x, inliers, None)
+    tips = x[tip_index]
+    boxed = bool(np.any((tips - low[tip_index] <= _AT_BOX_MM) | (high[tip_index] - tips <= _AT_BOX_MM)))
+    return _solution(problem, x, problem.residuals(x), inliers, contour_sigma, priors, settled=not boxed)
+
+
+@njit(cache=True)
+def _scaled_pinv(matrix: np.ndarray) -> np.ndarray:
+    """The pseudo-inverse of a symmetric positive semi-definite ``matrix`` (P, P), of its scaled form.
+
+    Columns of very different sizes (a rotation's and k3's differ by 10^10): the matrix scaled to a unit
+    diagonal is inverted.
+    """
+    scale = np.sqrt(np.maximum(np.diag(matrix), 1e-300))
+    outer = np.outer(scale, scale)
+    return np.linalg.pinv(matrix / outer) / outer
 
 
 def scatter_covariance(
@@ -1044,27 +1138,39 @@ def scatter_covariance(
     prior_information : ndarray, shape (P,), optional
         ``1 / sigma^2`` of each parameter's prior (0: none).
     """
-    normal = jacobian.T @ jacobian
-    normal = normal.toarray() if not isinstance(normal, np.ndarray) else normal
-    variance = float(np.sum(residuals**2)) / max(len(residuals) - size, 1)
-    variance = max(variance * correlation_inflation(residuals, spots), 1e-30)
-    information = normal / variance
-    if prior_information is not None:
-        information = information + np.diag(prior_information)
-    # Columns of very different sizes (a rotation's and k3's differ by 10^10): invert the scaled matrix.
-    scale = np.sqrt(np.maximum(np.diag(information), 1e-300))
-    covariance = np.linalg.pinv(information / np.outer(scale, scale)) / np.outer(scale, scale)
-    response = covariance / variance
-    labels, which = np.unique(spots, return_inverse=True)
+    counts = np.bincount(spots)
+    labels = np.flatnonzero(counts)
+    which = spots if len(labels) == len(counts) else np.searchsorted(labels, spots)
     if isinstance(jacobian, np.ndarray):
+        normal = jacobian.T @ jacobian
         sums = _group_sums(jacobian, which, len(labels))  # J_s^T 1 of each spot
     else:
+        normal = (jacobian.T @ jacobian).toarray()
         indicator = csr_matrix((np.ones(len(spots)), (which, np.arange(len(spots)))), shape=(len(labels), len(spots)))
         sums = (indicator @ jacobian).toarray()
-    shifts = sums @ response
     given = np.asarray(contour_sigma, dtype=float)
     sigmas = given[labels] if given.ndim else np.full(len(labels), float(given))
-    shifts *= sigmas[:, None]
+    prior = np.zeros(len(normal)) if prior_information is None else np.asarray(prior_information, dtype=float)
+    return _covariance_of(normal, np.asarray(residuals, dtype=float), which, sums, sigmas, size, prior)
+
+
+@njit(cache=True)
+def _covariance_of(
+    normal: np.ndarray,
+    residuals: np.ndarray,
+    spots: np.ndarray,
+    sums: np.ndarray,
+    sigmas: np.ndarray,
+    size: int,
+    prior_information: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`scatter_covariance` from ``J^T J`` (P, P) and each spot's ``J_s^T 1`` (S, P), spots numbered 0 to
+    S - 1 with their ``sigmas`` (S,); compiled."""
+    variance = np.sum(residuals**2) / max(len(residuals) - size, 1)
+    variance = max(variance * correlation_inflation(residuals, spots), 1e-30)
+    covariance = _scaled_pinv(normal / variance + np.diag(prior_information))
+    response = covariance / variance
+    shifts = (sums @ response) * sigmas.reshape(-1, 1)
     return covariance + shifts.T @ shifts, response
 
 
@@ -1075,6 +1181,8 @@ def _solution(
     inliers: np.ndarray,
     contour_sigma: float,
     priors: np.ndarray | None,
+    *,
+    settled: bool,
 ) -> ConeSolution:
     """The fit at ``x`` with its covariance (see :class:`ConeSolution`)."""
     jacobian = problem.jacobian_matrix(x, inliers)
@@ -1082,8 +1190,8 @@ def _solution(
     spots = problem.points.spot[inliers]
     sigmas = np.hypot(contour_sigma, problem.points.spot_sigma)
     data, response = scatter_covariance(jacobian, residuals[inliers], spots, sigmas, problem.size, information)
-    variances = np.diag(problem.prior)
-    geometry_ids = tuple(i for i in range(SHARED_SIZE) if variances[i] > 0 and i not in problem.free_shared)
+    uncertain = np.flatnonzero(np.diag(problem.prior) > 0)
+    geometry_ids = tuple(int(i) for i in uncertain if i not in problem.free_shared)
     gain = np.zeros((problem.size, len(geometry_ids)))
     covariance = data
     if geometry_ids:
@@ -1091,4 +1199,4 @@ def _solution(
         gain = response @ np.asarray(jacobian.T @ sensitivity)
         covariance = data + gain @ problem.prior[np.ix_(geometry_ids, geometry_ids)] @ gain.T
     shared, frames = problem.unpack(x)
-    return ConeSolution(problem, x, shared, frames, residuals, inliers, covariance, data, gain, geometry_ids)
+    return ConeSolution(problem, x, shared, frames, residuals, inliers, covariance, data, gain, geometry_ids, settled)

@@ -16,6 +16,7 @@ import math
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -47,6 +48,12 @@ __all__ = [
 class SetupError(SpotnavError):
     """A setup value is missing, of the wrong type or out of range."""
 
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """``array``, marked read-only: a setup's derived arrays are computed once and shared."""
+    array.setflags(write=False)
+    return array
 
 def _number(key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
@@ -103,10 +110,10 @@ class Eye:
     def __post_init__(self) -> None:
         _in_range("eye.radius_mm", _number("eye.radius_mm", self.radius_mm), 0.0, low_open=True)
 
-    @property
+    @cached_property
     def center_in_eye(self) -> np.ndarray:
         """Centre of the retina sphere in the eye frame, shape (3,), mm."""
-        return np.array([0.0, 0.0, self.radius_mm])
+        return _read_only(np.array([0.0, 0.0, self.radius_mm]))
 
 
 RESPONSES = ("srgb", "linear", "agx")  # besides a gamma number: how pixel values relate to light
@@ -270,53 +277,53 @@ class Camera:
         """Whether the camera is given in OpenCV's terms (else it is the thesis's ideal pinhole)."""
         return self.matrix is not None
 
-    @property
+    @cached_property
     def matrix_px(self) -> np.ndarray:
         """OpenCV's camera matrix ``K``, shape (3, 3), pixels."""
         if self.matrix is not None:
-            return np.array(self.matrix, dtype=float)
+            return _read_only(np.array(self.matrix, dtype=float))
         assert self.focal_length_mm is not None and self.sensor_width_mm is not None
         focal = self.focal_length_mm * self.width_px / self.sensor_width_mm
         cx, cy = (self.width_px - 1) / 2.0, (self.height_px - 1) / 2.0
-        return np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]])
+        return _read_only(np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]]))
 
-    @property
+    @cached_property
     def distortion_coefficients(self) -> np.ndarray:
         """OpenCV's distortion coefficients padded with zeros to all 14, shape (14,)."""
         coefficients = np.zeros(14)
         if self.distortion is not None:
             coefficients[: len(self.distortion)] = self.distortion
-        return coefficients
+        return _read_only(coefficients)
 
-    @property
+    @cached_property
     def rotation_to_camera(self) -> np.ndarray:
         """``R``, eye frame to OpenCV's camera frame, shape (3, 3)."""
-        return np.array(self.rotation if self.rotation is not None else IDEAL_ROTATION, dtype=float)
+        return _read_only(np.array(self.rotation if self.rotation is not None else IDEAL_ROTATION, dtype=float))
 
-    @property
+    @cached_property
     def translation_to_camera_mm(self) -> np.ndarray:
         """``t`` of ``x_cam = R x_eye + t``, shape (3,), mm."""
         if self.translation_mm is not None:
-            return np.array(self.translation_mm, dtype=float)
+            return _read_only(np.array(self.translation_mm, dtype=float))
         assert self.distance_mm is not None
-        return np.array([0.0, 0.0, self.distance_mm])
+        return _read_only(np.array([0.0, 0.0, self.distance_mm]))
 
-    @property
+    @cached_property
     def focal_px(self) -> float:
         """Focal length in pixels: the mean of ``fx`` and ``fy``."""
         matrix = self.matrix_px
         return float(0.5 * (matrix[0, 0] + matrix[1, 1]))
 
-    @property
+    @cached_property
     def principal_point_px(self) -> tuple[float, float]:
         """Principal point ``(cx, cy)`` in OpenCV pixel coordinates (the image centre for the ideal camera)."""
         matrix = self.matrix_px
         return (float(matrix[0, 2]), float(matrix[1, 2]))
 
-    @property
+    @cached_property
     def center_in_eye(self) -> np.ndarray:
         """The camera's centre (pinhole) in the eye frame, ``-R^T t``, shape (3,), mm."""
-        return -self.rotation_to_camera.T @ self.translation_to_camera_mm
+        return _read_only(-self.rotation_to_camera.T @ self.translation_to_camera_mm)
 
     def as_calibrated(self) -> Camera:
         """The same camera written with the four calibrated keys."""
@@ -335,7 +342,7 @@ class Camera:
         if not self.is_calibrated:
             return replace(self, width_px=width_px, height_px=height_px)
         scale = np.array([width_px / self.width_px, height_px / self.height_px])
-        matrix = self.matrix_px
+        matrix = self.matrix_px.copy()
         matrix[[0, 1], [0, 1]] *= scale
         matrix[:2, 2] = (matrix[:2, 2] + 0.5) * scale - 0.5  # pixel centres stay at integers
         return Camera.calibrated(
@@ -425,10 +432,10 @@ class Instrument:
         """Beam tilt in radians."""
         return math.radians(self.beam_tilt_deg)
 
-    @property
+    @cached_property
     def insertion_in_eye(self) -> np.ndarray:
         """Insertion point in the eye frame, shape (3,), mm."""
-        return np.array(self.insertion_point_mm, dtype=float)
+        return _read_only(np.array(self.insertion_point_mm, dtype=float))
 
 
 @dataclass(frozen=True)

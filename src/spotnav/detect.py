@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -438,11 +439,14 @@ def _decoding(image: np.ndarray, response: str | float) -> tuple[np.ndarray, int
     ``_FULL_SCALE_LINEAR`` if that comes first.
     """
     if image.dtype == np.uint8:
-        bits = 8
-    elif image.dtype == np.uint16:
-        bits = 16
-    else:
-        raise ValueError(f"image must be 8-bit or 16-bit, got {image.dtype}")
+        return _decoding_of_bits(response, 8)
+    if image.dtype == np.uint16:
+        return _decoding_of_bits(response, 16)
+    raise ValueError(f"image must be 8-bit or 16-bit, got {image.dtype}")
+
+
+@lru_cache(maxsize=16)
+def _decoding_of_bits(response: str | float, bits: int) -> tuple[np.ndarray, int]:
     table = decoding_table(response, bits)
     return table, min(int(np.searchsorted(table, _FULL_SCALE_LINEAR)), int(encoding_table(response, bits)[-1]))
 
@@ -573,13 +577,29 @@ def rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.
     radii : ndarray, shape (rays,)
         Distance from the centre to the curve along each ray, pixels.
     """
-    centre = curve_px.mean(axis=0)
-    offsets = curve_px - centre
-    curve_angles = np.arctan2(offsets[:, 1], offsets[:, 0])
+    return _rays_through_curve(np.ascontiguousarray(curve_px, dtype=float), int(rays))
+
+
+@njit(cache=True)
+def _rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`rays_through_curve`, compiled: the curve's radius interpolated linearly in angle, periodically."""
+    centre = np.array([np.mean(curve_px[:, 0]), np.mean(curve_px[:, 1])])
+    count = len(curve_px)
+    curve_angles = np.arctan2(curve_px[:, 1] - centre[1], curve_px[:, 0] - centre[0])
     order = np.argsort(curve_angles)
-    curve_radii = np.hypot(offsets[:, 0], offsets[:, 1])[order]
-    ray_angles = np.linspace(-np.pi, np.pi, rays, endpoint=False)
-    radii = np.interp(ray_angles, curve_angles[order], curve_radii, period=2 * np.pi)
+    angles = np.empty(count + 2)  # the sorted angles with the last before -pi and the first after pi
+    radii_sorted = np.empty(count + 2)
+    for i in range(count):
+        n = order[i]
+        angles[i + 1] = curve_angles[n]
+        radii_sorted[i + 1] = np.hypot(curve_px[n, 0] - centre[0], curve_px[n, 1] - centre[1])
+    angles[0], radii_sorted[0] = angles[count] - 2.0 * np.pi, radii_sorted[count]
+    angles[count + 1], radii_sorted[count + 1] = angles[1] + 2.0 * np.pi, radii_sorted[1]
+    ray_angles = np.empty(rays)
+    radii = np.empty(rays)
+    for r in range(rays):
+        ray_angles[r] = -np.pi + 2.0 * np.pi * r / rays
+    radii[:] = np.interp(ray_angles, angles, radii_sorted)
     return centre, ray_angles, radii
 
 
@@ -637,23 +657,18 @@ def detect_edge_along_rays(
     -------
     SpotEdge
     """
-    crop = _linear_crop(image, centre, float(np.max(radii)) + edge_window_px(radii, align=align), response)
-    offset = np.asarray(centre, dtype=float) - crop.origin
     angles, radii = np.asarray(ray_angles, dtype=float), np.asarray(radii, dtype=float)
+    window, wide = edge_window_px(radii), edge_window_px(radii, align=True)
+    crop = _linear_crop(image, centre, float(np.max(radii)) + (wide if align else window), response)
+    offset = np.asarray(centre, dtype=float) - crop.origin
     if align:
         # Every _COARSE_RAY_STRIDE-th ray, _COARSE_SAMPLES samples across the wide window; the edge kept within
         # the fine window's reach (no pixel beyond edge_window_px(radii, align=True) is read).
-        wide = edge_window_px(radii, align=True)
         steps = _window_steps(wide, 2.0 * wide / _COARSE_SAMPLES)
-        radii = _aligned_radii(crop.pixels, crop.lut, offset, angles, radii, steps, wide - edge_window_px(radii))
+        radii = _aligned_radii(crop.pixels, crop.lut, offset, angles, radii, steps, wide - window)
+        window = edge_window_px(radii)  # about the edge found
     edge_radii, valid, width, ratio, clipped, plateau, background, left_out = _read_edges(
-        crop.pixels,
-        crop.lut,
-        offset,
-        angles,
-        radii,
-        _window_steps(edge_window_px(radii), _STEP_PX),
-        crop.full_scale,
+        crop.pixels, crop.lut, offset, angles, radii, _window_steps(window, _STEP_PX), crop.full_scale
     )
     pixels = centre + edge_radii[valid, None] * np.column_stack([np.cos(angles[valid]), np.sin(angles[valid])])
     return SpotEdge(

@@ -42,8 +42,8 @@ def normalize(vectors: np.ndarray) -> np.ndarray:
         If any vector has zero or non-finite length.
     """
     vectors = np.asarray(vectors, dtype=float)
-    norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
-    if not np.all(np.isfinite(norms)) or np.any(norms == 0.0):
+    norms = np.sqrt(np.sum(vectors * vectors, axis=-1, keepdims=True))
+    if not (norms.size == 0 or (norms.min() > 0.0 and norms.max() < np.inf)):  # NaN fails the first test
         raise ValueError("cannot normalize a zero or non-finite vector")
     return vectors / norms
 
@@ -204,13 +204,29 @@ def cone_sphere_curve(
     ValueError
         If the apex is not strictly inside the sphere.
     """
-    apex = np.asarray(apex, float)
-    if np.linalg.norm(apex - np.asarray(center, float)) >= radius:
+    apex, center = np.asarray(apex, float), np.asarray(center, float)
+    if np.linalg.norm(apex - center) >= radius:
         raise ValueError("apex must lie strictly inside the sphere")
-    azimuths = np.linspace(0.0, 2.0 * np.pi, count, endpoint=False)
-    rays = cone_generators(axis, half_angle, azimuths)
-    t = intersect_rays_sphere(apex, rays, center, radius, far=True)
-    return apex + t[:, None] * rays
+    return _cone_sphere_points(apex, normalize(axis), float(half_angle), center, float(radius), int(count))
+
+
+@njit(cache=True)
+def _cone_sphere_points(
+    apex: np.ndarray, axis: np.ndarray, half_angle: float, center: np.ndarray, radius: float, count: int
+) -> np.ndarray:
+    """:func:`cone_sphere_curve` for a unit ``axis`` and an apex inside the sphere, compiled (tracking draws
+    each beam's curve every frame): the generators of :func:`cone_generators` met by the sphere, far root."""
+    basis = _basis(axis)
+    points = np.empty((count, 3))
+    cos_half, sin_half = np.cos(half_angle), np.sin(half_angle)
+    for n in range(count):
+        azimuth = 2.0 * np.pi * n / count
+        ray = cos_half * axis + sin_half * (np.cos(azimuth) * basis[0] + np.sin(azimuth) * basis[1])
+        offset = apex - center
+        half_b = np.sum(offset * ray)
+        root = np.sqrt(half_b * half_b - (np.sum(offset * offset) - radius * radius))
+        points[n] = apex + (root - half_b) * ray
+    return points
 
 
 def beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float | np.ndarray = 0.0) -> np.ndarray:

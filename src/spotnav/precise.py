@@ -302,7 +302,8 @@ def _fit_unhidden(
         if isinstance(visible, PoseEstimate):
             return visible
         used = visible
-        fit = fit_cones(pose_problem(setup, used, prepared.beams, tip, axis, roll, edge_sigmas=prepared.edge_sigmas))
+        problem = pose_problem(setup, used, prepared.beams, tip, axis, roll, edge_sigmas=prepared.edge_sigmas)
+        fit = fit_cones(problem, solver="levenberg-marquardt")
         tip, axis, roll = fit.tip(), fit.axis(), fit.roll()
         now_hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
         if all(np.array_equal(a, b) for a, b in zip(hidden, now_hidden, strict=True)):
@@ -331,7 +332,7 @@ def _fit_precise(
     sigmas = prepared.edge_sigmas
     problem = pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=sigmas)
     steps = through_insertion and setup.instrument.beam_count == 3
-    free = fit_cones(problem, solver="gauss-newton" if steps else "trust-region")
+    free = fit_cones(problem, solver="gauss-newton" if steps else "levenberg-marquardt")
     if through_insertion:
         estimate = judge_fit(constrained, setup, spots=start.spots, detail=start.detail, other_axis=free.axis())
         return _check_insertion(estimate, constrained, free, setup), constrained
@@ -362,7 +363,8 @@ def _fit_free(
         fit_cones(
             pose_problem(
                 setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=prepared.edge_sigmas
-            )
+            ),
+            solver="levenberg-marquardt",
         )
         for tip, axis, roll in starts
     ]

@@ -84,15 +84,18 @@ def run_bench(
 ) -> list[BenchRow]:
     """Time each stage on consecutive frames of the helix, in this process.
 
-    Every frame is rendered and tracked; every ``full_every``-th frame is also
-    localized on the whole image by the thesis's and the precise method.
-    Tracking is timed on the frames it tracked (not the acquisitions), twice:
-    right after each frame's rendering, which leaves the caches cold (as
-    decoding a video does), and then once more over the same frames kept in
-    memory, back to back, as a camera hands them over (the first frames that
-    fit in ``memory_mb``). A last pass over the frames in memory loses the
-    spot (a dark frame) once every ``LOSS_EVERY`` frames, from the sixth,
-    and times the frame that finds it again.
+    Every frame is rendered and tracked. Tracking is timed on the frames it
+    tracked (not the acquisitions), twice: right after each frame's
+    rendering, which leaves the caches cold (as decoding a video does), and
+    then once more over the same frames kept in memory, back to back, as a
+    camera hands them over (the first frames that fit in ``memory_mb``).
+    Every ``full_every``-th frame in memory is also localized on the whole
+    image by the thesis's and the precise method, both in the same
+    conditions (right after rendering, the first method to read a frame paid
+    for the renderer's memory: the thesis method's time tripled at 2048 px).
+    A last pass over the frames in memory loses the spot (a dark frame) once
+    every ``LOSS_EVERY`` frames, from the sixth, and times the frame that
+    finds it again.
     """
     if frames < 2 or full_every < 1 or memory_mb < 0:
         raise ValueError(
@@ -111,14 +114,14 @@ def run_bench(
             start = time.perf_counter()
             image = renderer.render(pose, seed=index)
             times["render"].append(_ms_since(start))
-            if index % full_every == 0:
-                for stage, method in ((STAGES[1], "thesis"), (STAGES[2], "precise")):
-                    start = time.perf_counter()
-                    localize(image, localizer, method)
-                    times[stage].append(_ms_since(start))
             _time_tracking(tracker, image, times[STAGES[3]])
             if (len(kept) + 1) * image.nbytes <= memory_mb * 2**20:
                 kept.append(image)
+        for image in kept[::full_every]:
+            for stage, method in ((STAGES[1], "thesis"), (STAGES[2], "precise")):
+                start = time.perf_counter()
+                localize(image, localizer, method)
+                times[stage].append(_ms_since(start))
         tracker = Tracker(localizer)
         for image in kept:
             _time_tracking(tracker, image, times[STAGES[4]])
