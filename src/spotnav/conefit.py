@@ -405,7 +405,7 @@ class ConeProblem:
             for k in self.free_frame:
                 frame_index[f, k] = offset
                 offset += 1
-        starts = np.searchsorted(self.points.frame, np.arange(count + 1)).astype(np.int64)
+        starts = np.searchsorted(self.points.frame, np.arange(count + 1))
         camera_free = any(_RADIUS <= i < _CAMERA_END for i in self.free_shared)
         model = perturbed_model(self.model, self.shared[_CAMERA:_CAMERA_END])
         cached = sphere_points(model, self.points.pixels, self.base[_RADIUS] + self.shared[_RADIUS])
@@ -560,7 +560,8 @@ def cone_problem(
     axes = normalize(np.asarray(axes, dtype=float).reshape(-1, 3))
     count = len(tips)
     rolls = np.zeros(count) if rolls is None else np.asarray(rolls, dtype=float).reshape(count)
-    frames = np.column_stack([tips, axis_rotations(axes), rolls])
+    frames = np.empty((count, _FRAME_SIZE))
+    frames[:, :3], frames[:, 3:5], frames[:, 5] = tips, axis_rotations(axes), rolls
     free_frame = [0, 1, 2] if free_tips else []
     free_frame += [3, 4] if axis == "free" else []
     free_frame += [5] if instrument.beam_count > 1 else []

@@ -362,9 +362,10 @@ def axis_rotations(axes: np.ndarray) -> np.ndarray:
         ``(about_y, about_z)``, radians.
     """
     axes = normalize(np.asarray(axes, dtype=float))
-    about_y = np.arccos(np.clip(-axes[..., 2], -1.0, 1.0))
-    about_z = np.arctan2(-axes[..., 1], -axes[..., 0])
-    return np.stack([about_y, about_z], axis=-1)
+    rotations = np.empty((*axes.shape[:-1], 2))
+    rotations[..., 0] = np.arccos(np.clip(-axes[..., 2], -1.0, 1.0))
+    rotations[..., 1] = np.arctan2(-axes[..., 1], -axes[..., 0])
+    return rotations
 
 
 def angles_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:

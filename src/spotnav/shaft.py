@@ -59,10 +59,11 @@ def visible_edge_points(
     """
     visible = []
     for edge, covered in zip(edges_px, hidden, strict=True):
-        if covered.mean() > _MAX_HIDDEN_FRACTION or np.sum(~covered) < MIN_EDGE_POINTS:
-            detail = f"the shaft hides {100 * covered.mean():.0f} % of a spot's edge"
+        count = int(np.count_nonzero(covered))
+        if count > _MAX_HIDDEN_FRACTION * len(covered) or len(covered) - count < MIN_EDGE_POINTS:
+            detail = f"the shaft hides {100 * count / max(len(covered), 1):.0f} % of a spot's edge"
             return PoseEstimate("occluded", spots=len(edges_px), detail=detail)
-        shown = edge[~covered]
+        shown = edge[~covered] if count else edge
         on_sphere = unproject_pixels_to_sphere(setup.camera, shown, setup.eye.radius_mm)
         visible.append(shown[np.all(np.isfinite(on_sphere), axis=1)])
     return visible
