@@ -2,8 +2,7 @@
 
 The first frame is localized on the whole image
 (:func:`spotnav.localize.localize_precise`): *acquisition*. After that the
-tracker predicts the pose (constant velocity: the mean step of the last
-three frames), projects each beam's predicted
+tracker predicts the pose (constant velocity), projects each beam's predicted
 edge curve into the image and reads the image only along rays across it
 (:func:`spotnav.detect.detect_edge_along_rays`): the rays are the region of
 interest, a few per cent of the pixels. The cone fit starts from the
@@ -38,7 +37,6 @@ __all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "prepare_kernels", "track_f
 TRACK_MODES = ("tracked", "reacquired", "acquired", "lost")
 _CURVE_POINTS = 90
 _BORDER_PX = 2.0
-_VELOCITY_FRAMES = 4  # the prediction's velocity is the mean over the last three frames' steps
 _MAX_LOST_FRAMES = 10  # after this many frames without a pose the last one seen is too old to search from
 _MIN_EDGE_RAY_FRACTION = 0.5  # fewer rays with an edge: the spot is not where it was predicted
 # A fit further than this from the prediction read its rays aslant (on the Cycles helix, 0.6 mm a frame, a
@@ -230,7 +228,7 @@ class Tracker:
     _last: PoseEstimate | None = field(default=None, init=False, repr=False)
     _last_seen: PoseEstimate | None = field(default=None, init=False, repr=False)
     _lost_frames: int = field(default=0, init=False, repr=False)
-    _recent_tips: list[np.ndarray] = field(default_factory=list, init=False, repr=False)
+    _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.max_jump_mm) and self.max_jump_mm > 0):
@@ -268,19 +266,18 @@ class Tracker:
         last = self._last
         if last is None or last.tip_in_eye is None or last.axis is None:
             return None
-        recent = self._recent_tips
-        if len(recent) < 2:
+        if self._velocity is None:
             return last
-        # The mean velocity over the last frames: one frame's noise would miss the next spot by twice itself.
-        return replace(last, tip_in_eye=last.tip_in_eye + (recent[-1] - recent[0]) / (len(recent) - 1))
+        return replace(last, tip_in_eye=last.tip_in_eye + self._velocity)
 
     def _remember(self, estimate: PoseEstimate) -> PoseEstimate:
-        self._recent_tips = [*self._recent_tips[1 - _VELOCITY_FRAMES :], estimate.pose()[0]]
+        if self._last is not None and self._last.tip_in_eye is not None:
+            self._velocity = estimate.pose()[0] - self._last.tip_in_eye
         self._last = self._last_seen = estimate
         return estimate
 
     def _forget(self) -> None:
-        self._last, self._recent_tips = None, []
+        self._last, self._velocity = None, None
         self._lost_frames += 1
         if self._lost_frames > _MAX_LOST_FRAMES:
             self._last_seen = None
