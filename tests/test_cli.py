@@ -311,6 +311,16 @@ def test_bench_prints_every_stage_and_the_tracking_ratio(capsys: pytest.CaptureF
     assert "tracking takes" in out
 
 
+def test_bench_times_the_full_frame_methods_on_frames_it_cannot_keep(capsys: pytest.CaptureFixture[str]) -> None:
+    # No memory for frames: the full-frame methods are timed right after rendering, on every frame asked for.
+    assert main(["bench", "--sizes", "256", "--frames", "3", "--full-every", "1", "--memory-mb", "0"]) == 0
+    out = capsys.readouterr().out
+    for stage in ("thesis, full frame", "acquisition (precise, full frame)"):
+        row = next(line for line in out.splitlines() if line.startswith(f"| 256 | {stage} |"))
+        assert row.split("|")[6].strip() == "3"
+    assert "frames from memory" not in out
+
+
 def test_bench_stress_hides_the_spot_and_counts_re_acquisitions(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "--stress", "--sizes", "512", "--frames", "13", "--hide-every", "4"]) == 0
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| 512 |"))

@@ -109,6 +109,48 @@ def test_a_free_axis_is_fitted_within_its_uncertainty() -> None:
     assert angles_between(fit.axis(), pose.axis) < np.radians(1.0)
 
 
+@settings(max_examples=15, deadline=None)
+@given(
+    x=st.floats(-2.5, 2.5),
+    y=st.floats(-2.5, 2.5),
+    z=st.floats(3, 6),
+    kind=st.sampled_from([(1, "insertion"), (3, "insertion"), (3, "free")]),
+    seed=st.integers(0, 1000),
+)
+def test_the_compiled_solver_gives_scipy_s_answer(x: float, y: float, z: float, kind: tuple, seed: int) -> None:
+    # Noisy edge points, a start 0.1 mm off: Levenberg-Marquardt lands where SciPy's trust region does. (One
+    # beam's free axis has a mirror-image minimum; either solver may find either: precise-free tries both.)
+    beams, axis = kind
+    setup = replace(EXACT, instrument=Instrument(beam_count=beams), uncertainty=Uncertainty())
+    pose = InstrumentPose.through_insertion([x, y, z], setup.instrument.insertion_in_eye)
+    rng = np.random.default_rng(seed)
+    edges = [edge + rng.normal(0.0, 0.2, edge.shape) for edge in _edges_px(setup, pose, 0.1 * (beams > 1))]
+    start = pose.tip_in_eye + 0.1 * rng.normal(size=3) / np.sqrt(3)
+    problem = _one_frame(setup, edges, start, pose.axis, 0.0, axis=axis)
+    scipy, compiled = fit_cones(problem), fit_cones(problem, solver="levenberg-marquardt")
+    np.testing.assert_allclose(compiled.tip(), scipy.tip(), atol=1e-6)
+    np.testing.assert_allclose(compiled.tip_sigma_mm(), scipy.tip_sigma_mm(), rtol=1e-6)
+    assert np.array_equal(compiled.inliers, scipy.inliers) and compiled.settled == scipy.settled
+
+
+def test_the_compiled_solver_does_not_leap_to_the_box_wall() -> None:
+    # One beam, a free axis, a start 1 mm off: its first, barely damped step lowered the cost by leaping 4 mm, to
+    # the tip's box; such a solve is done again by SciPy's trust region, which lands 0.03 mm from the truth.
+    setup = replace(EXACT, uncertainty=Uncertainty())
+    pose = InstrumentPose([1.0, -0.5, 4.5], [0.2, -0.1, -1.0])
+    (edge,) = _edges_px(setup, pose, count=300)
+    noisy = edge + np.random.default_rng(0).normal(0.0, 0.1, edge.shape)
+    start = pose.tip_in_eye + np.array([-0.999, 0.016, -0.029])
+    fit = fit_cones(_one_frame(setup, [noisy], start, pose.axis, 0.0, axis="free"), solver="levenberg-marquardt")
+    assert fit.settled and np.linalg.norm(fit.tip() - pose.tip_in_eye) < 0.05
+
+
+def test_a_problem_needs_one_axis_per_frame() -> None:
+    points = EdgePoints.of_frames([[np.zeros((5, 2))], [np.zeros((5, 2))]], [[0], [0]])
+    with pytest.raises(ValueError, match="one row per frame"):
+        cone_problem(EXACT, points, np.zeros((2, 3)), np.array([[0.0, 0.0, -1.0]]), axis="known")
+
+
 def test_the_geometry_adds_its_uncertainty_to_the_tip() -> None:
     # The same points fitted in a setup known exactly and in one known as well as a real microscope: the
     # points' part of sigma is the same, the geometry's part comes on top, mostly from the camera's tilt.

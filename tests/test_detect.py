@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 from conftest import small_setup
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spotnav.camera import decoding_table, encoding_table, unproject_pixels_to_sphere
@@ -156,6 +156,29 @@ def test_compiled_smoothing_is_opencvs_reflected_gaussian(seed: int, length: int
     part = _smooth(values, _SMOOTHING, 3, length - 2)  # only samples 3 .. length - 3
     np.testing.assert_allclose(part[3 : length - 2], expected[3 : length - 2], atol=1e-12)
     assert np.isnan(part[:3]).all() and np.isnan(part[length - 2 :]).all()
+
+
+@settings(max_examples=30)
+@given(
+    centre=st.tuples(st.floats(-50, 50), st.floats(-50, 50)),
+    radii=st.tuples(st.floats(5, 40), st.floats(5, 40)),
+    tilt=st.floats(-np.pi, np.pi),
+    rays=st.integers(8, 300),
+)
+def test_rays_through_an_ellipse_meet_it(centre: tuple, radii: tuple, tilt: float, rays: int) -> None:
+    # Rays from an ellipse's centre meet its curve (720 points) where the ellipse is, to its sampling's error.
+    angles = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
+    local = np.column_stack([radii[0] * np.cos(angles), radii[1] * np.sin(angles)])
+    turn = np.array([[np.cos(tilt), -np.sin(tilt)], [np.sin(tilt), np.cos(tilt)]])
+    curve = np.asarray(centre) + local @ turn.T
+    found, ray_angles, distances = rays_through_curve(curve, rays)
+    np.testing.assert_allclose(found, centre, atol=1e-9)
+    assert len(ray_angles) == rays and ray_angles[0] == -np.pi
+    points = (np.column_stack([np.cos(ray_angles), np.sin(ray_angles)]) * distances[:, None]) @ turn
+    on_ellipse = np.hypot(points[:, 0] / radii[0], points[:, 1] / radii[1])
+    np.testing.assert_allclose(on_ellipse, 1.0, atol=2e-3)
+    with pytest.raises(ValueError, match="N >= 1"):
+        rays_through_curve(np.zeros((0, 2)), rays)
 
 
 @pytest.mark.parametrize("offset_px", [(0.0, 0.0), (4.0, -3.0), (-9.0, 6.0)])

@@ -787,12 +787,18 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--sizes", type=int, nargs="+", default=[1024, 2048, 5000], help="image sizes, px")
     bench.add_argument("--frames", type=int, default=100, help="consecutive helix frames per size (default 100)")
     bench.add_argument("--beams", type=int, choices=[1, 3], default=1)
-    bench.add_argument("--full-every", type=int, default=5, help="time the full-frame methods every Nth frame")
+    bench.add_argument(
+        "--full-every",
+        type=int,
+        default=5,
+        help="time the full-frame methods every Nth frame (on its copy in memory, else right after rendering)",
+    )
     bench.add_argument(
         "--memory-mb",
         type=float,
         default=4096.0,
-        help="keep this much of the rendered frames to track again from memory, as from a camera (default 4096)",
+        help="keep this much of the rendered frames to track again (and time the full-frame methods on) from "
+        "memory, as from a camera (default 4096)",
     )
     bench.add_argument(
         "--stress",

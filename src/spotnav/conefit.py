@@ -559,6 +559,8 @@ def cone_problem(
     tips = np.asarray(tips_in_eye, dtype=float).reshape(-1, 3)
     axes = normalize(np.asarray(axes, dtype=float).reshape(-1, 3))
     count = len(tips)
+    if len(axes) != count:
+        raise ValueError(f"tips_in_eye and axes must have one row per frame, got {count} and {len(axes)}")
     rolls = np.zeros(count) if rolls is None else np.asarray(rolls, dtype=float).reshape(count)
     frames = np.empty((count, _FRAME_SIZE))
     frames[:, :3], frames[:, 3:5], frames[:, 5] = tips, axis_rotations(axes), rolls
@@ -1049,8 +1051,10 @@ def fit_cones(
     problem : ConeProblem
     solver : str
         ``trust-region`` (SciPy's, for any start and any problem),
-        ``levenberg-marquardt`` (compiled damped steps within the box, for any
-        start: fast, for problems of the frames' own parameters, no priors) or
+        ``levenberg-marquardt`` (compiled damped steps within the box: fast,
+        for problems of the frames' own parameters, no priors; a solve that
+        ends on the box's wall, as a barely damped first step from a poor
+        start can, is done again by SciPy's trust region) or
         ``gauss-newton`` (a few fixed steps, iteratively reweighted: fastest,
         for a start close to the answer, as in tracking; it has no box and
         takes no priors).
@@ -1078,21 +1082,29 @@ def fit_cones(
     low[tip_index], high[tip_index] = x[tip_index] - max_tip_move_mm, x[tip_index] + max_tip_move_mm
     per_frame = len(problem.free_frame)
 
+    def at_box(x: np.ndarray) -> bool:
+        """Whether a tip of ``x`` is held at its box's wall."""
+        tips = x[tip_index]
+        return bool(np.any((tips - low[tip_index] <= _AT_BOX_MM) | (high[tip_index] - tips <= _AT_BOX_MM)))
+
     def solve(x: np.ndarray, rows: np.ndarray, scale: float | None) -> np.ndarray:
         """From ``x`` on the points ``rows``: soft-L1 at ``scale``, or least squares (None)."""
         if solver == "trust-region":
             return _solve(problem, x, rows, scale, (low, high), priors)
         if solver == "levenberg-marquardt":
-            return _levenberg_marquardt(x, problem._arrays, rows, scale or 0.0, low, high, per_frame)
+            fitted = _levenberg_marquardt(x, problem._arrays, rows, scale or 0.0, low, high, per_frame)
+            if not at_box(fitted):
+                return fitted
+            # Its first, barely damped steps can leap from a poor start to the box's wall: SciPy's trust region,
+            # which grows its steps only as the model earns it, from the same start.
+            return _solve(problem, x, rows, scale, (low, high), priors)
         return _gauss_newton(x, problem._arrays, rows, scale or 0.0, per_frame, 1 if scale is None else 2)
 
     x = solve(x, np.ones(len(residuals), dtype=bool), max(robust_sigma(residuals, True), 1e-6))
     residuals = problem.residuals(x)
     inliers = np.abs(residuals) < 3.0 * max(robust_sigma(residuals, False), 1e-7)
     x = solve(x, inliers, None)
-    tips = x[tip_index]
-    boxed = bool(np.any((tips - low[tip_index] <= _AT_BOX_MM) | (high[tip_index] - tips <= _AT_BOX_MM)))
-    return _solution(problem, x, problem.residuals(x), inliers, contour_sigma, priors, settled=not boxed)
+    return _solution(problem, x, problem.residuals(x), inliers, contour_sigma, priors, settled=not at_box(x))
 
 
 @njit(cache=True)

@@ -577,7 +577,10 @@ def rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.
     radii : ndarray, shape (rays,)
         Distance from the centre to the curve along each ray, pixels.
     """
-    return _rays_through_curve(np.ascontiguousarray(curve_px, dtype=float), int(rays))
+    curve_px = np.ascontiguousarray(curve_px, dtype=float)
+    if curve_px.ndim != 2 or curve_px.shape[1] != 2 or len(curve_px) == 0:
+        raise ValueError(f"curve_px must have shape (N, 2) with N >= 1, got {curve_px.shape}")
+    return _rays_through_curve(curve_px, int(rays))
 
 
 @njit(cache=True)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spotnav.config import Setup
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
@@ -79,6 +80,14 @@ def _time_tracking(tracker: Tracker, image: np.ndarray, times: list[float]) -> N
         times.append(_ms_since(start))
 
 
+def _time_full_frame(setup: Setup, image: np.ndarray, times: dict[str, list[float]]) -> None:
+    """Localize ``image`` on the whole image by the thesis's and the precise method, adding each one's time."""
+    for stage, method in ((STAGES[1], "thesis"), (STAGES[2], "precise")):
+        start = time.perf_counter()
+        localize(image, setup, method)
+        times[stage].append(_ms_since(start))
+
+
 def run_bench(
     sizes: Sequence[int], frames: int = 100, beams: int = 1, full_every: int = 5, memory_mb: float = 4096.0
 ) -> list[BenchRow]:
@@ -89,10 +98,11 @@ def run_bench(
     rendering, which leaves the caches cold (as decoding a video does), and
     then once more over the same frames kept in memory, back to back, as a
     camera hands them over (the first frames that fit in ``memory_mb``).
-    Every ``full_every``-th frame in memory is also localized on the whole
-    image by the thesis's and the precise method, both in the same
-    conditions (right after rendering, the first method to read a frame paid
-    for the renderer's memory: the thesis method's time tripled at 2048 px).
+    Every ``full_every``-th frame is also localized on the whole image by the
+    thesis's and the precise method, both in the same conditions: on its copy
+    in memory (right after rendering, the first method to read a frame paid
+    for the renderer's memory: the thesis method's time tripled at 2048 px),
+    or, past ``memory_mb``, right after rendering.
     A last pass over the frames in memory loses the spot (a dark frame) once
     every ``LOSS_EVERY`` frames, from the sixth, and times the frame that
     finds it again.
@@ -117,11 +127,10 @@ def run_bench(
             _time_tracking(tracker, image, times[STAGES[3]])
             if (len(kept) + 1) * image.nbytes <= memory_mb * 2**20:
                 kept.append(image)
+            elif index % full_every == 0:
+                _time_full_frame(localizer, image, times)
         for image in kept[::full_every]:
-            for stage, method in ((STAGES[1], "thesis"), (STAGES[2], "precise")):
-                start = time.perf_counter()
-                localize(image, localizer, method)
-                times[stage].append(_ms_since(start))
+            _time_full_frame(localizer, image, times)
         tracker = Tracker(localizer)
         for image in kept:
             _time_tracking(tracker, image, times[STAGES[4]])
