@@ -219,13 +219,10 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     return 0.5 * shift * edge_angle / radius_px
 
 
-def _mm_per_px(setup: Setup) -> float:
-    """Millimetres on the retina per pixel near the pole."""
-    return _camera_mm_per_px(setup.camera)
-
-
 @lru_cache(maxsize=32)
-def _camera_mm_per_px(camera: Camera) -> float:
+def _mm_per_px(setup: Setup) -> float:
+    """Millimetres on the retina per pixel near the pole (once per setup: every tracked frame asks)."""
+    camera = setup.camera
     return float(camera_depth_mm(camera, np.zeros(3))) / camera.focal_px
 
 

@@ -447,6 +447,7 @@ def _decoding(image: np.ndarray, response: str | float) -> tuple[np.ndarray, int
 
 @lru_cache(maxsize=16)
 def _decoding_of_bits(response: str | float, bits: int) -> tuple[np.ndarray, int]:
+    """:func:`_decoding` for ``bits`` per value, once per response (every tracked frame asks)."""
     table = decoding_table(response, bits)
     return table, min(int(np.searchsorted(table, _FULL_SCALE_LINEAR)), int(encoding_table(response, bits)[-1]))
 
