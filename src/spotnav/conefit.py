@@ -1010,9 +1010,9 @@ def _levenberg_marquardt(
     residuals = _residuals(x, arrays)
     cost = _robust_cost(residuals, rows, scale)
     damping = _LM_FIRST_DAMPING
+    kept = np.flatnonzero(rows)
     for _ in range(_LM_MAX_STEPS):
         values, columns = _frame_columns(x, arrays, per_frame)
-        kept = np.flatnonzero(rows)
         normal, gradient = _normal_equations(values[kept], columns[kept], residuals[kept], size, scale)
         diagonal = np.maximum(np.diag(normal), 1e-300)
         moved = False
