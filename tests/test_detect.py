@@ -13,6 +13,7 @@ from spotnav.detect import (
     _SMOOTHING,
     SpotDetection,
     _decoding,
+    _histogram,
     _linear_crop,
     _smooth,
     detect_edge_along_rays,
@@ -20,6 +21,7 @@ from spotnav.detect import (
     detect_spots_otsu,
     group_fragments,
     linear_luminance,
+    otsu_threshold,
     outer_boundary,
     rays_through_curve,
     to_gray8,
@@ -146,6 +148,33 @@ def test_linear_luminance_inverts_srgb() -> None:
     assert linear[0, 2] == pytest.approx(0.2158605, rel=1e-5)
     rgb = np.repeat(codes[..., None], 3, axis=2)
     np.testing.assert_allclose(linear_luminance(rgb), linear, rtol=1e-6)
+
+
+@given(
+    seed=st.integers(0, 2**31),
+    shape=st.tuples(st.integers(1, 70), st.integers(1, 70)),
+    spread=st.floats(0.5, 120.0),
+    stride=st.sampled_from([1, 2, 3]),
+)
+def test_the_compiled_histogram_counts_every_stride_th_pixel_and_otsu_is_opencv_s(
+    seed: int, shape: tuple[int, int], spread: float, stride: int
+) -> None:
+    rng = np.random.default_rng(seed)
+    image = rng.normal(rng.uniform(0, 255), spread, shape).clip(0, 255).astype(np.uint8)
+    counts = _histogram(image, stride)
+    np.testing.assert_array_equal(counts, np.bincount(image[::stride, ::stride].ravel(), minlength=256))
+    expected, _ = cv2.threshold(image, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    assert otsu_threshold(_histogram(image, 1)) == int(expected)
+
+
+def test_otsu_threshold_of_rendered_frames_is_opencv_s() -> None:
+    # Two classes, a spot on a textured retina: the threshold OpenCV's THRESH_OTSU gives, level for level.
+    setup = small_setup(512)
+    renderer = Renderer(setup)
+    for tip in ([0.5, -1.0, 4.0], [-1.5, 1.0, 7.0]):
+        gray = to_gray8(renderer.render(InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)))
+        expected, _ = cv2.threshold(gray, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        assert otsu_threshold(_histogram(gray, 1)) == int(expected)
 
 
 @given(seed=st.integers(0, 2**31), length=st.integers(9, 80))

@@ -978,6 +978,7 @@ _AT_BOX_MM = 1e-6  # a tip this close to its box's wall is held there
 _LM_MAX_STEPS = 100
 _LM_TRIES = 12  # damping raises per step before the step is given up
 _LM_TOLERANCE = 1e-8  # as SciPy's ftol and xtol
+_LM_ROBUST_TOLERANCE = 1e-4  # the robust pass only chooses the inliers: the least-squares pass on them settles x
 _LM_FIRST_DAMPING = 1e-6  # of the normal matrix's diagonal: a loose direction (one beam's free axis) needs little
 
 
@@ -996,14 +997,21 @@ def _robust_cost(residuals: np.ndarray, rows: np.ndarray, scale: float) -> float
 
 @njit(cache=True)
 def _levenberg_marquardt(
-    x: np.ndarray, arrays: tuple, rows: np.ndarray, scale: float, low: np.ndarray, high: np.ndarray, per_frame: int
+    x: np.ndarray,
+    arrays: tuple,
+    rows: np.ndarray,
+    scale: float,
+    low: np.ndarray,
+    high: np.ndarray,
+    per_frame: int,
+    tolerance: float,
 ) -> np.ndarray:
     """Damped Gauss-Newton steps from ``x`` on the points ``rows`` (N,) within the box [low, high], compiled.
 
     Marquardt's damping scaled by the normal matrix's diagonal (SciPy's
     ``x_scale="jac"``), steps projected onto the box, reweighted for the
     soft-L1 loss when ``scale`` > 0; it stops when a step lowers the cost, or
-    moves ``x``, by less than ``_LM_TOLERANCE`` of it. The problem's frame
+    moves ``x``, by less than ``tolerance`` of it. The problem's frame
     parameters only (no free shared ones).
     """
     size = len(x)
@@ -1027,8 +1035,8 @@ def _levenberg_marquardt(
             damping *= 4.0
         if not moved:
             break
-        small_step = np.linalg.norm(trial - x) <= _LM_TOLERANCE * (_LM_TOLERANCE + np.linalg.norm(x))
-        small_gain = cost - trial_cost <= _LM_TOLERANCE * cost
+        small_step = np.linalg.norm(trial - x) <= tolerance * (tolerance + np.linalg.norm(x))
+        small_gain = cost - trial_cost <= tolerance * cost
         x, residuals, cost = trial, trial_residuals, trial_cost
         damping = max(damping / 10.0, 1e-12)
         if small_step or small_gain:
@@ -1092,7 +1100,8 @@ def fit_cones(
         if solver == "trust-region":
             return _solve(problem, x, rows, scale, (low, high), priors)
         if solver == "levenberg-marquardt":
-            fitted = _levenberg_marquardt(x, problem._arrays, rows, scale or 0.0, low, high, per_frame)
+            tolerance = _LM_TOLERANCE if scale is None else _LM_ROBUST_TOLERANCE
+            fitted = _levenberg_marquardt(x, problem._arrays, rows, scale or 0.0, low, high, per_frame, tolerance)
             if not at_box(fitted):
                 return fitted
             # Its first, barely damped steps can leap from a poor start to the box's wall: SciPy's trust region,

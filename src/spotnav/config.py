@@ -49,11 +49,11 @@ class SetupError(SpotnavError):
     """A setup value is missing, of the wrong type or out of range."""
 
 
-
 def _read_only(array: np.ndarray) -> np.ndarray:
     """``array``, marked read-only: a setup's derived arrays are computed once and shared."""
     array.setflags(write=False)
     return array
+
 
 def _number(key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):

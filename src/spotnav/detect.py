@@ -29,6 +29,7 @@ __all__ = [
     "edge_window_px",
     "group_fragments",
     "linear_luminance",
+    "otsu_threshold",
     "outer_boundary",
     "rays_through_curve",
     "to_gray8",
@@ -194,7 +195,8 @@ def detect_spots_otsu(
     if background_px > 0:
         gray = cv2.subtract(gray, _broad_background(gray, max(background_px // decimate, 1)))
     blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
-    threshold, binary = cv2.threshold(blurred, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    threshold = otsu_threshold(_histogram(blurred, 1))
+    _, binary = cv2.threshold(blurred, threshold, 255, cv2.THRESH_BINARY)
     contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     contours = [c.reshape(-1, 2) for c in contours if len(c) > _MIN_CONTOUR_POINTS]
     if not contours:
@@ -204,15 +206,17 @@ def detect_spots_otsu(
     strip = 0.5 * decimate * (decimate - 1)
     areas = np.array([decimate**2 * cv2.contourArea(c) + strip * cv2.arcLength(c, True) for c in contours])
     largest = int(np.argmax(areas))
-    mask = np.zeros_like(binary)
-    cv2.drawContours(mask, contours, largest, 255, thickness=cv2.FILLED)
+    left, top, box_width, box_height = cv2.boundingRect(contours[largest])
+    mask = np.zeros((box_height, box_width), dtype=np.uint8)
+    cv2.drawContours(mask, contours, largest, 255, thickness=cv2.FILLED, offset=(-left, -top))
     # The background's level and spread from every other pixel of every other row: a quarter of the work.
-    histogram = cv2.calcHist([blurred[::2, ::2]], [0], cv2.bitwise_not(binary[::2, ::2]), [256], [0, 256]).ravel()
+    histogram = _histogram(blurred, 2)
+    histogram[threshold + 1 :] = 0
     median = _histogram_median(histogram)
     levels = np.arange(256)
     deviations = np.bincount(np.abs(levels - median), weights=histogram, minlength=256)
     spread = 1.4826 * _histogram_median(deviations)
-    contrast = float(cv2.mean(blurred, mask)[0] - median)
+    contrast = float(cv2.mean(blurred[top : top + box_height, left : left + box_width], mask)[0] - median)
     min_area = max(20.0, 1e-5 * gray.size * decimate**2)
     if areas[largest] < min_area or contrast < max(_MIN_CONTRAST_DN, min_contrast_sigma * spread):
         return SpotDetection((), float(threshold), contrast)
@@ -232,6 +236,44 @@ def detect_spots_otsu(
         if areas[i] >= min_area_fraction * areas[largest]
     )
     return SpotDetection(spots, float(threshold), contrast)
+
+
+@njit(cache=True)
+def _histogram(gray: np.ndarray, stride: int) -> np.ndarray:
+    """How many of every ``stride``-th pixel of every ``stride``-th row of ``gray`` (H, W), uint8, have each level.
+
+    Returns the counts (256,). Four interleaved counts: neighbouring pixels of one level would otherwise wait on
+    each other's count.
+    """
+    counts = np.zeros((4, 256), dtype=np.int64)
+    for v in range(0, gray.shape[0], stride):
+        row = gray[v]
+        u = 0
+        while u + 3 * stride < gray.shape[1]:
+            counts[0, row[u]] += 1
+            counts[1, row[u + stride]] += 1
+            counts[2, row[u + 2 * stride]] += 1
+            counts[3, row[u + 3 * stride]] += 1
+            u += 4 * stride
+        while u < gray.shape[1]:
+            counts[0, row[u]] += 1
+            u += stride
+    return counts.sum(axis=0)
+
+
+def otsu_threshold(histogram: np.ndarray) -> int:
+    """Otsu's threshold of a histogram of the levels 0 to 255 (256,): the level that, with the levels up to it as
+    one class, maximises the variance between the classes (the first such level; as OpenCV's ``THRESH_OTSU``)."""
+    share = histogram / max(float(np.sum(histogram)), 1.0)
+    below = np.cumsum(share)
+    moment = np.cumsum(np.arange(256) * share)
+    above = 1.0 - below
+    epsilon = float(np.finfo(np.float32).eps)
+    split = (np.minimum(below, above) >= epsilon) & (np.maximum(below, above) <= 1.0 - epsilon)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = below * above * (moment / below - (moment[-1] - moment) / above) ** 2
+    between = np.where(split, between, 0.0)
+    return int(np.argmax(between)) if between.max() > 0.0 else 0
 
 
 def _broad_background(gray: np.ndarray, width_px: int) -> np.ndarray:
