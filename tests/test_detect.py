@@ -64,6 +64,30 @@ def test_a_shrunk_detection_outlines_the_disc_in_the_frame_s_pixels(decimate: in
         detect_spots_otsu(disc_image([(200, 180)]), decimate=0)
 
 
+@pytest.mark.parametrize(("decimate", "fine"), [(4, 2), (4, 1), (2, 1)])
+def test_a_refined_detection_outlines_on_the_finer_frame_what_it_finds_on_the_coarser(decimate: int, fine: int) -> None:
+    # Two discs (one cut by the border) on a broad glow: found on the frame shrunk by `decimate`, outlined again on
+    # the frame shrunk by `fine` only around them, with the coarse pass's threshold and background. The outlines
+    # are those of a detection on the finer frame alone, but for the threshold (Otsu's of another histogram).
+    image = disc_image([(200, 180), (395, 60)], radius=30).astype(float)
+    columns = np.arange(400)
+    image += 60.0 * np.exp(-(((columns[None, :, None] - 120) / 150.0) ** 2))
+    image = image.clip(0, 255).astype(np.uint8)
+    options = {"blur_px": 3, "background_px": 200}
+    alone = detect_spots_otsu(image, decimate=fine, **options)
+    refined = detect_spots_otsu(image, decimate=decimate, refine=(fine, 3), **options)
+    assert len(refined.spots) == len(alone.spots) == 2
+    for spot, reference in zip(refined.spots, alone.spots, strict=True):
+        centre = reference.contour_px.mean(axis=0)
+        radius, expected = (np.hypot(*(s.contour_px - centre).T).mean() for s in (spot, reference))
+        assert radius == pytest.approx(expected, abs=0.25)
+        assert spot.area_px == pytest.approx(reference.area_px, rel=0.02)
+        assert spot.touches_border == reference.touches_border
+    assert refined.spots[1].touches_border
+    with pytest.raises(ValueError, match="divide"):
+        detect_spots_otsu(image, decimate=4, refine=(3, 3))
+
+
 def test_noise_alone_is_no_spot() -> None:
     assert detect_spots_otsu(disc_image([])).spots == ()
 

@@ -148,6 +148,7 @@ def detect_spots_otsu(
     min_area_fraction: float = _MIN_AREA_FRACTION,
     background_px: int = 0,
     decimate: int = 1,
+    refine: tuple[int, int] | None = None,
 ) -> SpotDetection:
     """Find the bright spots as the thesis does.
 
@@ -176,6 +177,12 @@ def detect_spots_otsu(
         pixels wide, at a fraction of the cost. ``blur_px`` is in the shrunk
         image's pixels; ``background_px`` and the returned contours (through
         the shrunk pixels' centres) and areas are in the frame's.
+    refine : tuple of int, optional
+        ``(decimate, blur_px)`` of a second pass, ``decimate`` a divisor of the
+        first's: the regions found are outlined again on the frame shrunk by
+        that smaller factor, with the first pass's threshold and background,
+        only in boxes around them (:func:`_outlined_again`). The outlines of the
+        finer shrink at about the cost of the coarser.
 
     Returns
     -------
@@ -183,17 +190,18 @@ def detect_spots_otsu(
     """
     if decimate < 1:
         raise ValueError(f"decimate must be >= 1, got {decimate}")
+    if refine is not None and not (1 <= refine[0] <= decimate and decimate % refine[0] == 0):
+        raise ValueError(f"refine's decimate must divide decimate {decimate}, got {refine[0]}")
     if decimate > 1 and image.dtype in (np.uint8, np.uint16) and image.ndim in (2, 3):
-        height, width = image.shape[0] // decimate, image.shape[1] // decimate
-        if min(height, width) < 1:
+        if min(image.shape[0], image.shape[1]) < decimate:
             raise ValueError(f"decimate {decimate} leaves no pixel of a {image.shape[1]}x{image.shape[0]} image")
-        # Shrunk before the grey conversion (less to convert), each cell by the mean of its 2 x 2 middle pixels
-        # (bilinear at the cell's centre): every pixel of it at 2, and no full pass over a 5000 px frame at 4.
-        whole = image[: height * decimate, : width * decimate]
-        image = cv2.resize(whole, (width, height), interpolation=cv2.INTER_LINEAR)
-    gray = to_gray8(image, response)
+    # Finding the spots reads one row of each cell of 4 or more rows (a quarter of the memory at 4): at 2 (frames of
+    # about 1000 px, 3 MB) it would save little and leave out half the pixels.
+    gray = _shrunk_gray(image, decimate, response, one_row=refine is not None and decimate >= 4)
+    grid = None
     if background_px > 0:
-        gray = cv2.subtract(gray, _broad_background(gray, max(background_px // decimate, 1)))
+        grid = _broad_background(gray, max(background_px // decimate, 1))
+        gray = cv2.subtract(gray, cv2.resize(grid, (gray.shape[1], gray.shape[0]), interpolation=cv2.INTER_LINEAR))
     blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
     threshold = otsu_threshold(_histogram(blurred, 1))
     _, binary = cv2.threshold(blurred, threshold, 255, cv2.THRESH_BINARY)
@@ -201,10 +209,7 @@ def detect_spots_otsu(
     contours = [c.reshape(-1, 2) for c in contours if len(c) > _MIN_CONTOUR_POINTS]
     if not contours:
         return SpotDetection((), float(threshold), 0.0)
-    # In the frame's pixels; a shrunk contour runs half a shrunk pixel inside the spot (not half a pixel): the
-    # strip between them along its length is added.
-    strip = 0.5 * decimate * (decimate - 1)
-    areas = np.array([decimate**2 * cv2.contourArea(c) + strip * cv2.arcLength(c, True) for c in contours])
+    areas = _areas(contours, decimate)
     largest = int(np.argmax(areas))
     left, top, box_width, box_height = cv2.boundingRect(contours[largest])
     mask = np.zeros((box_height, box_width), dtype=np.uint8)
@@ -220,7 +225,12 @@ def detect_spots_otsu(
     min_area = max(20.0, 1e-5 * gray.size * decimate**2)
     if areas[largest] < min_area or contrast < max(_MIN_CONTRAST_DN, min_contrast_sigma * spread):
         return SpotDetection((), float(threshold), contrast)
-    height, width = gray.shape
+    shape = gray.shape
+    if refine is not None and refine[0] < decimate:
+        kept = [c for c, area in zip(contours, areas, strict=True) if area >= min_area_fraction * areas[largest]]
+        contours = _outlined_again(image, kept, decimate, refine, response, threshold, grid)
+        decimate, shape = refine[0], (image.shape[0] // refine[0], image.shape[1] // refine[0])
+        areas = _areas(contours, decimate)
     order = np.argsort(-areas)
     spots = tuple(
         Spot(
@@ -228,14 +238,119 @@ def detect_spots_otsu(
             area_px=float(areas[i]),
             touches_border=bool(
                 np.any(contours[i] == 0)
-                or np.any(contours[i][:, 0] == width - 1)
-                or np.any(contours[i][:, 1] == height - 1)
+                or np.any(contours[i][:, 0] == shape[1] - 1)
+                or np.any(contours[i][:, 1] == shape[0] - 1)
             ),
         )
         for i in order
-        if areas[i] >= min_area_fraction * areas[largest]
+        if areas[i] >= min_area_fraction * areas[order[0]]
     )
     return SpotDetection(spots, float(threshold), contrast)
+
+
+def _merged_boxes(boxes: list[list[int]]) -> list[list[int]]:
+    """Boxes ``[left, top, right, bottom]`` (right and bottom exclusive), those that overlap merged into one."""
+    merged = [list(box) for box in boxes]
+    joined = True
+    while joined:
+        joined = False
+        for i in range(len(merged)):
+            for j in range(i + 1, len(merged)):
+                a, b = merged[i], merged[j]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    merged[i] = [min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])]
+                    del merged[j]
+                    joined = True
+                    break
+            if joined:
+                break
+    return merged
+
+
+def _shrunk_gray(image: np.ndarray, decimate: int, response: str | float, *, one_row: bool = False) -> np.ndarray:
+    """The frame shrunk by ``decimate`` (the whole cells), then made 8-bit grey (:func:`to_gray8`).
+
+    Each cell is the mean of its 2 x 2 middle pixels (bilinear at its centre), or with ``one_row`` of the 2 middle
+    pixels of its upper middle row: the frame's memory is read only there, a quarter of it at 4.
+    """
+    if decimate > 1 and image.dtype in (np.uint8, np.uint16) and image.ndim in (2, 3):
+        height, width = image.shape[0] // decimate, image.shape[1] // decimate
+        # Shrunk before the grey conversion (less to convert): every pixel of a cell at 2, and no full pass over a
+        # 5000 px frame at 4.
+        whole = image[: height * decimate, : width * decimate]
+        if one_row:
+            whole = whole[decimate // 2 - 1 :: decimate]
+        image = cv2.resize(whole, (width, height), interpolation=cv2.INTER_LINEAR)
+    return to_gray8(image, response)
+
+
+def _areas(contours: Sequence[np.ndarray], decimate: int) -> np.ndarray:
+    """The areas (N,) of contours on a frame shrunk by ``decimate``, in the frame's pixels.
+
+    A shrunk contour runs half a shrunk pixel inside the spot (not half a pixel): the strip between them along its
+    length is added.
+    """
+    strip = 0.5 * decimate * (decimate - 1)
+    return np.array([decimate**2 * cv2.contourArea(c) + strip * cv2.arcLength(c, True) for c in contours])
+
+
+def _outlined_again(
+    image: np.ndarray,
+    contours: Sequence[np.ndarray],
+    decimate: int,
+    refine: tuple[int, int],
+    response: str | float,
+    threshold: int,
+    grid: np.ndarray | None,
+) -> list[np.ndarray]:
+    """The outlines (N, 2 each) of the bright regions in boxes around ``contours`` (of the frame shrunk by
+    ``decimate``), on the frame shrunk by ``refine = (decimate, blur_px)`` instead, in its shrunk pixels.
+
+    Each box reaches two coarse pixels and two blur kernels beyond its contour; boxes that overlap are one. In each,
+    the broad background (``grid``, as :func:`_broad_background` gives it for the coarse frame, or None) is
+    removed, the grey image blurred and cut at ``threshold``, as the coarse pass did on the whole frame.
+    """
+    fine, blur_px = refine
+    factor = decimate // fine
+    height, width = image.shape[0] // fine, image.shape[1] // fine
+    margin = 2 * factor + 2 * blur_px
+    boxes = []
+    for contour in contours:
+        left, top, box_width, box_height = cv2.boundingRect(contour)
+        boxes.append(
+            [
+                max(left * factor - margin, 0),
+                max(top * factor - margin, 0),
+                min((left + box_width) * factor + margin, width),
+                min((top + box_height) * factor + margin, height),
+            ]
+        )
+    outlines = []
+    for left, top, right, bottom in _merged_boxes(boxes):
+        gray = _shrunk_gray(image[top * fine : bottom * fine, left * fine : right * fine], fine, response)
+        if grid is not None:
+            # The grid stretched over the coarse frame (as cv2.resize does), sampled at the box's fine pixels.
+            scale_u = fine / decimate * grid.shape[1] / (image.shape[1] // decimate)
+            scale_v = fine / decimate * grid.shape[0] / (image.shape[0] // decimate)
+            to_grid = np.array(
+                [
+                    [scale_u, 0.0, scale_u * (left + 0.5) - 0.5],
+                    [0.0, scale_v, scale_v * (top + 0.5) - 0.5],
+                ]
+            )
+            background = cv2.warpAffine(
+                grid,
+                to_grid,
+                (gray.shape[1], gray.shape[0]),
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
+            gray = cv2.subtract(gray, background)
+        blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
+        _, binary = cv2.threshold(blurred, threshold, 255, cv2.THRESH_BINARY)
+        found, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        outlines += [c.reshape(-1, 2) + np.array([left, top]) for c in found if len(c) > _MIN_CONTOUR_POINTS]
+    return outlines
 
 
 @njit(cache=True)
@@ -261,30 +376,42 @@ def _histogram(gray: np.ndarray, stride: int) -> np.ndarray:
     return counts.sum(axis=0)
 
 
+_FLOAT32_EPSILON = float(np.finfo(np.float32).eps)
+
+
+@njit(cache=True)
 def otsu_threshold(histogram: np.ndarray) -> int:
     """Otsu's threshold of a histogram of the levels 0 to 255 (256,): the level that, with the levels up to it as
     one class, maximises the variance between the classes (the first such level; as OpenCV's ``THRESH_OTSU``)."""
-    share = histogram / max(float(np.sum(histogram)), 1.0)
-    below = np.cumsum(share)
-    moment = np.cumsum(np.arange(256) * share)
-    above = 1.0 - below
-    epsilon = float(np.finfo(np.float32).eps)
-    split = (np.minimum(below, above) >= epsilon) & (np.maximum(below, above) <= 1.0 - epsilon)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        between = below * above * (moment / below - (moment[-1] - moment) / above) ** 2
-    between = np.where(split, between, 0.0)
-    return int(np.argmax(between)) if between.max() > 0.0 else 0
+    total = max(float(np.sum(histogram)), 1.0)
+    mean = 0.0
+    for level in range(256):
+        mean += level * histogram[level] / total
+    below, moment, best, threshold = 0.0, 0.0, 0.0, 0
+    for level in range(256):
+        share = histogram[level] / total
+        below += share
+        moment += level * share
+        above = 1.0 - below
+        if min(below, above) < _FLOAT32_EPSILON or max(below, above) > 1.0 - _FLOAT32_EPSILON:
+            continue
+        between = below * above * (moment / below - (mean - moment) / above) ** 2
+        if between > best:
+            best, threshold = between, level
+    return threshold
 
 
 def _broad_background(gray: np.ndarray, width_px: int) -> np.ndarray:
-    """What is broader than ``width_px`` in ``gray`` (uint8): its opening by a disc that wide, on a coarse grid."""
+    """What is broader than ``width_px`` in ``gray`` (uint8): its opening by a disc that wide, on a coarse grid.
+
+    Returns the grid (uint8), to be stretched over ``gray``.
+    """
     scale = max(1, width_px // _BACKGROUND_DISC_PX)
     coarse = (max(gray.shape[1] // scale, 1), max(gray.shape[0] // scale, 1))
     whole = gray[: coarse[1] * scale, : coarse[0] * scale]  # whole cells: OpenCV's fast path
     small = cv2.resize(whole, coarse, interpolation=cv2.INTER_AREA)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * (width_px // (2 * scale)) + 1,) * 2)
-    opened = cv2.GaussianBlur(cv2.morphologyEx(small, cv2.MORPH_OPEN, disc), (0, 0), width_px / (4.0 * scale))
-    return cv2.resize(opened, (gray.shape[1], gray.shape[0]), interpolation=cv2.INTER_LINEAR)
+    return cv2.GaussianBlur(cv2.morphologyEx(small, cv2.MORPH_OPEN, disc), (0, 0), width_px / (4.0 * scale))
 
 
 def _near_hull(points_px: np.ndarray, tolerance_px: float) -> np.ndarray:

@@ -52,7 +52,8 @@ _FRAGMENT_AREA_FRACTION = 0.005  # regions this small beside the largest may sti
 _VESSEL_MM = 0.3  # the widest gap vessels (two side by side) may cut in a spot: fragments closer may be one spot
 _COARSE_BLUR_PX = 5  # the coarse detection's blur widens a vessel's gap by about its kernel (shrunk pixels) ...
 _SHRUNK_BLUR_PX = 3  # ... a shrunk frame, already averaged over its cells, needs less
-_MIN_SPOT_RADIUS_PX = 12.0  # the smallest spot keeps this radius in the shrunk image the coarse detection reads
+_MIN_SPOT_RADIUS_PX = 12.0  # the smallest spot keeps this radius in the shrunk image the outlines are drawn on
+_FIND_SPOT_RADIUS_PX = 6.0  # ... and this radius in the shrunk image the spots are found on
 _MAX_CLUTTER_AREA = 0.25
 _MIN_TIP_HEIGHT_MM = 1.0  # the lowest tip considered: its spot is the smallest
 _MAX_TIP_HEIGHT_MM = 10.0  # the highest: its spot is the largest
@@ -107,27 +108,29 @@ def detect_spots(image: np.ndarray, setup: Setup) -> SpotDetection:
     (:func:`spotnav.detect.group_fragments`): the pieces of a spot that dark
     vessels cut are one spot, and two spots stay two.
     """
-    decimate = detection_decimation(setup)
+    decimate, find = detection_decimation(setup), detection_decimation(setup, _FIND_SPOT_RADIUS_PX)
     blur_px = _COARSE_BLUR_PX if decimate == 1 else _SHRUNK_BLUR_PX
     detection = detect_spots_otsu(
         image,
-        blur_px=blur_px,
+        blur_px=_COARSE_BLUR_PX if find == 1 else _SHRUNK_BLUR_PX,
         min_contrast_sigma=_PRECISE_CONTRAST_SIGMA,
         response=setup.camera.pixel_response,
         min_area_fraction=_FRAGMENT_AREA_FRACTION,
         background_px=int(_BACKGROUND_SPOTS * np.sqrt(largest_spot_area_px(setup) / np.pi)),
-        decimate=decimate,
+        decimate=find,
+        refine=(decimate, blur_px),
     )
     camera = setup.camera
     vessel_px = _VESSEL_MM * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3)))
     return group_fragments(detection, image.shape[:2], vessel_px + blur_px * decimate, smallest_spot_area_px(setup))
 
 
-def detection_decimation(setup: Setup) -> int:
+def detection_decimation(setup: Setup, min_radius_px: float = _MIN_SPOT_RADIUS_PX) -> int:
     """How much the coarse detection shrinks the frame: the largest power of two that leaves the smallest spot
-    ``_MIN_SPOT_RADIUS_PX`` wide in radius (1 for small frames)."""
+    ``min_radius_px`` wide in radius (1 for small frames). The outlines are drawn at ``_MIN_SPOT_RADIUS_PX``; the
+    spots are found at ``_FIND_SPOT_RADIUS_PX``."""
     radius_px = np.sqrt(smallest_spot_area_px(setup) / np.pi)
-    return int(2 ** max(np.floor(np.log2(radius_px / _MIN_SPOT_RADIUS_PX)), 0))
+    return int(2 ** max(np.floor(np.log2(radius_px / min_radius_px)), 0))
 
 
 def largest_spot_area_px(setup: Setup) -> float:
