@@ -115,7 +115,8 @@ import json
 import spotnav.detect as d, spotnav.conefit as c, spotnav.checks as k, spotnav.geometry as g, spotnav.camera as m
 kernels = [d._brightest_channel, d._aligned_radii, d._read_edges, d._rays_through_curve, c._residuals,
            c._shared_columns, c._frame_columns, c._gauss_newton, c._levenberg_marquardt, c._covariance_of,
-           c.robust_sigma, c._dense_rows, c._group_sums, k._seen_edge_kernel, g._cone_sphere_points, m._behind_segment]
+           c.robust_sigma, c._dense_rows, c._group_sums, k._seen_edge_kernel, g._cone_sphere_points, m._behind_segment,
+           d._histogram, d.otsu_threshold]
 before = [len(kernel.signatures) for kernel in kernels]
 from spotnav.config import Setup
 from spotnav.track import Tracker

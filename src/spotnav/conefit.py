@@ -29,9 +29,9 @@ fixed (:func:`geometry_covariance`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 from numba import njit
@@ -54,6 +54,7 @@ __all__ = [
     "ConeProblem",
     "ConeSolution",
     "EdgePoints",
+    "FitUncertainty",
     "cone_problem",
     "correlation_inflation",
     "edge_angle",
@@ -778,6 +779,31 @@ def correlation_inflation(residuals: np.ndarray, groups: np.ndarray) -> float:
 
 
 @dataclass(frozen=True)
+class FitUncertainty:
+    """How well a cone fit knows its free parameters.
+
+    Attributes
+    ----------
+    covariance : ndarray, shape (P, P)
+        The free parameters' covariance: the points' scatter, each spot's
+        whole-edge shift, and the fixed geometry's uncertainty.
+    data_covariance : ndarray, shape (P, P)
+        The same without the fixed geometry's part.
+    geometry_gain : ndarray, shape (P, G)
+        ``M`` of ``covariance = ... + M C M^T``: a true geometry ``d`` (per
+        unit of ``geometry_ids``) away from the assumed one moves the fitted
+        parameters by ``M d``.
+    geometry_ids : tuple of int
+        The fixed shared parameters whose uncertainty the covariance carries.
+    """
+
+    covariance: np.ndarray
+    data_covariance: np.ndarray
+    geometry_gain: np.ndarray
+    geometry_ids: tuple[int, ...]
+
+
+@dataclass(frozen=True)
 class ConeSolution:
     """A fitted cone problem.
 
@@ -794,17 +820,10 @@ class ConeSolution:
         Each point's angle from its cone, radians.
     inliers : ndarray of bool, shape (N,)
         Points the least-squares fit kept.
-    covariance : ndarray, shape (P, P)
-        The free parameters' covariance: the points' scatter, each spot's
-        whole-edge shift, and the fixed geometry's uncertainty.
-    data_covariance : ndarray, shape (P, P)
-        The same without the fixed geometry's part.
-    geometry_gain : ndarray, shape (P, G)
-        ``M`` of ``covariance = ... + M C M^T``: a true geometry ``d`` (per
-        unit of ``geometry_ids``) away from the assumed one moves the fitted
-        parameters by ``M d``.
-    geometry_ids : tuple of int
-        The fixed shared parameters whose uncertainty the covariance carries.
+    uncertainty_of : callable
+        Returns the fit's :class:`FitUncertainty`, computed on first use (a
+        fit that only leads to another, as a start, never needs it); its
+        parts are this solution's properties of the same names.
     settled : bool
         Whether the fit settled inside its box: a tip held at its edge
         (``max_tip_move_mm`` from its start) is a fit the box decided.
@@ -816,11 +835,29 @@ class ConeSolution:
     frames: np.ndarray
     residuals: np.ndarray
     inliers: np.ndarray
-    covariance: np.ndarray
-    data_covariance: np.ndarray
-    geometry_gain: np.ndarray
-    geometry_ids: tuple[int, ...]
+    uncertainty_of: Callable[[], FitUncertainty]
     settled: bool = True
+
+    @cached_property
+    def uncertainty(self) -> FitUncertainty:
+        """The fit's uncertainty (see :class:`FitUncertainty`), computed once."""
+        return self.uncertainty_of()
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self.uncertainty.covariance
+
+    @property
+    def data_covariance(self) -> np.ndarray:
+        return self.uncertainty.data_covariance
+
+    @property
+    def geometry_gain(self) -> np.ndarray:
+        return self.uncertainty.geometry_gain
+
+    @property
+    def geometry_ids(self) -> tuple[int, ...]:
+        return self.uncertainty.geometry_ids
 
     def tip(self, frame: int = 0) -> np.ndarray:
         """Fitted tip of ``frame``, shape (3,), mm."""
@@ -885,6 +922,16 @@ class ConeSolution:
         )
         index = problem._arrays[7][frame]
         index = index[index >= 0]
+
+        def uncertainty_of() -> FitUncertainty:
+            whole = self.uncertainty
+            return FitUncertainty(
+                whole.covariance[np.ix_(index, index)],
+                whole.data_covariance[np.ix_(index, index)],
+                whole.geometry_gain[index],
+                whole.geometry_ids,
+            )
+
         return ConeSolution(
             problem=one,
             x=self.x[index],
@@ -892,10 +939,7 @@ class ConeSolution:
             frames=self.frames[frame : frame + 1],
             residuals=self.residuals[rows],
             inliers=self.inliers[rows],
-            covariance=self.covariance[np.ix_(index, index)],
-            data_covariance=self.data_covariance[np.ix_(index, index)],
-            geometry_gain=self.geometry_gain[index],
-            geometry_ids=self.geometry_ids,
+            uncertainty_of=uncertainty_of,
             settled=self.settled,
         )
 
@@ -1206,7 +1250,29 @@ def _solution(
     *,
     settled: bool,
 ) -> ConeSolution:
-    """The fit at ``x`` with its covariance (see :class:`ConeSolution`)."""
+    """The fit at ``x``, its covariance computed on first use (see :class:`ConeSolution`)."""
+    shared, frames = problem.unpack(x)
+    return ConeSolution(
+        problem,
+        x,
+        shared,
+        frames,
+        residuals,
+        inliers,
+        lambda: _uncertainty(problem, x, residuals, inliers, contour_sigma, priors),
+        settled,
+    )
+
+
+def _uncertainty(
+    problem: ConeProblem,
+    x: np.ndarray,
+    residuals: np.ndarray,
+    inliers: np.ndarray,
+    contour_sigma: float,
+    priors: np.ndarray | None,
+) -> FitUncertainty:
+    """The uncertainty of the fit at ``x`` (see :class:`FitUncertainty`)."""
     jacobian = problem.jacobian_matrix(x, inliers)
     information = None if priors is None else 1.0 / np.asarray(priors, dtype=float) ** 2
     spots = problem.points.spot[inliers]
@@ -1220,5 +1286,4 @@ def _solution(
         sensitivity = problem.shared_sensitivity(x, geometry_ids)[inliers]
         gain = response @ np.asarray(jacobian.T @ sensitivity)
         covariance = data + gain @ problem.prior[np.ix_(geometry_ids, geometry_ids)] @ gain.T
-    shared, frames = problem.unpack(x)
-    return ConeSolution(problem, x, shared, frames, residuals, inliers, covariance, data, gain, geometry_ids, settled)
+    return FitUncertainty(covariance, data, gain, geometry_ids)

@@ -193,8 +193,8 @@ def prepare_kernels(setup: Setup) -> None:
     curves = [cone_sphere_curve(tip_in_eye, beam, angle, eye.center_in_eye, eye.radius_mm, 64) for beam in beams]
     edges = [project_points(setup.camera, curve) for curve in curves]
     problem = pose_problem(setup, edges, list(range(instrument.beam_count)), tip_in_eye + 0.01, axis, 0.0)
-    for solver in ("gauss-newton", "levenberg-marquardt"):  # tracking's, and acquisition's
-        fit_cones(problem, solver=solver)
+    for solver in ("gauss-newton", "levenberg-marquardt"):  # tracking's and acquisition's fits, and their sigma
+        fit_cones(problem, solver=solver).tip_sigma_mm()
     hidden_by_shaft(setup, edges, tip_in_eye, axis)
     # The whole-frame method once, on a frame of the camera's size with those spots drawn: its tables and first
     # calls are ready before the first frame too.
