@@ -15,6 +15,8 @@ from spotnav.detect import (
     _decoding,
     _histogram,
     _linear_crop,
+    _median,
+    _near_hull,
     _smooth,
     detect_edge_along_rays,
     detect_edge_subpixel,
@@ -199,6 +201,27 @@ def test_otsu_threshold_of_rendered_frames_is_opencv_s() -> None:
         gray = to_gray8(renderer.render(InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)))
         expected, _ = cv2.threshold(gray, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         assert otsu_threshold(_histogram(gray, 1)) == int(expected)
+
+
+@given(values=st.lists(st.integers(-5, 5) | st.floats(-1e6, 1e6), min_size=1, max_size=90))
+def test_the_compiled_median_is_numpy_s(values: list[float]) -> None:
+    array = np.array(values, dtype=float)
+    assert _median(array, np.empty(len(array))) == np.median(array)
+    assert _median(array.copy(), array.copy()) == np.median(array)  # selected in place
+
+
+@settings(max_examples=30)
+@given(seed=st.integers(0, 2**31), count=st.integers(5, 300), tolerance=st.floats(0.1, 10.0))
+def test_points_near_the_hull_are_those_near_a_side_s_line(seed: int, count: int, tolerance: float) -> None:
+    points = np.random.default_rng(seed).normal(size=(count, 2)) * 30.0
+    hull = cv2.convexHull(points.astype(np.float32)).reshape(-1, 2).astype(float)
+    near = _near_hull(points, tolerance)
+    for point, is_near in zip(points, near, strict=True):
+        sides = np.roll(hull, -1, axis=0) - hull
+        offsets = point - hull
+        distances = np.abs(sides[:, 0] * offsets[:, 1] - sides[:, 1] * offsets[:, 0]) / np.hypot(*sides.T)
+        assert is_near == (len(hull) < 3 or distances.min() <= tolerance)
+    assert near[np.argmin(points[:, 0])]  # the leftmost point is a corner of the hull
 
 
 @given(seed=st.integers(0, 2**31), length=st.integers(9, 80))

@@ -419,12 +419,25 @@ def _near_hull(points_px: np.ndarray, tolerance_px: float) -> np.ndarray:
     hull = cv2.convexHull(points_px.astype(np.float32)).reshape(-1, 2).astype(float)
     if len(hull) < 3:
         return np.ones(len(points_px), dtype=bool)
-    sides = np.roll(hull, -1, axis=0) - hull
-    lengths = np.maximum(np.hypot(sides[:, 0], sides[:, 1]), 1e-9)
-    offsets = points_px[:, None, :] - hull[None, :, :]
-    # Every point lies inside the hull: its distance to the boundary is the least to a side's line.
-    distances = np.abs(sides[None, :, 0] * offsets[..., 1] - sides[None, :, 1] * offsets[..., 0]) / lengths
-    return distances.min(axis=1) <= tolerance_px
+    return _near_sides(np.asarray(points_px, dtype=float), hull, tolerance_px)
+
+
+@njit(cache=True)
+def _near_sides(points_px: np.ndarray, hull: np.ndarray, tolerance_px: float) -> np.ndarray:
+    """Which of ``points_px`` (N, 2), inside the convex polygon ``hull`` (H, 2), lie within ``tolerance_px`` of a
+    side's line: the distance to the boundary of a point inside is the least to a side's line."""
+    count = len(hull)
+    near = np.zeros(len(points_px), dtype=np.bool_)
+    for n in range(len(points_px)):
+        for h in range(count):
+            side_u = hull[(h + 1) % count, 0] - hull[h, 0]
+            side_v = hull[(h + 1) % count, 1] - hull[h, 1]
+            length = max(np.hypot(side_u, side_v), 1e-9)
+            offset_u, offset_v = points_px[n, 0] - hull[h, 0], points_px[n, 1] - hull[h, 1]
+            if abs(side_u * offset_v - side_v * offset_u) / length <= tolerance_px:
+                near[n] = True
+                break
+    return near
 
 
 def _ellipse_distances(points_px: np.ndarray, ellipse: tuple) -> np.ndarray:
@@ -977,6 +990,47 @@ def _full_width_at_half_maximum(values: np.ndarray) -> tuple[float, float]:
 
 
 @njit(cache=True)
+def _median(values: np.ndarray, scratch: np.ndarray) -> float:
+    """The median of ``values`` (N >= 1, no NaN), as ``np.median``, selected in ``scratch`` (N or longer; may be
+    ``values`` itself) without sorting or allocating."""
+    n = len(values)
+    for i in range(n):
+        scratch[i] = values[i]
+    upper = _select(scratch, n, n // 2)
+    if n % 2:
+        return upper
+    lower = scratch[0]
+    for i in range(1, n // 2):
+        lower = max(lower, scratch[i])
+    return 0.5 * (lower + upper)
+
+
+@njit(cache=True)
+def _select(values: np.ndarray, n: int, k: int) -> float:
+    """The ``k``-th smallest of ``values[:n]``, in place (Hoare's selection): then ``values[:k]`` are no larger."""
+    low, high = 0, n - 1
+    while low < high:
+        pivot = values[(low + high) // 2]
+        i, j = low, high
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            high = j
+        elif k >= i:
+            low = i
+        else:
+            break
+    return values[k]
+
+
+@njit(cache=True)
 def _every_nth(selected: np.ndarray, n: int) -> np.ndarray:
     """Indices of every ``n``-th entry of ``selected`` (R,) that is True."""
     chosen = np.empty(len(selected), dtype=np.int64)
@@ -1092,9 +1146,10 @@ def _read_edges(
     # that vessels darken (the median of their inner half under _LIT of the brightest rays') would make it theirs,
     # and a glint on a ray hardly moves that median.
     inner = np.full(rays, np.nan)
+    scratch = np.empty(max(rays, count))
     for r in range(rays):
         if finite[r]:
-            inner[r] = np.median(profiles[r, : count // 2])
+            inner[r] = _median(profiles[r, : count // 2], scratch)
     lit = finite & (inner >= _LIT * np.nanpercentile(inner, 90.0))
     chosen = _every_nth(lit, 1 + lit.sum() // _PROFILE_RAYS)
     column = np.empty(len(chosen))
@@ -1102,7 +1157,7 @@ def _read_edges(
     for s in range(count):
         for j in range(len(chosen)):
             column[j] = profiles[chosen[j], s]
-        mean_profile[s] = np.median(column)
+        mean_profile[s] = _median(column, scratch)
     mean_smooth = _smooth(mean_profile, _SMOOTHING, 0, count)
     mean_slope = np.empty(count)  # minus the gradient: central differences, one-sided at the ends
     for s in range(1, count - 1):
@@ -1119,7 +1174,7 @@ def _read_edges(
     for j in range(len(quiet)):
         for s in range(count - 1):
             steps_between[j * (count - 1) + s] = abs(profiles[quiet[j], s + 1] - profiles[quiet[j], s])
-    noise = 1.4826 * np.median(steps_between) / np.sqrt(2.0)
+    noise = 1.4826 * _median(steps_between, steps_between) / np.sqrt(2.0)
     contrast = np.zeros(rays)
     # Only the samples the lines and the crossing read are smoothed.
     needed = (max(int(np.floor(middle - 2.5 * width)) - 1, 0), int(np.ceil(middle + 2.5 * width)) + 2)
