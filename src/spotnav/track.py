@@ -2,7 +2,8 @@
 
 The first frame is localized on the whole image
 (:func:`spotnav.localize.localize_precise`): *acquisition*. After that the
-tracker predicts the pose (constant velocity), projects each beam's predicted
+tracker predicts the pose (constant acceleration: the tip's last step, changed
+as it changed from the step before), projects each beam's predicted
 edge curve into the image and reads the image only along rays across it
 (:func:`spotnav.detect.detect_edge_along_rays`): the rays are the region of
 interest, a few per cent of the pixels. The cone fit starts from the
@@ -229,6 +230,7 @@ class Tracker:
     _last_seen: PoseEstimate | None = field(default=None, init=False, repr=False)
     _lost_frames: int = field(default=0, init=False, repr=False)
     _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
+    _acceleration: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.max_jump_mm) and self.max_jump_mm > 0):
@@ -268,16 +270,19 @@ class Tracker:
             return None
         if self._velocity is None:
             return last
-        return replace(last, tip_in_eye=last.tip_in_eye + self._velocity)
+        step = self._velocity if self._acceleration is None else self._velocity + self._acceleration
+        return replace(last, tip_in_eye=last.tip_in_eye + step)
 
     def _remember(self, estimate: PoseEstimate) -> PoseEstimate:
         if self._last is not None and self._last.tip_in_eye is not None:
-            self._velocity = estimate.pose()[0] - self._last.tip_in_eye
+            velocity = estimate.pose()[0] - self._last.tip_in_eye
+            self._acceleration = None if self._velocity is None else velocity - self._velocity
+            self._velocity = velocity
         self._last = self._last_seen = estimate
         return estimate
 
     def _forget(self) -> None:
-        self._last, self._velocity = None, None
+        self._last, self._velocity, self._acceleration = None, None, None
         self._lost_frames += 1
         if self._lost_frames > _MAX_LOST_FRAMES:
             self._last_seen = None
