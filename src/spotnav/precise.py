@@ -327,7 +327,8 @@ def _fit_precise(
         if isinstance(unhidden, PoseEstimate):
             return unhidden, None
         constrained, visible = unhidden
-        if judge_fit(constrained, setup, spots=start.spots).status != "unreliable":
+        verdict = judge_fit(constrained, setup, spots=start.spots, detail=start.detail)
+        if verdict.status != "unreliable":
             break
     # The cross-check continues from the constrained fit, on its points and inliers. Three beams fix the free axis:
     # Gauss-Newton steps from there reach it (within 0.005 deg); one beam's is loose (0.25 deg short), and
@@ -339,7 +340,7 @@ def _fit_precise(
     solver = "gauss-newton" if steps else "levenberg-marquardt"
     free = fit_cones(problem, solver=solver, inliers=constrained.inliers)
     if through_insertion:
-        estimate = judge_fit(constrained, setup, spots=start.spots, detail=start.detail, other_axis=free.axis())
+        estimate = replace(verdict, other_axis=free.axis()) if verdict.ok else verdict
         return _check_insertion(estimate, constrained, free, setup), constrained
     return _fit_free(prepared, setup, constrained, free)
 
