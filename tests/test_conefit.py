@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 from dataclasses import replace
 
 import numpy as np
@@ -158,12 +159,32 @@ def test_a_fit_given_its_inliers_skips_the_robust_pass_and_keeps_them(solver: st
     constrained = fit_cones(_one_frame(setup, [noisy], start, pose.axis, 0.0), solver="levenberg-marquardt")
     assert not constrained.inliers[40:60].any()
     free_problem = _one_frame(setup, [noisy], constrained.tip(), constrained.axis(), 0.0, axis="free")
-    given_inliers = fit_cones(free_problem, solver=solver, inliers=constrained.inliers)
+    mask = constrained.inliers.copy()
+    given_inliers = fit_cones(free_problem, solver=solver, inliers=mask)
     whole = fit_cones(free_problem, solver="levenberg-marquardt")
-    assert np.array_equal(given_inliers.inliers, constrained.inliers)
+    mask[:] = True  # the solution keeps its own read-only copy: its covariance is computed later, from it
+    assert np.array_equal(given_inliers.inliers, constrained.inliers) and not given_inliers.inliers.flags.writeable
+    assert given_inliers.inliers.sum() < len(noisy)
     np.testing.assert_allclose(given_inliers.tip(), whole.tip(), atol=0.2 * whole.tip_sigma_mm())
-    with pytest.raises(ValueError, match="one per point"):
-        fit_cones(free_problem, solver=solver, inliers=constrained.inliers[:10])
+    np.testing.assert_allclose(given_inliers.tip_sigma_mm(), whole.tip_sigma_mm(), rtol=0.05)
+    for wrong in (constrained.inliers[:10], constrained.inliers.astype(int)):
+        with pytest.raises(ValueError, match="one bool per point"):
+            fit_cones(free_problem, solver=solver, inliers=wrong)
+
+
+def test_a_solution_pickles_and_its_frames_carry_its_covariance() -> None:
+    # The covariance computed on first use is a picklable recipe; one frame of a joint fit carries its block.
+    setup = replace(EXACT, uncertainty=Uncertainty())
+    poses = [InstrumentPose.through_insertion(t, setup.instrument.insertion_in_eye) for t in ([0.5, -1, 4], [1, 1, 5])]
+    edges = [_edges_px(setup, pose) for pose in poses]
+    points = EdgePoints.of_frames(edges, [[0], [0]])
+    tips = np.array([pose.tip_in_eye + 0.02 for pose in poses])
+    problem = cone_problem(setup, points, tips, np.array([pose.axis for pose in poses]), [0.0, 0.0])
+    fit = fit_cones(problem, solver="levenberg-marquardt")
+    copy = pickle.loads(pickle.dumps(fit))
+    np.testing.assert_allclose(copy.covariance, fit.covariance)
+    second = pickle.loads(pickle.dumps(fit.frame_solution(1)))
+    np.testing.assert_allclose(second.tip_covariance(), fit.tip_covariance(1))
 
 
 def test_a_problem_needs_one_axis_per_frame() -> None:

@@ -103,21 +103,28 @@ def test_a_lost_spot_is_reacquired_where_it_was_last_seen_else_on_the_whole_fram
     assert far.mode == "acquired" and np.linalg.norm(far.estimate.tip_in_eye - poses[3].tip_in_eye) < 0.03
 
 
-def test_the_prediction_continues_a_steady_turn_and_restarts_after_a_loss() -> None:
-    # Tips on a parabola (a steady turn, 0.3 mm a frame): the next is predicted exactly from the last three; with
-    # two, the last step is repeated; after a loss, the last pose seen is where the search starts.
-    tracker = Tracker(world())
+def test_the_prediction_continues_a_steady_turn_not_noise_or_tremor_and_restarts_after_a_loss() -> None:
+    # Tips on a parabola (a steady turn, 0.3 mm a frame): once two changes of the step agree, the next tip is
+    # predicted exactly; before, the last step is repeated. A tremor sampled three times a period changes the step
+    # back and forth: the last step is repeated. After a loss the last pose seen is where the search starts.
     axis = np.array([0.0, 0.0, -1.0])
-    tips = [np.array([0.3 * t, 0.05 * t**2, 5.0 - 0.02 * t**2]) for t in range(4)]
-    for tip in tips[:2]:
-        tracker._remember(PoseEstimate("ok", tip_in_eye=tip, axis=axis, spots=1))
-    np.testing.assert_allclose(tracker._predict().tip_in_eye, 2 * tips[1] - tips[0])
-    tracker._remember(PoseEstimate("ok", tip_in_eye=tips[2], axis=axis, spots=1))
-    np.testing.assert_allclose(tracker._predict().tip_in_eye, tips[3], atol=1e-12)
+
+    def tracker_after(tips: list[np.ndarray]) -> Tracker:
+        tracker = Tracker(world())
+        for tip in tips:
+            tracker._remember(PoseEstimate("ok", tip_in_eye=tip, axis=axis, spots=1))
+        return tracker
+
+    turn = [np.array([0.3 * t, 0.05 * t**2, 5.0 - 0.02 * t**2]) for t in range(5)]
+    np.testing.assert_allclose(tracker_after(turn[:3])._predict().tip_in_eye, 2 * turn[2] - turn[1])
+    np.testing.assert_allclose(tracker_after(turn[:4])._predict().tip_in_eye, turn[4], atol=1e-12)
+    tremor = [np.array([0.1 * np.sin(2 * np.pi * t / 3), 0.0, 5.0]) for t in range(6)]
+    np.testing.assert_allclose(tracker_after(tremor)._predict().tip_in_eye, 2 * tremor[5] - tremor[4])
+    tracker = tracker_after(turn[:4])
     tracker._forget()
     assert tracker._predict() is None
-    tracker._remember(PoseEstimate("ok", tip_in_eye=tips[3], axis=axis, spots=1))
-    np.testing.assert_allclose(tracker._predict().tip_in_eye, tips[3])
+    tracker._remember(PoseEstimate("ok", tip_in_eye=turn[4], axis=axis, spots=1))
+    np.testing.assert_allclose(tracker._predict().tip_in_eye, turn[4])
 
 
 def test_tracker_rejects_bad_options() -> None:

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from functools import cached_property, lru_cache
+from functools import cached_property, lru_cache, partial
 
 import numpy as np
 from numba import njit
@@ -822,8 +822,9 @@ class ConeSolution:
         Points the least-squares fit kept.
     uncertainty_of : callable
         Returns the fit's :class:`FitUncertainty`, computed on first use (a
-        fit that only leads to another, as a start, never needs it); its
-        parts are this solution's properties of the same names.
+        fit that only leads to another, as a start, never needs it; an error
+        computing it is raised there); its parts are this solution's
+        properties of the same names.
     settled : bool
         Whether the fit settled inside its box: a tip held at its edge
         (``max_tip_move_mm`` from its start) is a fit the box decided.
@@ -845,18 +846,22 @@ class ConeSolution:
 
     @property
     def covariance(self) -> np.ndarray:
+        """The free parameters' covariance (P, P), the fixed geometry's part included."""
         return self.uncertainty.covariance
 
     @property
     def data_covariance(self) -> np.ndarray:
+        """The free parameters' covariance (P, P) without the fixed geometry's part."""
         return self.uncertainty.data_covariance
 
     @property
     def geometry_gain(self) -> np.ndarray:
+        """How the fixed geometry moves the free parameters (P, G), see :class:`FitUncertainty`."""
         return self.uncertainty.geometry_gain
 
     @property
     def geometry_ids(self) -> tuple[int, ...]:
+        """The fixed shared parameters whose uncertainty the covariance carries."""
         return self.uncertainty.geometry_ids
 
     def tip(self, frame: int = 0) -> np.ndarray:
@@ -922,16 +927,6 @@ class ConeSolution:
         )
         index = problem._arrays[7][frame]
         index = index[index >= 0]
-
-        def uncertainty_of() -> FitUncertainty:
-            whole = self.uncertainty
-            return FitUncertainty(
-                whole.covariance[np.ix_(index, index)],
-                whole.data_covariance[np.ix_(index, index)],
-                whole.geometry_gain[index],
-                whole.geometry_ids,
-            )
-
         return ConeSolution(
             problem=one,
             x=self.x[index],
@@ -939,7 +934,7 @@ class ConeSolution:
             frames=self.frames[frame : frame + 1],
             residuals=self.residuals[rows],
             inliers=self.inliers[rows],
-            uncertainty_of=uncertainty_of,
+            uncertainty_of=partial(_block_uncertainty, self, index),
             settled=self.settled,
         )
 
@@ -1162,8 +1157,8 @@ def fit_cones(
         x = solve(x, np.ones(len(residuals), dtype=bool), max(robust_sigma(residuals, True), 1e-6))
         residuals = problem.residuals(x)
         inliers = np.abs(residuals) < 3.0 * max(robust_sigma(residuals, False), 1e-7)
-    elif inliers.shape != residuals.shape:
-        raise ValueError(f"inliers must be one per point ({len(residuals)}), got shape {inliers.shape}")
+    elif inliers.dtype != bool or inliers.shape != residuals.shape:
+        raise ValueError(f"inliers must be one bool per point ({len(residuals)}), got {inliers.dtype} {inliers.shape}")
     x = solve(x, inliers, None)
     return _solution(problem, x, problem.residuals(x), inliers, contour_sigma, priors, settled=not at_box(x))
 
@@ -1258,17 +1253,26 @@ def _solution(
     *,
     settled: bool,
 ) -> ConeSolution:
-    """The fit at ``x``, its covariance computed on first use (see :class:`ConeSolution`)."""
+    """The fit at ``x``, its covariance computed on first use (see :class:`ConeSolution`) from these very values:
+    ``x``, ``residuals`` and ``inliers`` are made read-only, ``priors`` copied."""
+    x, residuals, inliers = (np.array(values) for values in (x, residuals, inliers))
+    priors = None if priors is None else np.array(priors, dtype=float)
+    for values in (x, residuals, inliers, priors):
+        if values is not None:
+            values.setflags(write=False)
     shared, frames = problem.unpack(x)
-    return ConeSolution(
-        problem,
-        x,
-        shared,
-        frames,
-        residuals,
-        inliers,
-        lambda: _uncertainty(problem, x, residuals, inliers, contour_sigma, priors),
-        settled,
+    uncertainty_of = partial(_uncertainty, problem, x, residuals, inliers, contour_sigma, priors)
+    return ConeSolution(problem, x, shared, frames, residuals, inliers, uncertainty_of, settled)
+
+
+def _block_uncertainty(solution: ConeSolution, index: np.ndarray) -> FitUncertainty:
+    """The uncertainty of the free parameters ``index`` of a fit: their block of its covariance."""
+    whole = solution.uncertainty
+    return FitUncertainty(
+        whole.covariance[np.ix_(index, index)],
+        whole.data_covariance[np.ix_(index, index)],
+        whole.geometry_gain[index],
+        whole.geometry_ids,
     )
 
 

@@ -181,8 +181,10 @@ def detect_spots_otsu(
         ``(decimate, blur_px)`` of a second pass, ``decimate`` a divisor of the
         first's: the regions found are outlined again on the frame shrunk by
         that smaller factor, with the first pass's threshold and background,
-        only in boxes around them (:func:`_outlined_again`). The outlines of the
-        finer shrink at about the cost of the coarser.
+        only in boxes around them (:func:`_outlined_again`). That gives the
+        outlines of the finer shrink at about the cost of the coarser. The
+        first pass then reads one row of each cell of 4 or more rows; the
+        threshold and contrast returned are its own.
 
     Returns
     -------
@@ -192,12 +194,10 @@ def detect_spots_otsu(
         raise ValueError(f"decimate must be >= 1, got {decimate}")
     if refine is not None and not (1 <= refine[0] <= decimate and decimate % refine[0] == 0):
         raise ValueError(f"refine's decimate must divide decimate {decimate}, got {refine[0]}")
-    if decimate > 1 and image.dtype in (np.uint8, np.uint16) and image.ndim in (2, 3):
-        if min(image.shape[0], image.shape[1]) < decimate:
-            raise ValueError(f"decimate {decimate} leaves no pixel of a {image.shape[1]}x{image.shape[0]} image")
+    refined = refine is not None and refine[0] < decimate
     # Finding the spots reads one row of each cell of 4 or more rows (a quarter of the memory at 4): at 2 (frames of
     # about 1000 px, 3 MB) it would save little and leave out half the pixels.
-    gray = _shrunk_gray(image, decimate, response, one_row=refine is not None and decimate >= 4)
+    gray = _shrunk_gray(image, decimate, response, one_row=refined and decimate >= 4)
     grid = None
     if background_px > 0:
         grid = _broad_background(gray, max(background_px // decimate, 1))
@@ -226,7 +226,7 @@ def detect_spots_otsu(
     if areas[largest] < min_area or contrast < max(_MIN_CONTRAST_DN, min_contrast_sigma * spread):
         return SpotDetection((), float(threshold), contrast)
     shape = gray.shape
-    if refine is not None and refine[0] < decimate:
+    if refine is not None and refined:
         kept = [c for c, area in zip(contours, areas, strict=True) if area >= min_area_fraction * areas[largest]]
         contours = _outlined_again(image, kept, decimate, refine, response, threshold, grid)
         decimate, shape = refine[0], (image.shape[0] // refine[0], image.shape[1] // refine[0])
@@ -249,7 +249,18 @@ def detect_spots_otsu(
 
 
 def _merged_boxes(boxes: list[list[int]]) -> list[list[int]]:
-    """Boxes ``[left, top, right, bottom]`` (right and bottom exclusive), those that overlap merged into one."""
+    """Boxes, those that overlap merged into one.
+
+    Parameters
+    ----------
+    boxes : list of list of int
+        Each ``[left, top, right, bottom]``, pixels, right and bottom exclusive.
+
+    Returns
+    -------
+    list of list of int
+        The same form, no two overlapping.
+    """
     merged = [list(box) for box in boxes]
     joined = True
     while joined:
@@ -271,10 +282,26 @@ def _shrunk_gray(image: np.ndarray, decimate: int, response: str | float, *, one
     """The frame shrunk by ``decimate`` (the whole cells), then made 8-bit grey (:func:`to_gray8`).
 
     Each cell is the mean of its 2 x 2 middle pixels (bilinear at its centre), or with ``one_row`` of the 2 middle
-    pixels of its upper middle row: the frame's memory is read only there, a quarter of it at 4.
+    pixels of its upper middle row (half a pixel above the centre): the frame's memory is read only there, a
+    quarter of it at 4.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W), (H, W, 3) or (H, W, 4)
+        8 or 16 bits (another type is refused by :func:`to_gray8`).
+    decimate : int
+    response : str or float
+        ``camera.response``.
+    one_row : bool
+
+    Returns
+    -------
+    ndarray, shape (H // decimate, W // decimate), uint8
     """
     if decimate > 1 and image.dtype in (np.uint8, np.uint16) and image.ndim in (2, 3):
         height, width = image.shape[0] // decimate, image.shape[1] // decimate
+        if min(height, width) < 1:
+            raise ValueError(f"decimate {decimate} leaves no pixel of a {image.shape[1]}x{image.shape[0]} image")
         # Shrunk before the grey conversion (less to convert): every pixel of a cell at 2, and no full pass over a
         # 5000 px frame at 4.
         whole = image[: height * decimate, : width * decimate]
@@ -308,49 +335,73 @@ def _outlined_again(
 
     Each box reaches two coarse pixels and two blur kernels beyond its contour; boxes that overlap are one. In each,
     the broad background (``grid``, as :func:`_broad_background` gives it for the coarse frame, or None) is
-    removed, the grey image blurred and cut at ``threshold``, as the coarse pass did on the whole frame.
+    removed, the grey image blurred and cut at ``threshold``, as the coarse pass did on the whole frame. A region
+    that reaches a box's side inside the frame (a bright structure too thin for the coarse pass) would be cut
+    there: that box is widened by its own size on every side, and the boxes are outlined again.
     """
     fine, blur_px = refine
     factor = decimate // fine
-    height, width = image.shape[0] // fine, image.shape[1] // fine
+    shape = (image.shape[0] // fine, image.shape[1] // fine)
     margin = 2 * factor + 2 * blur_px
     boxes = []
     for contour in contours:
         left, top, box_width, box_height = cv2.boundingRect(contour)
-        boxes.append(
-            [
-                max(left * factor - margin, 0),
-                max(top * factor - margin, 0),
-                min((left + box_width) * factor + margin, width),
-                min((top + box_height) * factor + margin, height),
-            ]
-        )
-    outlines = []
-    for left, top, right, bottom in _merged_boxes(boxes):
-        gray = _shrunk_gray(image[top * fine : bottom * fine, left * fine : right * fine], fine, response)
-        if grid is not None:
-            # The grid stretched over the coarse frame (as cv2.resize does), sampled at the box's fine pixels.
-            scale_u = fine / decimate * grid.shape[1] / (image.shape[1] // decimate)
-            scale_v = fine / decimate * grid.shape[0] / (image.shape[0] // decimate)
-            to_grid = np.array(
-                [
-                    [scale_u, 0.0, scale_u * (left + 0.5) - 0.5],
-                    [0.0, scale_v, scale_v * (top + 0.5) - 0.5],
-                ]
-            )
-            background = cv2.warpAffine(
-                grid,
-                to_grid,
-                (gray.shape[1], gray.shape[0]),
-                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                borderMode=cv2.BORDER_REPLICATE,
-            )
-            gray = cv2.subtract(gray, background)
-        blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
-        _, binary = cv2.threshold(blurred, threshold, 255, cv2.THRESH_BINARY)
-        found, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        outlines += [c.reshape(-1, 2) + np.array([left, top]) for c in found if len(c) > _MIN_CONTOUR_POINTS]
-    return outlines
+        corners = (left * factor - margin, top * factor - margin)
+        far = ((left + box_width) * factor + margin, (top + box_height) * factor + margin)
+        boxes.append([max(corners[0], 0), max(corners[1], 0), min(far[0], shape[1]), min(far[1], shape[0])])
+    boxes = _merged_boxes(boxes)
+    while True:
+        outlines, grown = [], []
+        for box in boxes:
+            found = _outlines_in_box(image, box, decimate, refine, response, threshold, grid)
+            outlines += found
+            cut = any(_reaches_inner_side(outline, box, shape) for outline in found)
+            width, height = box[2] - box[0], box[3] - box[1]
+            widened = [max(box[0] - width, 0), max(box[1] - height, 0), box[2] + width, box[3] + height]
+            grown.append([*widened[:2], min(widened[2], shape[1]), min(widened[3], shape[0])] if cut else box)
+        if grown == boxes:
+            return outlines
+        boxes = _merged_boxes(grown)
+
+
+def _outlines_in_box(
+    image: np.ndarray,
+    box: list[int],
+    decimate: int,
+    refine: tuple[int, int],
+    response: str | float,
+    threshold: int,
+    grid: np.ndarray | None,
+) -> list[np.ndarray]:
+    """The outlines (N, 2 each, in the finer frame's shrunk pixels) of the bright regions in one ``box`` (left,
+    top, right, bottom, of those pixels) of :func:`_outlined_again`."""
+    fine, blur_px = refine
+    left, top, right, bottom = box
+    gray = _shrunk_gray(image[top * fine : bottom * fine, left * fine : right * fine], fine, response)
+    if grid is not None:
+        # The grid stretched over the coarse frame (as cv2.resize does), sampled at the box's fine pixels.
+        scale_u = fine / decimate * grid.shape[1] / (image.shape[1] // decimate)
+        scale_v = fine / decimate * grid.shape[0] / (image.shape[0] // decimate)
+        to_grid = np.array([[scale_u, 0.0, scale_u * (left + 0.5) - 0.5], [0.0, scale_v, scale_v * (top + 0.5) - 0.5]])
+        size = (gray.shape[1], gray.shape[0])
+        flags, border = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, cv2.BORDER_REPLICATE
+        gray = cv2.subtract(gray, cv2.warpAffine(grid, to_grid, size, flags=flags, borderMode=border))
+    blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
+    _, binary = cv2.threshold(blurred, threshold, 255, cv2.THRESH_BINARY)
+    found, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return [c.reshape(-1, 2) + np.array([left, top]) for c in found if len(c) > _MIN_CONTOUR_POINTS]
+
+
+def _reaches_inner_side(outline: np.ndarray, box: list[int], shape: tuple[int, int]) -> bool:
+    """Whether ``outline`` (N, 2) touches a side of ``box`` (left, top, right, bottom) that is not the frame's edge
+    (the frame ``shape`` is (height, width)), all in the same shrunk pixels."""
+    left, top, right, bottom = box
+    return bool(
+        (left > 0 and np.any(outline[:, 0] == left))
+        or (top > 0 and np.any(outline[:, 1] == top))
+        or (right < shape[1] and np.any(outline[:, 0] == right - 1))
+        or (bottom < shape[0] and np.any(outline[:, 1] == bottom - 1))
+    )
 
 
 @njit(cache=True)

@@ -109,10 +109,10 @@ def detect_spots(image: np.ndarray, setup: Setup) -> SpotDetection:
     vessels cut are one spot, and two spots stay two.
     """
     decimate, find = detection_decimation(setup), detection_decimation(setup, _FIND_SPOT_RADIUS_PX)
-    blur_px = _COARSE_BLUR_PX if decimate == 1 else _SHRUNK_BLUR_PX
+    blur_px = _blur_px(decimate)
     detection = detect_spots_otsu(
         image,
-        blur_px=_COARSE_BLUR_PX if find == 1 else _SHRUNK_BLUR_PX,
+        blur_px=_blur_px(find),
         min_contrast_sigma=_PRECISE_CONTRAST_SIGMA,
         response=setup.camera.pixel_response,
         min_area_fraction=_FRAGMENT_AREA_FRACTION,
@@ -123,6 +123,11 @@ def detect_spots(image: np.ndarray, setup: Setup) -> SpotDetection:
     camera = setup.camera
     vessel_px = _VESSEL_MM * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3)))
     return group_fragments(detection, image.shape[:2], vessel_px + blur_px * decimate, smallest_spot_area_px(setup))
+
+
+def _blur_px(decimate: int) -> int:
+    """The blurs' kernel on a frame shrunk by ``decimate``: ``_COARSE_BLUR_PX``, less once the cells average."""
+    return _COARSE_BLUR_PX if decimate == 1 else _SHRUNK_BLUR_PX
 
 
 def detection_decimation(setup: Setup, min_radius_px: float = _MIN_SPOT_RADIUS_PX) -> int:

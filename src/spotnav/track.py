@@ -2,8 +2,8 @@
 
 The first frame is localized on the whole image
 (:func:`spotnav.localize.localize_precise`): *acquisition*. After that the
-tracker predicts the pose (constant acceleration: the tip's last step, changed
-as it changed from the step before), projects each beam's predicted
+tracker predicts the pose (the tip's last step, changed as it changed from the
+step before when that change agrees with the one before it: a steady turn), projects each beam's predicted
 edge curve into the image and reads the image only along rays across it
 (:func:`spotnav.detect.detect_edge_along_rays`): the rays are the region of
 interest, a few per cent of the pixels. The cone fit starts from the
@@ -230,7 +230,8 @@ class Tracker:
     _last_seen: PoseEstimate | None = field(default=None, init=False, repr=False)
     _lost_frames: int = field(default=0, init=False, repr=False)
     _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
-    _acceleration: np.ndarray | None = field(default=None, init=False, repr=False)
+    _change: np.ndarray | None = field(default=None, init=False, repr=False)
+    _steady: bool = field(default=False, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.max_jump_mm) and self.max_jump_mm > 0):
@@ -270,19 +271,26 @@ class Tracker:
             return None
         if self._velocity is None:
             return last
-        step = self._velocity if self._acceleration is None else self._velocity + self._acceleration
+        step = self._velocity + self._change if self._steady else self._velocity
         return replace(last, tip_in_eye=last.tip_in_eye + step)
 
     def _remember(self, estimate: PoseEstimate) -> PoseEstimate:
         if self._last is not None and self._last.tip_in_eye is not None:
             velocity = estimate.pose()[0] - self._last.tip_in_eye
-            self._acceleration = None if self._velocity is None else velocity - self._velocity
-            self._velocity = velocity
+            change = None if self._velocity is None else velocity - self._velocity
+            # The step's change continues a steady turn when it agrees with the change before it; the fit's noise
+            # and a tremor sampled a few times a period change it at random or back and forth.
+            self._steady = bool(
+                change is not None
+                and self._change is not None
+                and np.linalg.norm(change - self._change) <= np.linalg.norm(change)
+            )
+            self._velocity, self._change = velocity, change
         self._last = self._last_seen = estimate
         return estimate
 
     def _forget(self) -> None:
-        self._last, self._velocity, self._acceleration = None, None, None
+        self._last, self._velocity, self._change, self._steady = None, None, None, False
         self._lost_frames += 1
         if self._lost_frames > _MAX_LOST_FRAMES:
             self._last_seen = None
