@@ -133,21 +133,32 @@ def test_tracker_rejects_bad_options() -> None:
 
 
 def test_a_new_tracker_has_its_compiled_kernels_ready_before_the_first_frame() -> None:
-    """Tracking's compiled kernels are compiled (or loaded) when the tracker is built, not in a frame."""
+    """Tracking's compiled kernels are compiled (or loaded) when the tracker is built, not in a frame: the first
+    frames (an acquisition, then tracked ones) compile no kernel, nor a new signature of one."""
     code = """
 import json
+import numba
 import spotnav.detect as d, spotnav.conefit as c, spotnav.checks as k, spotnav.geometry as g, spotnav.camera as m
 kernels = [d._brightest_channel, d._aligned_radii, d._read_edges, d._rays_through_curve, c._residuals,
            c._shared_columns, c._frame_columns, c._gauss_newton, c._levenberg_marquardt, c._covariance_of,
            c.robust_sigma, c._dense_rows, c._group_sums, k._seen_edge_kernel, g._cone_sphere_points, m._behind_segment,
-           d._histogram, d.otsu_threshold]
-before = [len(kernel.signatures) for kernel in kernels]
-from spotnav.config import Setup
+           d._histogram, d.otsu_threshold, c._instrument_axis]
+every = [f for mod in (d, c, k, g, m) for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
+from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.paths import helix_tips, poses_through_insertion
+from spotnav.render import Renderer
 from spotnav.track import Tracker
-Tracker(Setup())
-print(json.dumps([before, [len(kernel.signatures) for kernel in kernels]]))
+setup = thesis_world(1024, 1)
+poses = poses_through_insertion(helix_tips(100)[:3], setup.instrument.insertion_in_eye)
+frames = [Renderer(setup).render(pose, seed=i) for i, pose in enumerate(poses)]  # the renderer's own kernels
+tracker = Tracker(with_true_edge(setup))
+ready = [len(kernel.signatures) for kernel in kernels]
+compiled = [len(f.signatures) for f in every]
+modes = [tracker.update(frame).mode for frame in frames]
+print(json.dumps([ready, compiled, [len(f.signatures) for f in every], modes]))
 """
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=600)
-    before, after = json.loads(result.stdout.strip().splitlines()[-1])
-    assert before == [0] * len(before)
-    assert all(count >= 1 for count in after)
+    ready, compiled, after_frames, modes = json.loads(result.stdout.strip().splitlines()[-1])
+    assert all(count >= 1 for count in ready)
+    assert modes == ["acquired", "tracked", "tracked"]
+    assert after_frames == compiled

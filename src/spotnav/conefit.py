@@ -1159,6 +1159,8 @@ def fit_cones(
         inliers = np.abs(residuals) < 3.0 * max(robust_sigma(residuals, False), 1e-7)
     elif inliers.dtype != bool or inliers.shape != residuals.shape:
         raise ValueError(f"inliers must be one bool per point ({len(residuals)}), got {inliers.dtype} {inliers.shape}")
+    else:
+        inliers = inliers.copy()  # writable, as the kernels were compiled for (a solution's own are read-only)
     x = solve(x, inliers, None)
     return _solution(problem, x, problem.residuals(x), inliers, contour_sigma, priors, settled=not at_box(x))
 
