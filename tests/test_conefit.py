@@ -146,32 +146,6 @@ def test_the_compiled_solver_does_not_leap_to_the_box_wall() -> None:
     assert fit.settled and np.linalg.norm(fit.tip() - pose.tip_in_eye) < 0.05
 
 
-@pytest.mark.parametrize("solver", ["levenberg-marquardt", "gauss-newton"])
-def test_a_fit_given_its_inliers_skips_the_robust_pass_and_keeps_them(solver: str) -> None:
-    # Noisy edge points with a stretch of outliers (a vessel's edge): the constrained fit finds them; the free fit
-    # that continues from it on the same points, given its inliers, keeps them and lands where the whole recipe does.
-    setup = replace(EXACT, uncertainty=Uncertainty())
-    pose = InstrumentPose.through_insertion([0.8, -1.2, 4.5], setup.instrument.insertion_in_eye)
-    (edge,) = _edges_px(setup, pose, count=300)
-    noisy = edge + np.random.default_rng(3).normal(0.0, 0.1, edge.shape)
-    noisy[40:60] += 4.0  # 4 px off
-    start = pose.tip_in_eye + np.array([0.03, -0.02, 0.04])
-    constrained = fit_cones(_one_frame(setup, [noisy], start, pose.axis, 0.0), solver="levenberg-marquardt")
-    assert not constrained.inliers[40:60].any()
-    free_problem = _one_frame(setup, [noisy], constrained.tip(), constrained.axis(), 0.0, axis="free")
-    mask = constrained.inliers.copy()
-    given_inliers = fit_cones(free_problem, solver=solver, inliers=mask)
-    whole = fit_cones(free_problem, solver="levenberg-marquardt")
-    mask[:] = True  # the solution keeps its own read-only copy: its covariance is computed later, from it
-    assert np.array_equal(given_inliers.inliers, constrained.inliers) and not given_inliers.inliers.flags.writeable
-    assert given_inliers.inliers.sum() < len(noisy)
-    np.testing.assert_allclose(given_inliers.tip(), whole.tip(), atol=0.2 * whole.tip_sigma_mm())
-    np.testing.assert_allclose(given_inliers.tip_sigma_mm(), whole.tip_sigma_mm(), rtol=0.05)
-    for wrong in (constrained.inliers[:10], constrained.inliers.astype(int)):
-        with pytest.raises(ValueError, match="one bool per point"):
-            fit_cones(free_problem, solver=solver, inliers=wrong)
-
-
 def test_a_solution_pickles_and_its_frames_carry_its_covariance() -> None:
     # The covariance computed on first use is a picklable recipe; one frame of a joint fit carries its block.
     setup = replace(EXACT, uncertainty=Uncertainty())

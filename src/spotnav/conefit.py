@@ -1090,7 +1090,6 @@ def fit_cones(
     max_tip_move_mm: float = 2.0,
     contour_sigma: float = EDGE_CONTOUR_SIGMA,
     priors: np.ndarray | None = None,
-    inliers: np.ndarray | None = None,
 ) -> ConeSolution:
     """Fit a cone problem: the one robust recipe (see the module's docstring).
 
@@ -1117,10 +1116,6 @@ def fit_cones(
     priors : ndarray, shape (P,), optional
         1-sigma of a zero-mean prior on each free parameter (inf: none), in
         the fit and its covariance (``trust-region`` only).
-    inliers : ndarray of bool, shape (N,), optional
-        The points' inliers as another fit of the same points found them (a
-        fit that continues from it): the robust pass that finds them is
-        skipped.
     """
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
@@ -1153,14 +1148,9 @@ def fit_cones(
             return _solve(problem, x, rows, scale, (low, high), priors)
         return _gauss_newton(x, problem._arrays, rows, scale or 0.0, per_frame, 1 if scale is None else 2)
 
-    if inliers is None:
-        x = solve(x, np.ones(len(residuals), dtype=bool), max(robust_sigma(residuals, True), 1e-6))
-        residuals = problem.residuals(x)
-        inliers = np.abs(residuals) < 3.0 * max(robust_sigma(residuals, False), 1e-7)
-    elif inliers.dtype != bool or inliers.shape != residuals.shape:
-        raise ValueError(f"inliers must be one bool per point ({len(residuals)}), got {inliers.dtype} {inliers.shape}")
-    else:
-        inliers = inliers.copy()  # writable, as the kernels were compiled for (a solution's own are read-only)
+    x = solve(x, np.ones(len(residuals), dtype=bool), max(robust_sigma(residuals, True), 1e-6))
+    residuals = problem.residuals(x)
+    inliers = np.abs(residuals) < 3.0 * max(robust_sigma(residuals, False), 1e-7)
     x = solve(x, inliers, None)
     return _solution(problem, x, problem.residuals(x), inliers, contour_sigma, priors, settled=not at_box(x))
 

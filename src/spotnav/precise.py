@@ -335,15 +335,15 @@ def _fit_precise(
         verdict = judge_fit(constrained, setup, spots=start.spots, detail=start.detail)
         if verdict.status != "unreliable":
             break
-    # The cross-check continues from the constrained fit, on its points and inliers. Three beams fix the free axis:
+    # The cross-check continues from the constrained fit and finds its own inliers: those of the constrained fit
+    # leave out the arc a miscalibrated axis misses, which would hide it. Three beams fix the free axis:
     # Gauss-Newton steps from there reach it (within 0.005 deg); one beam's is loose (0.25 deg short), and
     # precise-free answers with it.
     tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
     sigmas = prepared.edge_sigmas
     problem = pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=sigmas)
     steps = through_insertion and setup.instrument.beam_count == 3
-    solver = "gauss-newton" if steps else "levenberg-marquardt"
-    free = fit_cones(problem, solver=solver, inliers=constrained.inliers)
+    free = fit_cones(problem, solver="gauss-newton" if steps else "levenberg-marquardt")
     if through_insertion:
         estimate = replace(verdict, other_axis=free.axis()) if verdict.ok else verdict
         return _check_insertion(estimate, constrained, free, setup), constrained
