@@ -346,9 +346,8 @@ def _outlined_again(
     boxes = []
     for contour in contours:
         left, top, box_width, box_height = cv2.boundingRect(contour)
-        corners = (left * factor - margin, top * factor - margin)
-        far = ((left + box_width) * factor + margin, (top + box_height) * factor + margin)
-        boxes.append([max(corners[0], 0), max(corners[1], 0), min(far[0], shape[1]), min(far[1], shape[0])])
+        box = [left * factor, top * factor, (left + box_width) * factor, (top + box_height) * factor]
+        boxes.append(_widened(box, (margin, margin), shape))
     boxes = _merged_boxes(boxes)
     while True:
         outlines, grown = [], []
@@ -356,12 +355,17 @@ def _outlined_again(
             found = _outlines_in_box(image, box, decimate, refine, response, threshold, grid)
             outlines += found
             cut = any(_reaches_inner_side(outline, box, shape) for outline in found)
-            width, height = box[2] - box[0], box[3] - box[1]
-            widened = [max(box[0] - width, 0), max(box[1] - height, 0), box[2] + width, box[3] + height]
-            grown.append([*widened[:2], min(widened[2], shape[1]), min(widened[3], shape[0])] if cut else box)
+            grown.append(_widened(box, (box[2] - box[0], box[3] - box[1]), shape) if cut else box)
         if grown == boxes:
             return outlines
         boxes = _merged_boxes(grown)
+
+
+def _widened(box: list[int], by: tuple[int, int], shape: tuple[int, int]) -> list[int]:
+    """``box`` (left, top, right, bottom) widened by ``by`` (across, down) on each side, within a frame of ``shape``
+    (height, width), all in the same pixels."""
+    left, top, right, bottom = box
+    return [max(left - by[0], 0), max(top - by[1], 0), min(right + by[0], shape[1]), min(bottom + by[1], shape[0])]
 
 
 def _outlines_in_box(
