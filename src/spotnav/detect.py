@@ -349,10 +349,30 @@ def _outlined_again(
         box = [left * factor, top * factor, (left + box_width) * factor, (top + box_height) * factor]
         boxes.append(_widened(box, (margin, margin), shape))
     boxes = _merged_boxes(boxes)
+
+    def outlines_in(box: list[int]) -> list[np.ndarray]:
+        """The outlines in one ``box`` (left, top, right, bottom, in the finer frame's shrunk pixels)."""
+        left, top, right, bottom = box
+        gray = _shrunk_gray(image[top * fine : bottom * fine, left * fine : right * fine], fine, response)
+        if grid is not None:
+            # The grid stretched over the coarse frame (as cv2.resize does), sampled at the box's fine pixels.
+            scale_u = fine / decimate * grid.shape[1] / (image.shape[1] // decimate)
+            scale_v = fine / decimate * grid.shape[0] / (image.shape[0] // decimate)
+            to_grid = np.array(
+                [[scale_u, 0.0, scale_u * (left + 0.5) - 0.5], [0.0, scale_v, scale_v * (top + 0.5) - 0.5]]
+            )
+            size = (gray.shape[1], gray.shape[0])
+            flags, border = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, cv2.BORDER_REPLICATE
+            gray = cv2.subtract(gray, cv2.warpAffine(grid, to_grid, size, flags=flags, borderMode=border))
+        blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
+        _, binary = cv2.threshold(blurred, threshold, 255, cv2.THRESH_BINARY)
+        found, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        return [c.reshape(-1, 2) + np.array([left, top]) for c in found if len(c) > _MIN_CONTOUR_POINTS]
+
     while True:
         outlines, grown = [], []
         for box in boxes:
-            found = _outlines_in_box(image, box, decimate, refine, response, threshold, grid)
+            found = outlines_in(box)
             outlines += found
             cut = any(_reaches_inner_side(outline, box, shape) for outline in found)
             grown.append(_widened(box, (box[2] - box[0], box[3] - box[1]), shape) if cut else box)
@@ -366,34 +386,6 @@ def _widened(box: list[int], by: tuple[int, int], shape: tuple[int, int]) -> lis
     (height, width), all in the same pixels."""
     left, top, right, bottom = box
     return [max(left - by[0], 0), max(top - by[1], 0), min(right + by[0], shape[1]), min(bottom + by[1], shape[0])]
-
-
-def _outlines_in_box(
-    image: np.ndarray,
-    box: list[int],
-    decimate: int,
-    refine: tuple[int, int],
-    response: str | float,
-    threshold: int,
-    grid: np.ndarray | None,
-) -> list[np.ndarray]:
-    """The outlines (N, 2 each, in the finer frame's shrunk pixels) of the bright regions in one ``box`` (left,
-    top, right, bottom, of those pixels) of :func:`_outlined_again`."""
-    fine, blur_px = refine
-    left, top, right, bottom = box
-    gray = _shrunk_gray(image[top * fine : bottom * fine, left * fine : right * fine], fine, response)
-    if grid is not None:
-        # The grid stretched over the coarse frame (as cv2.resize does), sampled at the box's fine pixels.
-        scale_u = fine / decimate * grid.shape[1] / (image.shape[1] // decimate)
-        scale_v = fine / decimate * grid.shape[0] / (image.shape[0] // decimate)
-        to_grid = np.array([[scale_u, 0.0, scale_u * (left + 0.5) - 0.5], [0.0, scale_v, scale_v * (top + 0.5) - 0.5]])
-        size = (gray.shape[1], gray.shape[0])
-        flags, border = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, cv2.BORDER_REPLICATE
-        gray = cv2.subtract(gray, cv2.warpAffine(grid, to_grid, size, flags=flags, borderMode=border))
-    blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
-    _, binary = cv2.threshold(blurred, threshold, 255, cv2.THRESH_BINARY)
-    found, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    return [c.reshape(-1, 2) + np.array([left, top]) for c in found if len(c) > _MIN_CONTOUR_POINTS]
 
 
 def _reaches_inner_side(outline: np.ndarray, box: list[int], shape: tuple[int, int]) -> bool:
