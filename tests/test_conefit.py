@@ -186,12 +186,13 @@ def test_the_geometry_adds_its_uncertainty_to_the_tip() -> None:
 
 
 @settings(max_examples=10)
-@given(seed=st.integers(0, 2**16), beams=st.sampled_from([1, 3]))
-def test_the_jacobian_is_the_residuals_derivative(seed: int, beams: int) -> None:
-    # Every shared parameter free and the tips free, at a random point: forward differences inside the
-    # engine agree with central differences of its residual, to their truncation and rounding. The residual's
-    # evaluation loses up to 4 of its 16 digits (the across-axis distance is the root of a difference of squares),
-    # and the engine's step divides that loss: for a column whose derivative is 1e-9, more than its size.
+@given(seed=st.integers(0, 2**16), beams=st.sampled_from([1, 3]), axis=st.sampled_from(["insertion", "free"]))
+def test_the_jacobian_is_the_residuals_derivative(seed: int, beams: int, axis: str) -> None:
+    # Every shared parameter free and each frame's own (the tip, the roll, the free axis's angles), at a random
+    # point: the engine's derivatives (forward differences for the shared parameters, the residual differentiated
+    # for the frames') agree with central differences of its residual, to their truncation and rounding. The
+    # residual's evaluation loses up to 4 of its 16 digits (the across-axis distance is the root of a difference of
+    # squares), and a difference's step divides that loss: for a column whose derivative is 1e-9, more than its size.
     rng = np.random.default_rng(seed)
     setup = _tilted(replace(EXACT, instrument=Instrument(beam_count=beams)), (0.2, 0.1, -0.3), (-2.0, 0, 0, 0, 0))
     tips = np.array([[0.5, -0.5, 4.0], [-1.0, 1.0, 5.0]])
@@ -199,7 +200,9 @@ def test_the_jacobian_is_the_residuals_derivative(seed: int, beams: int) -> None
     edges = [_edges_px(setup, InstrumentPose(t, a), 0.3) for t, a in zip(tips, axes, strict=True)]
     points = EdgePoints.of_frames(edges, [list(range(beams))] * 2)
     shared = rng.normal(0.0, 0.2, SHARED_SIZE) * prior_sigmas(replace(setup, uncertainty=Uncertainty()))
-    problem = cone_problem(setup, points, tips, axes, [0.3, 0.3], free_shared=range(SHARED_SIZE), shared=shared)
+    problem = cone_problem(
+        setup, points, tips, axes, [0.3, 0.3], axis=axis, free_shared=range(SHARED_SIZE), shared=shared
+    )
     x = problem.start + rng.normal(0.0, 1e-3, problem.size) * (np.arange(problem.size) >= SHARED_SIZE)
     jacobian = problem.jacobian_matrix(x)
     engine_steps = np.concatenate([problem.steps, np.full(problem.size - SHARED_SIZE, 1e-7)])

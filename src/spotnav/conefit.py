@@ -622,18 +622,24 @@ def _instrument_axis(
 
 
 @njit(cache=True)
-def _frame_residuals(
-    out: np.ndarray, points: np.ndarray, f: int, frames: np.ndarray, shared: np.ndarray, arrays: tuple
-) -> None:
-    """Residuals of frame ``f``'s points (written into ``out``) for the values ``shared`` and ``frames``."""
-    base, beam_count, tilt = arrays[1], arrays[2], arrays[3]
-    axis_mode, known_axes, starts, beam_of = arrays[8], arrays[9], arrays[11], arrays[12]
+def _frame_beams(frame: np.ndarray, f: int, shared: np.ndarray, arrays: tuple) -> np.ndarray:
+    """The beam axes (B, 3) of one frame's parameters ``frame`` (6,), frame ``f``'s axis mode."""
+    base, beam_count, tilt, axis_mode, known_axes = arrays[1], arrays[2], arrays[3], arrays[8], arrays[9]
     insertion = np.empty(3)
     for i in range(3):
         insertion[i] = base[3 + i] + shared[_INSERTION + i]
     axis = np.empty(3)
-    axis[0], axis[1], axis[2] = _instrument_axis(frames[f], axis_mode[f], insertion, known_axes[f])
-    beams = _beam_axes(axis, beam_count, tilt, frames[f, 5])
+    axis[0], axis[1], axis[2] = _instrument_axis(frame, axis_mode[f], insertion, known_axes[f])
+    return _beam_axes(axis, beam_count, tilt, frame[5])
+
+
+@njit(cache=True)
+def _frame_residuals(
+    out: np.ndarray, points: np.ndarray, f: int, frames: np.ndarray, shared: np.ndarray, arrays: tuple
+) -> None:
+    """Residuals of frame ``f``'s points (written into ``out``) for the values ``shared`` and ``frames``."""
+    base, starts, beam_of = arrays[1], arrays[11], arrays[12]
+    beams = _frame_beams(frames[f], f, shared, arrays)
     edge, light = base[0] + shared[_EDGE], base[1] + shared[_LIGHT]
     tx, ty, tz = frames[f, 0], frames[f, 1], frames[f, 2]
     for n in range(starts[f], starts[f + 1]):
@@ -695,27 +701,53 @@ def _shared_columns(x: np.ndarray, arrays: tuple, ids: np.ndarray) -> np.ndarray
 
 @njit(cache=True)
 def _frame_columns(x: np.ndarray, arrays: tuple, per_frame: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's derivatives with respect to its own frame's ``per_frame`` free parameters, and their columns."""
+    """Each point's derivatives with respect to its own frame's ``per_frame`` free parameters, and their columns.
+
+    Differentiated through the residual of :func:`_frame_residuals` in one pass over the points; only the beam
+    axes' derivatives (per frame, not per point) are central differences.
+    """
     shared, frames = _unpack(x, arrays[4], arrays[5], arrays[6], arrays[7])
-    frame_index, starts = arrays[7], arrays[11]
+    base, frame_index, starts, beam_of = arrays[1], arrays[7], arrays[11], arrays[12]
     points = _points_at(shared, arrays)
-    residuals = _all_residuals(points, frames, shared, arrays)
+    light = base[1] + shared[_LIGHT]
     values = np.zeros((len(points), per_frame))
     columns = np.zeros((len(points), per_frame), dtype=np.int64)
-    changed = np.empty(len(points))
+    free = np.empty(per_frame, dtype=np.int64)
+    beam_rates = np.empty((per_frame, arrays[2], 3))  # d(beam axis) / d(parameter)
     for f in range(frames.shape[0]):
+        beams = _frame_beams(frames[f], f, shared, arrays)
         j = 0
         for k in range(frames.shape[1]):
             if frame_index[f, k] < 0:
                 continue
-            step = 1e-7 * max(abs(frames[f, k]), 1.0)
-            moved = frames.copy()
-            moved[f, k] += step
-            _frame_residuals(changed, points, f, moved, shared, arrays)
-            for n in range(starts[f], starts[f + 1]):
-                values[n, j] = (changed[n] - residuals[n]) / step
-                columns[n, j] = frame_index[f, k]
+            free[j] = k
+            step = 1e-6 * max(abs(frames[f, k]), 1.0)
+            up, down = frames[f].copy(), frames[f].copy()
+            up[k] += step
+            down[k] -= step
+            beam_rates[j] = (_frame_beams(up, f, shared, arrays) - _frame_beams(down, f, shared, arrays)) / (2 * step)
             j += 1
+        for n in range(starts[f], starts[f + 1]):
+            b = beam_of[n]
+            for j in range(per_frame):
+                columns[n, j] = frame_index[f, free[j]]
+            offset = (points[n, 0] - frames[f, 0], points[n, 1] - frames[f, 1], points[n, 2] - frames[f, 2])
+            if not np.isfinite(offset[0] + offset[1] + offset[2]):
+                continue  # a gross residual, held
+            along = offset[0] * beams[b, 0] + offset[1] * beams[b, 1] + offset[2] * beams[b, 2]
+            across = np.sqrt(max(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2 - along * along, 0.0))
+            height = across - light
+            scale = 1.0 / (height * height + along * along)
+            for j in range(per_frame):
+                k, rate = free[j], beam_rates[j, b]
+                # residual = atan2(across - light, along) - edge, with offset = point - tip
+                rate_along = offset[0] * rate[0] + offset[1] * rate[1] + offset[2] * rate[2]
+                rate_square = 0.0
+                if k < 3:
+                    rate_along -= beams[b, k]
+                    rate_square = -2.0 * offset[k]
+                rate_across = (0.5 * rate_square - along * rate_along) / across if across > 0.0 else 0.0
+                values[n, j] = (along * rate_across - height * rate_along) * scale
     return values, columns
 
 
