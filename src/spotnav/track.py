@@ -25,7 +25,7 @@ import numpy as np
 
 from spotnav.camera import project_points
 from spotnav.checks import check_image_size, judge_edge, judge_fit
-from spotnav.conefit import edge_angle, fit_cones
+from spotnav.conefit import ConeSolution, edge_angle, fit_cones
 from spotnav.config import Setup
 from spotnav.detect import detect_edge_along_rays, edge_window_px, rays_through_curve
 from spotnav.estimate import PoseEstimate
@@ -114,17 +114,20 @@ def _track_with_edges(
     wrong = check_image_size(image, setup)
     if wrong is not None:
         return wrong, ()
-    estimate, edges = _track_once(image, setup, predicted, through_insertion, max_rays)
-    if estimate.ok and np.linalg.norm(estimate.pose()[0] - predicted.pose()[0]) > _REREAD_MM:
-        # The rays crossed the edge aslant, from a centre that was off: read them again across the fitted edge.
-        estimate, edges = _track_once(image, setup, estimate, through_insertion, max_rays)
+    estimate, edges, fit = _track_once(image, setup, predicted, through_insertion, max_rays)
+    if fit is not None and np.linalg.norm(fit.tip() - predicted.pose()[0]) > _REREAD_MM:
+        # The rays crossed the edge aslant, from a centre that was off: read them again across the fitted edge. A
+        # fit refused for its residuals is read again too: rays aslant across vessels misread them.
+        fitted = PoseEstimate("ok", tip_in_eye=fit.tip(), axis=fit.axis(), roll=fit.roll())
+        estimate, edges, _ = _track_once(image, setup, fitted, through_insertion, max_rays)
     return estimate, edges
 
 
 def _track_once(
     image: np.ndarray, setup: Setup, predicted: PoseEstimate, through_insertion: bool, max_rays: int
-) -> tuple[PoseEstimate, tuple[np.ndarray, ...]]:
-    """One pass of :func:`track_frame`: the edges along rays across the predicted edge curves, and the fit."""
+) -> tuple[PoseEstimate, tuple[np.ndarray, ...], ConeSolution | None]:
+    """One pass of :func:`track_frame`: the edges along rays across the predicted edge curves, and the fit (None
+    when none ran)."""
     predicted_tip, predicted_axis = predicted.pose()
     camera, instrument = setup.camera, setup.instrument
     angle = edge_angle(setup)
@@ -137,28 +140,28 @@ def _track_once(
                 apex_in_eye, beam_axis, angle, setup.eye.center_in_eye, setup.eye.radius_mm, _CURVE_POINTS
             )
         except ValueError:
-            return PoseEstimate("unreliable", detail="the predicted tip lies outside the eye"), ()
+            return PoseEstimate("unreliable", detail="the predicted tip lies outside the eye"), (), None
         curve_px = project_points(camera, curve_in_eye)
         if not np.all(np.isfinite(curve_px)):
-            return PoseEstimate("clipped", detail="a predicted spot leaves the retina"), ()
+            return PoseEstimate("clipped", detail="a predicted spot leaves the retina"), (), None
         perimeter = float(np.sum(np.linalg.norm(np.diff(curve_px, axis=0, append=curve_px[:1]), axis=1)))
         centre, ray_angles, radii = rays_through_curve(curve_px, int(np.clip(perimeter / 2.0, 64, max_rays)))
         reach = float(np.max(radii)) + edge_window_px(radii, align=True) + _BORDER_PX
         low, high = centre - reach, centre + reach
         if np.any(low < 0) or high[0] > camera.width_px - 1 or high[1] > camera.height_px - 1:
-            return PoseEstimate("clipped", detail="a predicted spot reaches the image's border"), ()
+            return PoseEstimate("clipped", detail="a predicted spot reaches the image's border"), (), None
         edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True, response=camera.pixel_response)
         if len(edge.pixels) < _MIN_EDGE_RAY_FRACTION * edge.rays:
             found = f"an edge on only {100 * len(edge.pixels) / edge.rays:.0f} % of the rays near the predicted spot"
-            return PoseEstimate("unreliable", detail=found), ()
+            return PoseEstimate("unreliable", detail=found), (), None
         verdict = judge_edge(edge, setup, float(np.mean(radii)), angle)
         if isinstance(verdict, tuple):
-            return PoseEstimate(verdict[0], detail=verdict[1]), ()
+            return PoseEstimate(verdict[0], detail=verdict[1]), (), None
         edges.append(edge.pixels)
         sigmas.append(verdict)
     visible = visible_edge_points(setup, edges, hidden_by_shaft(setup, edges, predicted_tip, predicted_axis))
     if isinstance(visible, PoseEstimate):
-        return visible, ()
+        return visible, (), None
     problem = pose_problem(
         setup,
         visible,
@@ -169,8 +172,8 @@ def _track_once(
         through_insertion=through_insertion,
         edge_sigmas=sigmas,
     )
-    fit = judge_fit(fit_cones(problem, solver="gauss-newton"), setup, spots=instrument.beam_count)
-    return fit, tuple(visible)
+    fit = fit_cones(problem, solver="gauss-newton")
+    return judge_fit(fit, setup, spots=instrument.beam_count), tuple(visible), fit
 
 
 def prepare_kernels(setup: Setup) -> None:
