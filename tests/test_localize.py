@@ -13,6 +13,7 @@ from spotnav.config import Light, Setup
 from spotnav.estimate import STATUSES
 from spotnav.experiments import helix_tips, working_volume_tips
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.paths import poses_through_insertion
 from spotnav.geometry import InstrumentPose, angles_between
 from spotnav.localize import localize, localize_detailed
 from spotnav.overlay import cone_edge_px
@@ -290,3 +291,24 @@ def test_a_detailed_result_shows_what_the_pose_came_from(method: str) -> None:
         dense = np.concatenate([np.linspace(a, b, 20) for a, b in zip(curve, np.roll(curve, -1, axis=0), strict=True)])
         gaps = np.min(np.linalg.norm(spot.fitted_px[spot.inliers][:, None] - dense[None], axis=2), axis=1)
         assert np.median(gaps) < 0.3
+
+
+def test_a_refused_fit_is_not_repeated_with_a_wider_shaft_band_that_hides_no_more(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Frame 155 of the 2048 px helix (vessels across the edge) fails its RMS check; the shaft lies far from the
+    # edge, so the wider band hides the same points at every pose the fit passed and would repeat its fits: they
+    # are skipped, and the answer is the one the repeat gives.
+    setup = with_true_edge(thesis_world(2048, 1))
+    pose = poses_through_insertion(helix_tips(300)[155:156], setup.instrument.insertion_in_eye)[0]
+    image = Renderer(setup).render(pose, seed=155)
+    fits: list[int] = []
+    fit_cones = precise.fit_cones
+    monkeypatch.setattr(precise, "fit_cones", lambda *args, **options: fits.append(1) or fit_cones(*args, **options))
+    skipped = precise.localize_precise(image, setup)
+    skipped_fits = len(fits)
+    monkeypatch.setattr(precise, "_hides_alike", lambda *args: False)
+    repeated = precise.localize_precise(image, setup)
+    assert skipped.status == repeated.status == "unreliable" and "RMS" in skipped.detail
+    assert (skipped.detail, skipped.sigma_mm, skipped.rms_px) == (repeated.detail, repeated.sigma_mm, repeated.rms_px)
+    assert len(fits) - skipped_fits > skipped_fits  # the repeat runs the wider band's fits too

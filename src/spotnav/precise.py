@@ -289,10 +289,20 @@ def prepare_edges(
     return EdgeFrame(tuple(e.pixels for e in spot_edges), sigmas, beams, start, axis, roll, solution)
 
 
+@dataclass(frozen=True)
+class _ShaftView:
+    """A pose :func:`_fit_unhidden` passed, and the edge points the shaft hid there (per spot)."""
+
+    tip_in_eye: np.ndarray
+    axis: np.ndarray
+    hidden: list[np.ndarray]
+
+
 def _fit_unhidden(
     prepared: EdgeFrame, setup: Setup, margin_mm: float
-) -> tuple[ConeSolution, list[np.ndarray]] | PoseEstimate:
-    """The fit through the insertion point to the edge the shaft leaves visible, and that edge (pixels).
+) -> tuple[ConeSolution, list[np.ndarray], list[_ShaftView]] | PoseEstimate:
+    """The fit through the insertion point to the edge the shaft leaves visible, that edge (pixels), and each pose
+    at which the hidden points were found, with them.
 
     Which points the shaft hides depends on the pose: they are found again at
     each fitted pose until they stop changing (at most ``_SHAFT_PASSES``
@@ -302,6 +312,7 @@ def _fit_unhidden(
     """
     (tip, axis), roll = prepared.start.pose(), prepared.roll
     hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
+    views = [_ShaftView(tip, axis, hidden)]
     visible = visible_edge_points(setup, prepared.edges_px, hidden)
     if isinstance(visible, PoseEstimate):  # judge the shaft at a fitted pose instead
         hidden = [np.zeros(len(edge), dtype=bool) for edge in prepared.edges_px]
@@ -314,11 +325,22 @@ def _fit_unhidden(
         fit = fit_cones(problem, solver="levenberg-marquardt")
         tip, axis, roll = fit.tip(), fit.axis(), fit.roll()
         now_hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
+        views.append(_ShaftView(tip, axis, now_hidden))
         if all(np.array_equal(a, b) for a, b in zip(hidden, now_hidden, strict=True)):
             break
         hidden = now_hidden
         visible = visible_edge_points(setup, prepared.edges_px, hidden)
-    return fit, used
+    return fit, used, views
+
+
+def _hides_alike(setup: Setup, edges_px: Sequence[np.ndarray], views: list[_ShaftView], margin_mm: float) -> bool:
+    """Whether a shaft band ``margin_mm`` wide hides the same points as the views' at each of their poses: a fit
+    with that band would repeat theirs."""
+    for view in views:
+        hidden = hidden_by_shaft(setup, edges_px, view.tip_in_eye, view.axis, margin_mm)
+        if not all(np.array_equal(a, b) for a, b in zip(view.hidden, hidden, strict=True)):
+            return False
+    return True
 
 
 def _fit_precise(
@@ -326,12 +348,16 @@ def _fit_precise(
 ) -> tuple[PoseEstimate, ConeSolution | None]:
     """The pose from the prepared edges, and the fit it comes from (None when none ran to the end)."""
     start, beams = prepared.start, prepared.beams
-    # Leave out the edge the shaft hides; if the fit fails its checks, leave out a wider band around it.
+    # Leave out the edge the shaft hides; if the fit fails its checks, leave out a wider band around it (unless
+    # that band hides no more points at any pose the fit passed: the fit would be the same).
+    views: list[_ShaftView] = []
     for margin_mm in _SHAFT_MARGINS_MM:
+        if views and _hides_alike(setup, prepared.edges_px, views, margin_mm):
+            break
         unhidden = _fit_unhidden(prepared, setup, margin_mm)
         if isinstance(unhidden, PoseEstimate):
             return unhidden, None
-        constrained, visible = unhidden
+        constrained, visible, views = unhidden
         verdict = judge_fit(constrained, setup, spots=start.spots, detail=start.detail)
         if verdict.status != "unreliable":
             break
