@@ -970,31 +970,32 @@ def _sample_rays(
 
 
 @njit(cache=True)
-def _smooth(values: np.ndarray, kernel: np.ndarray, start: int, stop: int) -> np.ndarray:
-    """``values`` (S,) convolved with ``kernel`` (odd length), mirrored at the ends (``fedcba|abcdef|fedcba``).
+def _smooth(
+    values: np.ndarray, kernel: np.ndarray, start: int, stop: int, padded: np.ndarray, out: np.ndarray
+) -> np.ndarray:
+    """``values`` (S,) convolved with ``kernel`` (odd length), mirrored at the ends (``fedcba|abcdef|fedcba``),
+    written into ``out`` (S,) and returned.
 
-    Only samples ``start`` to ``stop`` (exclusive) are computed, the others are NaN. Rows shorter
-    than half the kernel are mirrored once, then held.
+    Only samples ``start`` to ``stop`` (exclusive) are computed, the others are NaN; ``padded`` (at least
+    S + len(kernel) - 1) is scratch. Rows shorter than half the kernel are mirrored once, then held.
     """
     count, half = len(values), len(kernel) // 2
     start, stop = max(start, 0), min(stop, count)
-    padded = np.empty(count + 2 * half)
-    for j in range(count + 2 * half):
+    for j in range(start, max(stop, start) + 2 * half):  # only the padded samples the kernel reads
         i = j - half
         if i < 0:
             i = min(-i - 1, count - 1)
         elif i >= count:
             i = max(2 * count - i - 1, 0)
         padded[j] = values[i]
+    out[:count] = np.nan
     # Taps outside, samples inside, indices counted from 0 (no negative-index checks): the inner loop vectorises.
-    source, part = padded[start:], np.zeros(max(stop - start, 0))
+    source, part = padded[start:], out[start:stop]
+    part[:] = 0.0
     for k in range(len(kernel)):
         for i in range(len(part)):
             part[i] += kernel[k] * source[i + k]
-    smooth = np.full(count, np.nan)
-    for i in range(len(part)):
-        smooth[start + i] = part[i]
-    return smooth
+    return out
 
 
 @njit(cache=True)
@@ -1130,19 +1131,20 @@ def _crossing(
 
 
 @njit(cache=True)
-def _deepest_dip(values: np.ndarray, start: int, bottom: int, stop: int) -> float:
+def _deepest_dip(values: np.ndarray, start: int, bottom: int, stop: int, scratch: np.ndarray) -> float:
     """How deep ``values`` dips with its lowest point between samples ``bottom`` and ``stop``.
 
     ``max_j min(max_{start<=i<=j} v_i - v_j, max_{j<=k<=stop} v_k - v_j)``
     over ``j`` in [bottom, stop]: the most it falls and then rises again; a
     light's edge falls without rising, a dark structure in front of it dips.
+    ``scratch`` (at least stop - start + 1) holds the running maxima.
     """
     start, stop = max(start, 0), min(stop, len(values) - 1)
     bottom = min(max(bottom, start), stop)
     if stop <= start:
         return 0.0
-    after = np.empty(stop - start + 1)
-    after[-1] = values[stop]
+    after = scratch
+    after[stop - start] = values[stop]
     for j in range(stop - 1, start - 1, -1):
         after[j - start] = max(after[j - start + 1], values[j])
     before, deepest = values[start], 0.0
@@ -1205,7 +1207,8 @@ def _read_edges(
         for j in range(len(chosen)):
             column[j] = profiles[chosen[j], s]
         mean_profile[s] = _median(column, scratch)
-    mean_smooth = _smooth(mean_profile, _SMOOTHING, 0, count)
+    padded, smooth_buffer = np.empty(count + len(_SMOOTHING)), np.empty(count)
+    mean_smooth = _smooth(mean_profile, _SMOOTHING, 0, count, padded, np.empty(count))
     mean_slope = np.empty(count)  # minus the gradient: central differences, one-sided at the ends
     for s in range(1, count - 1):
         mean_slope[s] = 0.5 * (mean_smooth[s - 1] - mean_smooth[s + 1])
@@ -1226,7 +1229,9 @@ def _read_edges(
     # Only the samples the lines and the crossing read are smoothed.
     needed = (max(int(np.floor(middle - 2.5 * width)) - 1, 0), int(np.ceil(middle + 2.5 * width)) + 2)
     for r in range(rays):
-        smooth = _smooth(profiles[r], _SMOOTHING, needed[0], needed[1]) if finite[r] else mean_smooth
+        smooth = mean_smooth
+        if finite[r]:
+            smooth = _smooth(profiles[r], _SMOOTHING, needed[0], needed[1], padded, smooth_buffer)
         plateau = _fit_line(smooth, middle - 2.5 * width, middle - 1.0 * width)
         background = _fit_line(smooth, middle + 1.0 * width, middle + 2.5 * width)
         step = (plateau[0] - background[0]) + (plateau[1] - background[1]) * middle
@@ -1237,7 +1242,7 @@ def _read_edges(
         # keep the brighter), or a dip where the edge falls: a structure, not the light, shaped the edge.
         allowed = _DARK_DIP * contrast[r] + 4.0 * noise
         rough = _line_deviation(smooth, plateau, middle - 2.5 * width, middle - 1.0 * width) > allowed
-        if valid[r] and (rough or _deepest_dip(smooth, int(middle - 2.5 * width), int(lo), hi) > allowed):
+        if valid[r] and (rough or _deepest_dip(smooth, int(middle - 2.5 * width), int(lo), hi, scratch) > allowed):
             valid[r] = False
         edge_radii[r] = radii[r] + steps[0] + where * (steps[1] - steps[0])
     # Next to a ray on the image without a light's edge (a vessel or the shaft over it) the edge is the dark
@@ -1288,11 +1293,12 @@ def _aligned_radii(
     rays, count = len(coarse), len(steps)
     profiles, _ = _sample_rays(pixels, lut, offset, ray_angles[coarse], radii[coarse], steps)
     shift = np.zeros(rays)
+    padded, smooth_buffer = np.empty(count + len(_SMOOTHING)), np.empty(count)
     for r in range(rays):
         for i in range(count):
             if np.isnan(profiles[r, i]):
                 profiles[r, i] = 0.0  # off the image: dark
-        smooth = _smooth(profiles[r], _SMOOTHING, 0, count)
+        smooth = _smooth(profiles[r], _SMOOTHING, 0, count, padded, smooth_buffer)
         low, high = smooth.min(), smooth.max()
         threshold = low + _COARSE_LEVEL * (high - low)
         for i in range(count - 2, -1, -1):
