@@ -244,8 +244,10 @@ def test_points_near_the_hull_are_those_near_a_side_s_line(seed: int, count: int
 def test_compiled_smoothing_is_opencvs_reflected_gaussian(seed: int, length: int) -> None:
     values = np.random.default_rng(seed).normal(size=length)
     expected = cv2.GaussianBlur(values[None, :], (17, 1), 2.0, borderType=cv2.BORDER_REFLECT)[0]
-    np.testing.assert_allclose(_smooth(values, _SMOOTHING, 0, length), expected, atol=1e-12)
-    part = _smooth(values, _SMOOTHING, 3, length - 2)  # only samples 3 .. length - 3
+    padded, out = np.empty(length + len(_SMOOTHING)), np.empty(length)
+    np.testing.assert_allclose(_smooth(values, _SMOOTHING, 0, length, padded, out), expected, atol=1e-12)
+    # Only samples 3 .. length - 3, into the same buffers (stale values from the first call in them).
+    part = _smooth(values, _SMOOTHING, 3, length - 2, padded, out)
     np.testing.assert_allclose(part[3 : length - 2], expected[3 : length - 2], atol=1e-12)
     assert np.isnan(part[:3]).all() and np.isnan(part[length - 2 :]).all()
 
