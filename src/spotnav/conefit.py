@@ -1231,9 +1231,7 @@ def scatter_covariance(
     prior_information : ndarray, shape (P,), optional
         ``1 / sigma^2`` of each parameter's prior (0: none).
     """
-    counts = np.bincount(spots)
-    labels = np.flatnonzero(counts)
-    which = spots if len(labels) == len(counts) else np.searchsorted(labels, spots)
+    labels, which = _spot_labels(spots)
     if isinstance(jacobian, np.ndarray):
         normal = jacobian.T @ jacobian
         sums = _group_sums(jacobian, which, len(labels))  # J_s^T 1 of each spot
@@ -1245,6 +1243,13 @@ def scatter_covariance(
     sigmas = given[labels] if given.ndim else np.full(len(labels), float(given))
     prior = np.zeros(len(normal)) if prior_information is None else np.asarray(prior_information, dtype=float)
     return _covariance_of(normal, np.asarray(residuals, dtype=float), which, sums, sigmas, size, prior)
+
+
+def _spot_labels(spots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The spot numbers present in ``spots`` (N,), sorted (S,), and each point's place among them (N,)."""
+    counts = np.bincount(spots)
+    labels = np.flatnonzero(counts)
+    return labels, spots if len(labels) == len(counts) else np.searchsorted(labels, spots)
 
 
 @njit(cache=True)
@@ -1309,13 +1314,29 @@ def _uncertainty(
     priors: np.ndarray | None,
 ) -> FitUncertainty:
     """The uncertainty of the fit at ``x`` (see :class:`FitUncertainty`)."""
-    jacobian = problem.jacobian_matrix(x, inliers)
     information = None if priors is None else 1.0 / np.asarray(priors, dtype=float) ** 2
     spots = problem.points.spot[inliers]
     sigmas = np.hypot(contour_sigma, problem.points.spot_sigma)
-    data, response = scatter_covariance(jacobian, residuals[inliers], spots, sigmas, problem.size, information)
     uncertain = np.flatnonzero(np.diag(problem.prior) > 0)
     geometry_ids = tuple(int(i) for i in uncertain if i not in problem.free_shared)
+    if not problem.free_shared and len(problem.frames) == 1:  # one frame's own parameters: one compiled call
+        labels, which = _spot_labels(spots)
+        ids = np.array(geometry_ids, dtype=np.int64)
+        covariance, data, gain = _frame_uncertainty(
+            x,
+            problem._arrays,
+            len(problem.free_frame),
+            inliers,
+            residuals,
+            which,
+            sigmas[labels],
+            np.zeros(problem.size) if information is None else information,
+            ids,
+            problem.prior[np.ix_(ids, ids)],
+        )
+        return FitUncertainty(covariance, data, gain, geometry_ids)
+    jacobian = problem.jacobian_matrix(x, inliers)
+    data, response = scatter_covariance(jacobian, residuals[inliers], spots, sigmas, problem.size, information)
     gain = np.zeros((problem.size, len(geometry_ids)))
     covariance = data
     if geometry_ids:
@@ -1323,3 +1344,33 @@ def _uncertainty(
         gain = response @ np.asarray(jacobian.T @ sensitivity)
         covariance = data + gain @ problem.prior[np.ix_(geometry_ids, geometry_ids)] @ gain.T
     return FitUncertainty(covariance, data, gain, geometry_ids)
+
+
+@njit(cache=True)
+def _frame_uncertainty(
+    x: np.ndarray,
+    arrays: tuple,
+    per_frame: int,
+    inliers: np.ndarray,
+    residuals: np.ndarray,
+    spots: np.ndarray,
+    sigmas: np.ndarray,
+    information: np.ndarray,
+    ids: np.ndarray,
+    prior: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_uncertainty` of a one-frame fit of its own parameters, compiled: the covariance, the data's
+    covariance and the geometry's gain.
+
+    ``spots`` (the inliers', numbered 0 to S - 1) and ``sigmas`` (S,) as :func:`scatter_covariance`'s;
+    ``ids`` (G,) the fixed shared parameters with uncertainty, ``prior`` (G, G) their covariance.
+    """
+    values, columns = _frame_columns(x, arrays, per_frame)
+    kept = np.flatnonzero(inliers)
+    jacobian = _dense_rows(values[kept], columns[kept], per_frame)
+    sums = _group_sums(jacobian, spots, len(sigmas))
+    data, response = _covariance_of(jacobian.T @ jacobian, residuals[kept], spots, sums, sigmas, per_frame, information)
+    if len(ids) == 0:
+        return data, data, np.zeros((per_frame, 0))
+    gain = response @ (jacobian.T @ _shared_columns(x, arrays, ids)[kept])
+    return data + gain @ prior @ gain.T, data, gain
