@@ -155,9 +155,9 @@ import json
 import numba
 import spotnav.detect as d, spotnav.conefit as c, spotnav.checks as k, spotnav.geometry as g, spotnav.camera as m
 kernels = [d._brightest_channel, d._aligned_radii, d._read_edges, d._rays_through_curve, c._residuals,
-           c._shared_columns, c._frame_columns, c._gauss_newton, c._levenberg_marquardt, c._covariance_of,
-           c.robust_sigma, c._dense_rows, c._group_sums, k._seen_edge_kernel, g._cone_sphere_points, m._behind_segment,
-           d._histogram, d.otsu_threshold, c._instrument_axis]
+           c._gauss_newton, c._levenberg_marquardt, c._frame_uncertainty, c.robust_sigma,
+           k._seen_edge_kernel, g._cone_sphere_points, m._behind_segment, d._histogram, d.otsu_threshold,
+           c._instrument_axis]
 every = [f for mod in (d, c, k, g, m) for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
