@@ -9,6 +9,7 @@ from conftest import small_setup
 
 from spotnav import precise
 from spotnav.camera import camera_depth_mm
+from spotnav.conefit import AXIS_MODES, ConeProblem, ConeSolution
 from spotnav.config import Light, Setup
 from spotnav.estimate import STATUSES
 from spotnav.experiments import helix_tips, working_volume_tips
@@ -298,15 +299,21 @@ def test_a_refused_fit_is_not_repeated_with_a_wider_shaft_band_that_hides_no_mor
 ) -> None:
     # Frame 155 of the 2048 px helix (vessels across the edge) fails its RMS check; the shaft lies far from the
     # edge, so the wider band hides the same points at every pose the fit passed and would repeat its fits: they
-    # are skipped, and the answer is the one the repeat gives.
+    # are skipped, and the answer is the one the repeat gives. A refused fit needs no cross-check (a free axis).
     setup = with_true_edge(thesis_world(2048, 1))
     pose = poses_through_insertion(helix_tips(300)[155:156], setup.instrument.insertion_in_eye)[0]
     image = Renderer(setup).render(pose, seed=155)
-    fits: list[int] = []
+    fits: list[int] = []  # each fit's axis mode
     fit_cones = precise.fit_cones
-    monkeypatch.setattr(precise, "fit_cones", lambda *args, **options: fits.append(1) or fit_cones(*args, **options))
+
+    def counted(problem: ConeProblem, **options: object) -> ConeSolution:
+        fits.append(int(problem.axis_mode[0]))
+        return fit_cones(problem, **options)
+
+    monkeypatch.setattr(precise, "fit_cones", counted)
     skipped = precise.localize_precise(image, setup)
     skipped_fits = len(fits)
+    assert fits == [AXIS_MODES["insertion"]] * skipped_fits
     monkeypatch.setattr(precise, "_hides_alike", lambda *args: False)
     repeated = precise.localize_precise(image, setup)
     assert skipped.status == repeated.status == "unreliable" and "RMS" in skipped.detail

@@ -361,6 +361,8 @@ def _fit_precise(
         verdict = judge_fit(constrained, setup, spots=start.spots, detail=start.detail)
         if verdict.status != "unreliable":
             break
+    if through_insertion and not verdict.ok:
+        return verdict, constrained  # refused: no cross-check to carry
     # The cross-check continues from the constrained fit and finds its own inliers: those of the constrained fit
     # leave out the arc a miscalibrated axis misses, which would hide it. Three beams fix the free axis:
     # Gauss-Newton steps from there reach it (within 0.005 deg); one beam's is loose (0.25 deg short), and
@@ -371,8 +373,7 @@ def _fit_precise(
     steps = through_insertion and setup.instrument.beam_count == 3
     free = fit_cones(problem, solver="gauss-newton" if steps else "levenberg-marquardt")
     if through_insertion:
-        estimate = replace(verdict, other_axis=free.axis()) if verdict.ok else verdict
-        return _check_insertion(estimate, constrained, free, setup), constrained
+        return _check_insertion(replace(verdict, other_axis=free.axis()), constrained, free, setup), constrained
     return _fit_free(prepared, setup, constrained, free)
 
 
@@ -422,12 +423,13 @@ def _fit_free(
 def _check_insertion(
     estimate: PoseEstimate, constrained: ConeSolution, free: ConeSolution, setup: Setup
 ) -> PoseEstimate:
-    """``miscalibrated`` when three beams show an axis that misses the insertion line by more than its uncertainty.
+    """An ``ok`` estimate, or ``miscalibrated`` when three beams show an axis that misses the insertion line by more
+    than its uncertainty.
 
     The free axis's uncertainty comes from its fit (angles about ``y`` and
     ``z``); the constrained axis's from the tip's own and the insertion point's.
     """
-    if not estimate.ok or setup.instrument.beam_count == 1:
+    if setup.instrument.beam_count == 1:
         return estimate
     angle = float(angles_between(free.axis(), constrained.axis()))
     about = free.frame_covariance((3, 4))
