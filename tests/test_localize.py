@@ -8,7 +8,7 @@ import pytest
 from conftest import small_setup
 
 from spotnav import precise
-from spotnav.camera import camera_depth_mm
+from spotnav.camera import camera_depth_mm, project_points
 from spotnav.conefit import AXIS_MODES, ConeProblem, ConeSolution
 from spotnav.config import Light, Setup
 from spotnav.estimate import STATUSES
@@ -20,6 +20,7 @@ from spotnav.localize import localize, localize_detailed
 from spotnav.overlay import cone_edge_px
 from spotnav.precise import detection_decimation, smallest_spot_area_px
 from spotnav.render import Renderer
+from spotnav.shaft import hidden_by_shaft
 
 
 def test_round_trip_over_the_working_volume_2048(renderer_2048: Renderer) -> None:
@@ -319,3 +320,20 @@ def test_a_refused_fit_is_not_repeated_with_a_wider_shaft_band_that_hides_no_mor
     assert skipped.status == repeated.status == "unreliable" and "RMS" in skipped.detail
     assert (skipped.detail, skipped.sigma_mm, skipped.rms_px) == (repeated.detail, repeated.sigma_mm, repeated.rms_px)
     assert len(fits) - skipped_fits > skipped_fits  # the repeat runs the wider band's fits too
+
+
+def test_a_wider_shaft_band_that_hides_more_points_is_not_taken_as_alike() -> None:
+    # Pixels across the shaft's image: the 0.2 mm band hides some that the 0.05 mm band does not, so a fit with
+    # it would differ and must run; pixels far from the shaft are hidden by neither band.
+    setup = with_true_edge(thesis_world(1024, 1))
+    tip = np.array([0.5, -0.3, 4.0])
+    axis = (tip - setup.instrument.insertion_in_eye) / np.linalg.norm(tip - setup.instrument.insertion_in_eye)
+    middle_px = project_points(setup.camera, tip - 2.0 * axis)
+    across = middle_px + np.column_stack([np.linspace(-60, 60, 241), np.zeros(241)])
+    narrow = hidden_by_shaft(setup, [across], tip, axis, 0.05)
+    wide = hidden_by_shaft(setup, [across], tip, axis, 0.2)
+    assert narrow[0].any() and (wide[0] & ~narrow[0]).any()
+    assert not precise._hides_alike(setup, [across], [precise._ShaftView(tip, axis, narrow)], 0.2)
+    far = across[~wide[0]]
+    hidden_far = hidden_by_shaft(setup, [far], tip, axis, 0.05)
+    assert precise._hides_alike(setup, [far], [precise._ShaftView(tip, axis, hidden_far)], 0.2)

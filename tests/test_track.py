@@ -3,11 +3,13 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from spotnav.config import Setup
+from spotnav import track
+from spotnav.config import Setup, Uncertainty
 from spotnav.estimate import PoseEstimate
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
@@ -67,6 +69,26 @@ def test_a_fit_refused_across_vessels_from_an_off_prediction_is_read_again_from_
     tracked = track_frame(image, setup, predicted)
     assert tracked.ok, tracked.detail
     assert np.linalg.norm(tracked.tip_in_eye - poses[1].tip_in_eye) < 0.01
+
+
+def test_a_fit_the_geometry_s_uncertainty_refuses_is_not_read_again(monkeypatch: pytest.MonkeyPatch) -> None:
+    # A nominal setup with a real microscope's uncertainty: the fit, 0.1 mm from the prediction, is refused as
+    # uncalibrated, which no second reading changes: one pass, and its own reason.
+    setup = replace(world(), uncertainty=Uncertainty())
+    pose = poses_through_insertion(helix_tips(300)[5:6], setup.instrument.insertion_in_eye)[0]
+    image = Renderer(setup).render(pose, seed=5)
+    passes: list[str] = []
+    track_once = track._track_once
+
+    def counted(*args: object) -> tuple:
+        result = track_once(*args)
+        passes.append(result[0].status)
+        return result
+
+    monkeypatch.setattr(track, "_track_once", counted)
+    predicted = PoseEstimate("ok", tip_in_eye=pose.tip_in_eye + np.array([0.1, 0.0, 0.0]), axis=pose.axis)
+    assert track_frame(image, setup, predicted).status == "uncalibrated"
+    assert passes == ["uncalibrated"]
 
 
 @pytest.mark.parametrize("offset_mm", [[0.5, 0.4, 0.0], [-0.8, 0.0, 0.1], [0.0, 0.6, -0.3]])

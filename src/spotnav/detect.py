@@ -980,8 +980,9 @@ def _smooth(
     S + len(kernel) - 1) is scratch. Rows shorter than half the kernel are mirrored once, then held.
     """
     count, half = len(values), len(kernel) // 2
-    start, stop = max(start, 0), min(stop, count)
-    for j in range(start, max(stop, start) + 2 * half):  # only the padded samples the kernel reads
+    start = min(max(start, 0), count)
+    stop = max(min(stop, count), start)
+    for j in range(start, stop + 2 * half):  # only the padded samples the kernel reads
         i = j - half
         if i < 0:
             i = min(-i - 1, count - 1)

@@ -353,7 +353,7 @@ def _fit_precise(
     views: list[_ShaftView] = []
     for margin_mm in _SHAFT_MARGINS_MM:
         if views and _hides_alike(setup, prepared.edges_px, views, margin_mm):
-            break
+            continue
         unhidden = _fit_unhidden(prepared, setup, margin_mm)
         if isinstance(unhidden, PoseEstimate):
             return unhidden, None

@@ -115,12 +115,22 @@ def _track_with_edges(
     if wrong is not None:
         return wrong, ()
     estimate, edges, fit = _track_once(image, setup, predicted, through_insertion, max_rays)
-    if fit is not None and np.linalg.norm(fit.tip() - predicted.pose()[0]) > _REREAD_MM:
-        # The rays crossed the edge aslant, from a centre that was off: read them again across the fitted edge. A
-        # fit refused for its residuals is read again too: rays aslant across vessels misread them.
+    if fit is not None and _worth_reading(estimate, fit, predicted, setup):
+        # The rays crossed the edge aslant, from a centre that was off: read them again across the fitted edge.
         fitted = PoseEstimate("ok", tip_in_eye=fit.tip(), axis=fit.axis(), roll=fit.roll())
         estimate, edges, _ = _track_once(image, setup, fitted, through_insertion, max_rays)
     return estimate, edges
+
+
+def _worth_reading(estimate: PoseEstimate, fit: ConeSolution, predicted: PoseEstimate, setup: Setup) -> bool:
+    """Whether the rays are worth reading again from a fit's pose: one more than ``_REREAD_MM`` from the
+    prediction, accepted, or refused by its own checks (rays aslant across vessels misread its residuals) with its
+    tip settled inside the eye; not one the geometry's uncertainty refused, which no reading changes."""
+    if np.linalg.norm(fit.tip() - predicted.pose()[0]) <= _REREAD_MM:
+        return False
+    if estimate.ok:
+        return True
+    return estimate.status == "unreliable" and fit.settled and setup.contains_point(fit.tip())
 
 
 def _track_once(
