@@ -7,12 +7,17 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq
 
 from spotnav import track
+from spotnav.camera import project_points
+from spotnav.conefit import edge_angle
 from spotnav.config import Setup, Uncertainty
+from spotnav.detect import edge_window_px, rays_through_curve
 from spotnav.estimate import PoseEstimate
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
+from spotnav.geometry import InstrumentPose, cone_sphere_curve
 from spotnav.precise import localize_precise
 from spotnav.render import Renderer
 from spotnav.track import Tracker, _track_once, track_frame
@@ -119,6 +124,29 @@ def test_a_spot_that_leaves_the_image_is_clipped_not_guessed() -> None:
     image = np.zeros((SIZE_PX, SIZE_PX, 3), np.uint8)
     far = PoseEstimate("ok", tip_in_eye=np.array([6.5, 0.0, 5.0]), axis=np.array([0.0, 0.0, -1.0]))
     assert track_frame(image, setup, far).status == "clipped"
+
+
+def test_a_spot_whose_rays_leave_the_image_but_whose_edge_does_not_is_tracked() -> None:
+    # The tip moved along x until the predicted edge lies 12 px inside the image's right side: the aligned pass's
+    # wide window (twice 0.15 of the radius plus 8 px) reaches beyond it. The rays that leave the image are left
+    # out, and the rest track the spot (before, such a frame was clipped and sent to acquisition).
+    setup = world()
+    insertion, angle = setup.instrument.insertion_in_eye, edge_angle(setup)
+
+    def edge_px(x_mm: float) -> np.ndarray:
+        pose = InstrumentPose.through_insertion([x_mm, 0.0, 4.5], insertion)
+        apex = pose.tip_in_eye - pose.axis * setup.instrument.light_radius_mm / np.tan(angle)
+        curve = cone_sphere_curve(apex, pose.axis, angle, setup.eye.center_in_eye, setup.eye.radius_mm, 90)
+        return project_points(setup.camera, curve)
+
+    x_mm = brentq(lambda x: edge_px(x)[:, 0].max() - (SIZE_PX - 1 - 12), 0.0, 7.0)
+    radii = rays_through_curve(edge_px(x_mm), 128)[2]
+    assert edge_window_px(radii, align=True) > 12 + 2
+    pose = InstrumentPose.through_insertion([x_mm, 0.0, 4.5], insertion)
+    image = Renderer(setup).render(pose, seed=3)
+    tracked = track_frame(image, setup, PoseEstimate("ok", tip_in_eye=pose.tip_in_eye, axis=pose.axis))
+    assert tracked.ok, tracked.detail
+    assert np.linalg.norm(tracked.tip_in_eye - pose.tip_in_eye) < 0.01
 
 
 def test_a_lost_spot_is_reacquired_where_it_was_last_seen_else_on_the_whole_frame() -> None:

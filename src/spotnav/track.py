@@ -27,7 +27,7 @@ from spotnav.camera import project_points
 from spotnav.checks import check_image_size, judge_edge, judge_fit
 from spotnav.conefit import ConeSolution, edge_angle, fit_cones
 from spotnav.config import Setup
-from spotnav.detect import detect_edge_along_rays, edge_window_px, rays_through_curve
+from spotnav.detect import detect_edge_along_rays, rays_through_curve
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
 from spotnav.precise import localize_precise, localize_precise_with_edges, pose_problem
@@ -156,8 +156,7 @@ def _track_once(
             return PoseEstimate("clipped", detail="a predicted spot leaves the retina"), (), None
         perimeter = float(np.sum(np.linalg.norm(np.diff(curve_px, axis=0, append=curve_px[:1]), axis=1)))
         centre, ray_angles, radii = rays_through_curve(curve_px, int(np.clip(perimeter / 2.0, 64, max_rays)))
-        reach = float(np.max(radii)) + edge_window_px(radii, align=True) + _BORDER_PX
-        low, high = centre - reach, centre + reach
+        low, high = curve_px.min(axis=0) - _BORDER_PX, curve_px.max(axis=0) + _BORDER_PX
         if np.any(low < 0) or high[0] > camera.width_px - 1 or high[1] > camera.height_px - 1:
             return PoseEstimate("clipped", detail="a predicted spot reaches the image's border"), (), None
         edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True, response=camera.pixel_response)
