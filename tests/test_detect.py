@@ -12,6 +12,7 @@ from spotnav.config import Setup
 from spotnav.detect import (
     _SMOOTHING,
     SpotDetection,
+    _brightest_channel,
     _decoding,
     _histogram,
     _linear_crop,
@@ -340,3 +341,16 @@ def test_edge_points_where_vessels_cross_the_edge_are_left_out() -> None:
     assert edge.dark_rays > 0.04 * edge.rays
     off = np.abs(np.hypot(*(edge.pixels - 200).T) - 60)
     assert np.percentile(off, 95) < 1.0 and off.max() < 2.0
+
+
+@pytest.mark.parametrize("size_px", [90, 700])
+def test_the_brightest_channel_that_never_clips_is_read(size_px: int) -> None:
+    # Red clips over a patch of 5 % of the crop, green is bright and never clips, blue is dim. On a large crop the
+    # channels are judged on a sparser grid, which still meets the patch.
+    crop = np.zeros((size_px, size_px, 3), np.uint8)
+    crop[..., 0], crop[..., 1], crop[..., 2] = 120, 200, 60
+    side = int(0.22 * size_px)
+    crop[size_px // 3 : size_px // 3 + side, size_px // 2 : size_px // 2 + side, 0] = 255
+    assert _brightest_channel(crop, 255) == (1, True)
+    crop[..., 0] = 230  # red now the brightest, and nothing clips
+    assert _brightest_channel(crop, 255) == (0, False)

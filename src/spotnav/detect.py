@@ -1323,6 +1323,7 @@ def _aligned_radii(
 
 
 _BLOCK_ROWS = 8
+_CHANNEL_GRID = 128  # the brightest channel is judged on about this many pixels a side (every other, up to 256 px)
 
 
 @dataclass(frozen=True)
@@ -1363,15 +1364,17 @@ def _brightest_channel(crop: np.ndarray, full_scale: int) -> tuple[int, bool]:
     """Which channel (of the first three) of ``crop`` (H, W, C) to read, and whether any channel clips.
 
     The brightest that never reaches ``full_scale``, else the least clipped
-    one, judged on every other pixel of every other row (a quarter of the
-    work; the edge's own clipping is measured on the rays).
+    one, judged on every other pixel of every other row, or on a sparser grid
+    of about ``_CHANNEL_GRID`` pixels a side in a larger crop (the edge's own
+    clipping is measured on the rays).
     """
     height, width, channels = crop.shape[0], crop.shape[1], min(crop.shape[2], 3)
+    step = max(2, min(height, width) // _CHANNEL_GRID)
     brightest, clipped = np.zeros(channels, dtype=np.int64), np.zeros(channels, dtype=np.int64)
     # _BLOCK_ROWS rows read side by side: their first touches of memory overlap instead of waiting in turn.
-    for first in range(0, height, 2 * _BLOCK_ROWS):
-        for u in range(0, width, 2):
-            for v in range(first, min(first + 2 * _BLOCK_ROWS, height), 2):
+    for first in range(0, height, step * _BLOCK_ROWS):
+        for u in range(0, width, step):
+            for v in range(first, min(first + step * _BLOCK_ROWS, height), step):
                 for c in range(channels):
                     brightest[c] = max(brightest[c], crop[v, u, c])
                     clipped[c] += crop[v, u, c] >= full_scale
