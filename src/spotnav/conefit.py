@@ -766,14 +766,15 @@ def robust_sigma(values: np.ndarray, centred: bool) -> float:
 
 @njit(cache=True)
 def _normal_equations(
-    values: np.ndarray, columns: np.ndarray, residuals: np.ndarray, size: int, scale: float
+    values: np.ndarray, columns: np.ndarray, residuals: np.ndarray, rows: np.ndarray, size: int, scale: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``J^T W J`` (P, P) and ``J^T W r`` (P,) of a Jacobian given as rows (N, W) of values and columns.
+    """``J^T W J`` (P, P) and ``J^T W r`` (P,) over the ``rows`` (K,) of a Jacobian given as rows (N, W) of values
+    and columns.
 
     The weights ``W`` are 1, or with ``scale`` > 0 those of the soft-L1 loss (iteratively reweighted least squares).
     """
     normal, gradient = np.zeros((size, size)), np.zeros(size)
-    for n in range(len(residuals)):
+    for n in rows:
         weight = 1.0 if scale <= 0.0 else 1.0 / np.sqrt(1.0 + (residuals[n] / scale) ** 2)
         for a in range(values.shape[1]):
             i = columns[n, a]
@@ -1040,7 +1041,7 @@ def _gauss_newton(
     for _ in range(steps):
         residuals = _residuals(x, arrays)
         values, columns = _frame_columns(x, arrays, per_frame)
-        normal, gradient = _normal_equations(values[kept], columns[kept], residuals[kept], len(x), scale)
+        normal, gradient = _normal_equations(values, columns, residuals, kept, len(x), scale)
         x = x - np.linalg.solve(normal, gradient)
     return x
 
@@ -1092,7 +1093,7 @@ def _levenberg_marquardt(
     kept = np.flatnonzero(rows)
     for _ in range(_LM_MAX_STEPS):
         values, columns = _frame_columns(x, arrays, per_frame)
-        normal, gradient = _normal_equations(values[kept], columns[kept], residuals[kept], size, scale)
+        normal, gradient = _normal_equations(values, columns, residuals, kept, size, scale)
         diagonal = np.maximum(np.diag(normal), 1e-300)
         moved = False
         for _ in range(_LM_TRIES):
