@@ -326,7 +326,7 @@ def _fit_unhidden(
         tip, axis, roll = fit.tip(), fit.axis(), fit.roll()
         now_hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
         views.append(_ShaftView(tip, axis, now_hidden))
-        if all(np.array_equal(a, b) for a, b in zip(hidden, now_hidden, strict=True)):
+        if _same_hidden(hidden, now_hidden):
             break
         hidden = now_hidden
         visible = visible_edge_points(setup, prepared.edges_px, hidden)
@@ -336,11 +336,15 @@ def _fit_unhidden(
 def _hides_alike(setup: Setup, edges_px: Sequence[np.ndarray], views: list[_ShaftView], margin_mm: float) -> bool:
     """Whether a shaft band ``margin_mm`` wide hides the same points as the views' at each of their poses: a fit
     with that band would repeat theirs."""
-    for view in views:
-        hidden = hidden_by_shaft(setup, edges_px, view.tip_in_eye, view.axis, margin_mm)
-        if not all(np.array_equal(a, b) for a, b in zip(view.hidden, hidden, strict=True)):
-            return False
-    return True
+    return all(
+        _same_hidden(view.hidden, hidden_by_shaft(setup, edges_px, view.tip_in_eye, view.axis, margin_mm))
+        for view in views
+    )
+
+
+def _same_hidden(hidden: Sequence[np.ndarray], other: Sequence[np.ndarray]) -> bool:
+    """Whether two lists of hidden-point masks (one per spot) are equal."""
+    return all(np.array_equal(a, b) for a, b in zip(hidden, other, strict=True))
 
 
 def _fit_precise(
