@@ -204,7 +204,7 @@ def test_a_new_tracker_has_its_compiled_kernels_ready_before_the_first_frame() -
 import json
 import numba
 import spotnav.detect as d, spotnav.conefit as c, spotnav.checks as k, spotnav.geometry as g, spotnav.camera as m
-kernels = [d._brightest_channel, d._aligned_radii, d._read_edges, d._rays_through_curve, c._residuals,
+kernels = [d._edge_on_rays, d._rays_through_curve, c._residuals,
            c._gauss_newton, c._levenberg_marquardt, c._frame_uncertainty, c.robust_sigma,
            k._seen_edge_kernel, g._cone_sphere_points, m._behind_segment, d._histogram, d.otsu_threshold,
            c._instrument_axis]

@@ -891,41 +891,62 @@ def detect_edge_along_rays(
     SpotEdge
     """
     angles, radii = np.asarray(ray_angles, dtype=float), np.asarray(radii, dtype=float)
+    lut, full_scale = _decoding(image, response)
+    channels = image if image.ndim == 3 else image[:, :, None]
+    pixels, kept, width, saturated, ratio, clipped, plateau, background, left_out = _edge_on_rays(
+        channels, lut, full_scale, np.asarray(centre, dtype=float), angles, radii, align
+    )
+    return SpotEdge(
+        pixels, angles[kept], width * _STEP_PX, saturated, len(angles), ratio, clipped, plateau, background, left_out
+    )
+
+
+@njit(cache=True)
+def _edge_on_rays(
+    image: np.ndarray,
+    lut: np.ndarray,
+    full_scale: int,
+    centre: np.ndarray,
+    angles: np.ndarray,
+    radii: np.ndarray,
+    align: bool,
+) -> tuple[np.ndarray, np.ndarray, float, bool, float, float, float, float, int]:
+    """:func:`detect_edge_along_rays` on ``image`` (H, W, C) decoded by ``lut``, compiled: one call per spot.
+
+    Returns the edge points (N, 2), the rays (indices) that gave them, and
+    :func:`_read_edges`' width (samples), contrast to noise, clipped fraction,
+    plateau, background and rays left out, with whether a channel clipped.
+    """
     window, wide = edge_window_px(radii), edge_window_px(radii, align=True)
-    crop = _linear_crop(image, centre, float(np.max(radii)) + (wide if align else window), response)
-    offset = np.asarray(centre, dtype=float) - crop.origin
+    pixels, offset, saturated = _linear_crop(image, full_scale, centre, np.max(radii) + (wide if align else window))
     if align:
         # Every _COARSE_RAY_STRIDE-th ray, _COARSE_SAMPLES samples across the wide window; the edge kept within
         # the fine window's reach (no pixel beyond edge_window_px(radii, align=True) is read).
         steps = _window_steps(wide, 2.0 * wide / _COARSE_SAMPLES)
-        radii = _aligned_radii(crop.pixels, crop.lut, offset, angles, radii, steps, wide - window)
+        radii = _aligned_radii(pixels, lut, offset, angles, radii, steps, wide - window)
         window = edge_window_px(radii)  # about the edge found
     edge_radii, valid, width, ratio, clipped, plateau, background, left_out = _read_edges(
-        crop.pixels, crop.lut, offset, angles, radii, _window_steps(window, _STEP_PX), crop.full_scale
+        pixels, lut, offset, angles, radii, _window_steps(window, _STEP_PX), lut[full_scale]
     )
-    pixels = centre + edge_radii[valid, None] * np.column_stack([np.cos(angles[valid]), np.sin(angles[valid])])
-    return SpotEdge(
-        pixels,
-        angles[valid],
-        width * _STEP_PX,
-        crop.saturated,
-        len(angles),
-        ratio,
-        clipped,
-        float(plateau),
-        float(background),
-        int(left_out),
-    )
+    kept = np.flatnonzero(valid)
+    points = np.empty((len(kept), 2))
+    for i in range(len(kept)):
+        points[i, 0] = centre[0] + edge_radii[kept[i]] * np.cos(angles[kept[i]])
+        points[i, 1] = centre[1] + edge_radii[kept[i]] * np.sin(angles[kept[i]])
+    return points, kept, width, saturated, ratio, clipped, plateau, background, left_out
 
 
+@njit(cache=True)
 def _window_steps(half_window: float, step: float) -> np.ndarray:
     """Samples every ``step`` pixels from ``-half_window`` to ``half_window``."""
     return np.arange(-half_window, half_window + step, step)
 
 
-def edge_window_px(radii: np.ndarray, *, align: bool = False) -> float:
-    """How far from ``radii`` :func:`detect_edge_along_rays` reads each ray, pixels (twice as far with ``align``)."""
-    return (2.0 if align else 1.0) * (0.15 * float(np.mean(radii)) + 8.0)
+@njit(cache=True)
+def edge_window_px(radii: np.ndarray, align: bool = False) -> float:
+    """How far from ``radii`` (R,) :func:`detect_edge_along_rays` reads each ray, pixels (twice as far with
+    ``align``)."""
+    return (2.0 if align else 1.0) * (0.15 * np.mean(radii) + 8.0)
 
 
 # The compiled kernels below read rays one sample at a time: a frame's few thousand samples cost
@@ -1326,37 +1347,26 @@ _BLOCK_ROWS = 8
 _CHANNEL_GRID = 128  # the brightest channel is judged on about this many pixels a side (every other, up to 256 px)
 
 
-@dataclass(frozen=True)
-class _LinearCrop:
-    """One channel of a square of the image and its decoding: the light at ``(u, v)`` is
-    ``lut[pixels[v - origin[1], u - origin[0]]]`` (the rays decode only the pixels they read)."""
-
-    pixels: np.ndarray
-    lut: np.ndarray
-    origin: tuple[int, int]
-    saturated: bool
-    full_scale: float
-
-
-def _linear_crop(image: np.ndarray, centre: np.ndarray, reach: float, response: str | float) -> _LinearCrop:
-    """The pixels within ``reach`` of ``centre`` (clipped to the image) in one channel, with its decoding.
+@njit(cache=True)
+def _linear_crop(
+    image: np.ndarray, full_scale: int, centre: np.ndarray, reach: float
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The pixels of ``image`` (H, W, C) within ``reach`` of ``centre`` (clipped to the image) in one channel.
 
     The channel is the brightest that never clips there (else the least
     clipped one): a clipped channel bends the profile where it clips, while
     another channel still holds the edge's true shape. A tone curve may write
-    full scale below the top code (AgX-like: 242 of 255), and that code is
-    where it clips. ``saturated`` tells whether any channel clipped;
-    ``full_scale`` is the light at the first code at full scale.
+    full scale below the top code (AgX-like: 242 of 255), and ``full_scale``
+    is the code where it clips. Returns the crop of that channel (a view),
+    ``centre`` in the crop's pixels, and whether any channel clipped.
     """
-    height, width = image.shape[:2]
+    height, width = image.shape[0], image.shape[1]
     u0, v0 = max(int(np.floor(centre[0] - reach)) - 1, 0), max(int(np.floor(centre[1] - reach)) - 1, 0)
     u1 = min(int(np.ceil(centre[0] + reach)) + 2, width)
     v1 = min(int(np.ceil(centre[1] + reach)) + 2, height)
     crop = image[v0:v1, u0:u1]
-    crop = crop if crop.ndim == 3 else crop[:, :, None]
-    lut, full_scale = _decoding(image, response)
     channel, saturated = _brightest_channel(crop, full_scale)
-    return _LinearCrop(crop[:, :, channel], lut, (u0, v0), saturated, float(lut[full_scale]))
+    return crop[:, :, channel], np.array([centre[0] - u0, centre[1] - v0]), saturated
 
 
 @njit(cache=True)
