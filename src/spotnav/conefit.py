@@ -1246,6 +1246,7 @@ def scatter_covariance(
     return _covariance_of(normal, np.asarray(residuals, dtype=float), which, sums, sigmas, size, prior)
 
 
+@njit(cache=True)
 def _spot_labels(spots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The spot numbers present in ``spots`` (N,), sorted (S,), and each point's place among them (N,)."""
     counts = np.bincount(spots)
@@ -1316,26 +1317,24 @@ def _uncertainty(
 ) -> FitUncertainty:
     """The uncertainty of the fit at ``x`` (see :class:`FitUncertainty`)."""
     information = None if priors is None else 1.0 / np.asarray(priors, dtype=float) ** 2
-    spots = problem.points.spot[inliers]
-    sigmas = np.hypot(contour_sigma, problem.points.spot_sigma)
-    uncertain = np.flatnonzero(np.diag(problem.prior) > 0)
-    geometry_ids = tuple(int(i) for i in uncertain if i not in problem.free_shared)
+    points = problem.points
     if not problem.free_shared and len(problem.frames) == 1:  # one frame's own parameters: one compiled call
-        labels, which = _spot_labels(spots)
-        ids = np.array(geometry_ids, dtype=np.int64)
-        covariance, data, gain = _frame_uncertainty(
+        covariance, data, gain, ids = _frame_uncertainty(
             x,
             problem._arrays,
             len(problem.free_frame),
             inliers,
             residuals,
-            which,
-            sigmas[labels],
+            points.spot,
+            np.hypot(contour_sigma, points.spot_sigma),
             np.zeros(problem.size) if information is None else information,
-            ids,
-            problem.prior[np.ix_(ids, ids)],
+            problem.prior,
         )
-        return FitUncertainty(covariance, data, gain, geometry_ids)
+        return FitUncertainty(covariance, data, gain, tuple(ids.tolist()))
+    spots = points.spot[inliers]
+    sigmas = np.hypot(contour_sigma, points.spot_sigma)
+    uncertain = np.flatnonzero(np.diag(problem.prior) > 0)
+    geometry_ids = tuple(int(i) for i in uncertain if i not in problem.free_shared)
     jacobian = problem.jacobian_matrix(x, inliers)
     data, response = scatter_covariance(jacobian, residuals[inliers], spots, sigmas, problem.size, information)
     gain = np.zeros((problem.size, len(geometry_ids)))
@@ -1357,21 +1356,27 @@ def _frame_uncertainty(
     spots: np.ndarray,
     sigmas: np.ndarray,
     information: np.ndarray,
-    ids: np.ndarray,
     prior: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_uncertainty` of a one-frame fit of its own parameters, compiled: the covariance, the data's
-    covariance and the geometry's gain.
+    covariance, the geometry's gain and the fixed shared parameters it carries (those with uncertainty).
 
-    ``spots`` (the inliers', numbered 0 to S - 1) and ``sigmas`` (S,) as :func:`scatter_covariance`'s;
-    ``ids`` (G,) the fixed shared parameters with uncertainty, ``prior`` (G, G) their covariance.
+    ``spots`` (N,) each point's spot and ``sigmas`` each spot number's own sigma, as
+    :func:`scatter_covariance`'s; ``prior`` (SHARED_SIZE, SHARED_SIZE) the geometry's covariance.
     """
     values, columns = _frame_columns(x, arrays, per_frame)
     kept = np.flatnonzero(inliers)
     jacobian = _dense_rows(values[kept], columns[kept], per_frame)
-    sums = _group_sums(jacobian, spots, len(sigmas))
-    data, response = _covariance_of(jacobian.T @ jacobian, residuals[kept], spots, sums, sigmas, per_frame, information)
+    labels, which = _spot_labels(spots[kept])
+    sums = _group_sums(jacobian, which, len(labels))
+    normal = jacobian.T @ jacobian
+    data, response = _covariance_of(normal, residuals[kept], which, sums, sigmas[labels], per_frame, information)
+    ids = np.flatnonzero(np.diag(prior) > 0)
     if len(ids) == 0:
-        return data, data, np.zeros((per_frame, 0))
+        return data, data, np.zeros((per_frame, 0)), ids
+    block = np.empty((len(ids), len(ids)))
+    for i in range(len(ids)):
+        for j in range(len(ids)):
+            block[i, j] = prior[ids[i], ids[j]]
     gain = response @ (jacobian.T @ _shared_columns(x, arrays, ids)[kept])
-    return data + gain @ prior @ gain.T, data, gain
+    return data + gain @ block @ gain.T, data, gain, ids
