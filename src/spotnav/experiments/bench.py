@@ -24,12 +24,14 @@ from spotnav.track import Tracker
 
 __all__ = ["STAGES", "BenchRow", "StressResult", "bench_markdown", "run_bench", "run_stress", "stress_markdown"]
 
+CAMERA_PERIOD_S = 0.01  # a 100 frame/s camera: the tracker waits for each frame, and its caches cool meanwhile
 STAGES = (
     "render",
     "thesis, full frame",
     "acquisition (precise, full frame)",
     "tracking (region of interest)",
     "tracking, frames from memory",
+    f"tracking, a frame every {1000 * CAMERA_PERIOD_S:.0f} ms",
     "re-acquisition after a loss",
 )
 HELIX_FRAMES = 300  # the helix's motion per frame: that of a 300-frame helix
@@ -97,7 +99,10 @@ def run_bench(
     tracked (not the acquisitions), twice: right after each frame's
     rendering, which leaves the caches cold (as decoding a video does), and
     then once more over the same frames kept in memory, back to back, as a
-    camera hands them over (the first frames that fit in ``memory_mb``).
+    camera hands them over (the first frames that fit in ``memory_mb``), and
+    once more with each frame handed over ``CAMERA_PERIOD_S`` after the one
+    before, as a 100 frame/s camera would: while the tracker waits, its
+    caches are given to others and it meets each frame colder.
     Every ``full_every``-th frame is also localized on the whole image by the
     thesis's and the precise method, both in the same conditions: on its copy
     in memory (right after rendering, the first method to read a frame paid
@@ -134,13 +139,18 @@ def run_bench(
         tracker = Tracker(localizer)
         for image in kept:
             _time_tracking(tracker, image, times[STAGES[4]])
+        tracker, due = Tracker(localizer), time.perf_counter()
+        for image in kept:
+            due += CAMERA_PERIOD_S
+            time.sleep(max(due - time.perf_counter(), 0.0))
+            _time_tracking(tracker, image, times[STAGES[5]])
         tracker = Tracker(localizer)
         for index, image in enumerate(kept):
             if index % LOSS_EVERY == LOSS_EVERY // 2:
                 tracker.update(np.zeros_like(image))
                 start = time.perf_counter()
                 if tracker.update(image).mode in _FOUND_AGAIN:
-                    times[STAGES[5]].append(_ms_since(start))
+                    times[STAGES[6]].append(_ms_since(start))
             else:
                 tracker.update(image)
         rows += [BenchRow.of_times(size, stage, values) for stage, values in times.items() if values]
