@@ -254,6 +254,9 @@ def test_scatter_covariance_is_the_textbook_formula() -> None:
     shifted, _ = scatter_covariance(jacobian, residuals, spots, 0.1, 4)
     sums = np.array([jacobian[spots == s].sum(axis=0) for s in range(5)]) @ response
     np.testing.assert_allclose(shifted - covariance, 0.01 * sums.T @ sums, rtol=1e-9, atol=1e-15)
+    # Spot numbers of any integer type, or a list, are the same spots.
+    for other in (spots.astype(np.int32), spots.astype(np.uint8), spots.tolist()):
+        np.testing.assert_array_equal(scatter_covariance(jacobian, residuals, other, 0.1, 4)[0], shifted)
 
 
 def test_correlation_inflation_of_known_sequences() -> None:

@@ -22,6 +22,7 @@ from spotnav.detect import (
     detect_edge_along_rays,
     detect_edge_subpixel,
     detect_spots_otsu,
+    edge_window_px,
     group_fragments,
     linear_luminance,
     otsu_threshold,
@@ -280,6 +281,18 @@ def test_rays_through_an_ellipse_meet_it(centre: tuple, radii: tuple, tilt: floa
     np.testing.assert_allclose(on_ellipse, 1.0, atol=2e-3)
     with pytest.raises(ValueError, match="N >= 1"):
         rays_through_curve(np.zeros((0, 2)), rays)
+
+
+def test_rays_must_be_finite_and_one_per_radius() -> None:
+    image = disc_image([(200, 200)])
+    angles, radii = np.linspace(-np.pi, np.pi, 64, endpoint=False), np.full(64, 40.0)
+    assert len(detect_edge_along_rays(image, np.array([200.0, 200.0]), angles, radii).pixels) > 60
+    for centre, these in (([np.nan, 200.0], radii), ([200.0, 200.0], np.append(radii[1:], np.inf))):
+        with pytest.raises(ValueError, match="finite"):
+            detect_edge_along_rays(image, np.array(centre), angles, these, align=True)
+    with pytest.raises(ValueError, match="centre must be"):
+        detect_edge_along_rays(image, np.array([200.0, 200.0]), angles, radii[:-1])
+    assert edge_window_px([10.0, 20.0]) == edge_window_px(np.array([10.0, 20.0])) == 0.15 * 15.0 + 8.0
 
 
 @pytest.mark.parametrize("offset_px", [(0.0, 0.0), (4.0, -3.0), (-9.0, 6.0)])

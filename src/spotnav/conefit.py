@@ -1232,6 +1232,7 @@ def scatter_covariance(
     prior_information : ndarray, shape (P,), optional
         ``1 / sigma^2`` of each parameter's prior (0: none).
     """
+    spots = np.ascontiguousarray(spots, dtype=np.int64)
     labels, which = _spot_labels(spots)
     if isinstance(jacobian, np.ndarray):
         normal = jacobian.T @ jacobian
@@ -1361,8 +1362,10 @@ def _frame_uncertainty(
     """:func:`_uncertainty` of a one-frame fit of its own parameters, compiled: the covariance, the data's
     covariance, the geometry's gain and the fixed shared parameters it carries (those with uncertainty).
 
-    ``spots`` (N,) each point's spot and ``sigmas`` each spot number's own sigma, as
-    :func:`scatter_covariance`'s; ``prior`` (SHARED_SIZE, SHARED_SIZE) the geometry's covariance.
+    ``spots`` (N,) each point's spot and ``sigmas`` (at least max(spots) + 1,) each spot number's own
+    sigma, as :func:`scatter_covariance`'s; ``information`` (P,) the parameters' prior information;
+    ``prior`` (SHARED_SIZE, SHARED_SIZE) the geometry's covariance. Every shared parameter is fixed (no free
+    shared parameters: the caller's condition), so every one with uncertainty is carried.
     """
     values, columns = _frame_columns(x, arrays, per_frame)
     kept = np.flatnonzero(inliers)

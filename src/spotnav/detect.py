@@ -889,12 +889,24 @@ def detect_edge_along_rays(
     Returns
     -------
     SpotEdge
+
+    Raises
+    ------
+    ValueError
+        If ``centre`` is not a finite (2,), or the angles and radii are not
+        finite arrays of one length.
     """
-    angles, radii = np.asarray(ray_angles, dtype=float), np.asarray(radii, dtype=float)
+    # Own copies: the compiled call then always sees writable, contiguous arrays (one signature).
+    angles, radii = np.array(ray_angles, dtype=float), np.array(radii, dtype=float)
+    centre = np.array(centre, dtype=float)
+    if centre.shape != (2,) or angles.ndim != 1 or angles.shape != radii.shape:
+        raise ValueError(
+            f"centre must be (2,), ray_angles and radii (R,), got {centre.shape}, {angles.shape}, {radii.shape}"
+        )
     lut, full_scale = _decoding(image, response)
     channels = image if image.ndim == 3 else image[:, :, None]
     pixels, kept, width, saturated, ratio, clipped, plateau, background, left_out = _edge_on_rays(
-        channels, lut, full_scale, np.asarray(centre, dtype=float), angles, radii, align
+        channels, lut, full_scale, centre, angles, radii, align
     )
     return SpotEdge(
         pixels, angles[kept], width * _STEP_PX, saturated, len(angles), ratio, clipped, plateau, background, left_out
@@ -911,20 +923,25 @@ def _edge_on_rays(
     radii: np.ndarray,
     align: bool,
 ) -> tuple[np.ndarray, np.ndarray, float, bool, float, float, float, float, int]:
-    """:func:`detect_edge_along_rays` on ``image`` (H, W, C) decoded by ``lut``, compiled: one call per spot.
+    """:func:`detect_edge_along_rays` on ``image`` (H, W, C), compiled: one call per spot.
 
-    Returns the edge points (N, 2), the rays (indices) that gave them, and
-    :func:`_read_edges`' width (samples), contrast to noise, clipped fraction,
-    plateau, background and rays left out, with whether a channel clipped.
+    ``lut`` (codes,) is the light of each code and ``full_scale`` the first
+    code at full scale (:func:`_decoding`); ``centre`` (2,) pixels, ``angles``
+    (R,) radians, ``radii`` (R,) pixels. Returns, in order: the edge points
+    (N, 2) in pixels, the rays (N,) that gave them (indices), the edge's width
+    in samples, whether any channel clipped, and :func:`_read_edges`' contrast
+    to noise, clipped fraction, plateau, background and rays left out.
     """
-    window, wide = edge_window_px(radii), edge_window_px(radii, align=True)
+    if not (np.isfinite(centre[0] + centre[1]) and np.all(np.isfinite(angles)) and np.all(np.isfinite(radii))):
+        raise ValueError("centre, ray_angles and radii must be finite")
+    window, wide = _window_px(radii, False), _window_px(radii, True)
     pixels, offset, saturated = _linear_crop(image, full_scale, centre, np.max(radii) + (wide if align else window))
     if align:
         # Every _COARSE_RAY_STRIDE-th ray, _COARSE_SAMPLES samples across the wide window; the edge kept within
-        # the fine window's reach (no pixel beyond edge_window_px(radii, align=True) is read).
+        # the fine window's reach (no pixel beyond the wide window is read).
         steps = _window_steps(wide, 2.0 * wide / _COARSE_SAMPLES)
         radii = _aligned_radii(pixels, lut, offset, angles, radii, steps, wide - window)
-        window = edge_window_px(radii)  # about the edge found
+        window = _window_px(radii, False)  # about the edge found
     edge_radii, valid, width, ratio, clipped, plateau, background, left_out = _read_edges(
         pixels, lut, offset, angles, radii, _window_steps(window, _STEP_PX), lut[full_scale]
     )
@@ -942,10 +959,15 @@ def _window_steps(half_window: float, step: float) -> np.ndarray:
     return np.arange(-half_window, half_window + step, step)
 
 
-@njit(cache=True)
-def edge_window_px(radii: np.ndarray, align: bool = False) -> float:
+def edge_window_px(radii: np.ndarray, *, align: bool = False) -> float:
     """How far from ``radii`` (R,) :func:`detect_edge_along_rays` reads each ray, pixels (twice as far with
     ``align``)."""
+    return float(_window_px(np.array(radii, dtype=float).ravel(), bool(align)))
+
+
+@njit(cache=True)
+def _window_px(radii: np.ndarray, align: bool) -> float:
+    """:func:`edge_window_px`, compiled."""
     return (2.0 if align else 1.0) * (0.15 * np.mean(radii) + 8.0)
 
 

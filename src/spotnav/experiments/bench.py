@@ -24,7 +24,7 @@ from spotnav.track import Tracker
 
 __all__ = ["STAGES", "BenchRow", "StressResult", "bench_markdown", "run_bench", "run_stress", "stress_markdown"]
 
-CAMERA_PERIOD_S = 0.01  # a 100 frame/s camera: the tracker waits for each frame, and its caches cool meanwhile
+CAMERA_PERIOD_S = 0.01  # a slower camera's frame period (100 frame/s): the tracker waits, and its caches cool
 STAGES = (
     "render",
     "thesis, full frame",
@@ -96,13 +96,14 @@ def run_bench(
     """Time each stage on consecutive frames of the helix, in this process.
 
     Every frame is rendered and tracked. Tracking is timed on the frames it
-    tracked (not the acquisitions), twice: right after each frame's
-    rendering, which leaves the caches cold (as decoding a video does), and
-    then once more over the same frames kept in memory, back to back, as a
-    camera hands them over (the first frames that fit in ``memory_mb``), and
-    once more with each frame handed over ``CAMERA_PERIOD_S`` after the one
-    before, as a 100 frame/s camera would: while the tracker waits, its
-    caches are given to others and it meets each frame colder.
+    tracked (not the acquisitions), three times: right after each frame's
+    rendering, which leaves the caches cold (as decoding a video does); over
+    the same frames kept in memory (the first frames that fit in
+    ``memory_mb``), back to back, as a camera at the tracker's own rate hands
+    them over; and over those frames again, each handed over
+    ``CAMERA_PERIOD_S`` after the one before (or after the tracker is done
+    with it, if later), as a slower camera would: the tracker waits, and
+    meets each frame with cooler caches.
     Every ``full_every``-th frame is also localized on the whole image by the
     thesis's and the precise method, both in the same conditions: on its copy
     in memory (right after rendering, the first method to read a frame paid
@@ -141,7 +142,7 @@ def run_bench(
             _time_tracking(tracker, image, times[STAGES[4]])
         tracker, due = Tracker(localizer), time.perf_counter()
         for image in kept:
-            due += CAMERA_PERIOD_S
+            due = max(due, time.perf_counter()) + CAMERA_PERIOD_S
             time.sleep(max(due - time.perf_counter(), 0.0))
             _time_tracking(tracker, image, times[STAGES[5]])
         tracker = Tracker(localizer)
