@@ -3,6 +3,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import signal
 import struct
 import subprocess
@@ -325,8 +326,10 @@ def test_bench_times_the_full_frame_methods_on_frames_it_cannot_keep(capsys: pyt
 
 def test_bench_stress_hides_the_spot_and_counts_re_acquisitions(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "--stress", "--sizes", "512", "--frames", "13", "--hide-every", "4"]) == 0
-    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| 512 |"))
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("| 512 |"))
     cells = [cell.strip() for cell in row.split("|")[1:-1]]
+    assert re.search(r"the slowest: 512 px: frame ([1-9]|1[0-2]) \((tracked|reacquired|acquired|lost)\)", out)
     frames, hidden, reacquired, nearby, ok = (int(cells[i]) for i in (1, 2, 3, 4, 5))
     assert (frames, hidden) == (13, 3)
     assert reacquired == nearby == 3  # every dark frame is followed by a frame found again where it was last seen

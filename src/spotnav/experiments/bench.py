@@ -209,6 +209,9 @@ class StressResult:
     silent : int
         Frames with a pose more than :data:`~spotnav.experiments.faults.SILENT_ERROR_MM` off, or any pose
         on a dark frame.
+    slowest : tuple of (int, str)
+        The slowest frame after the first: its index and how the tracker answered it
+        (:data:`~spotnav.track.TRACK_MODES`).
     """
 
     size_px: int
@@ -223,6 +226,7 @@ class StressResult:
     mean_mm: float
     max_mm: float
     silent: int
+    slowest: tuple[int, str]
 
 
 def run_stress(size: int, frames: int = 300, hide_every: int = 8, beams: int = 1) -> StressResult:
@@ -241,7 +245,7 @@ def run_stress(size: int, frames: int = 300, hide_every: int = 8, beams: int = 1
     renderer, tracker = Renderer(setup), Tracker(localizer)
     poses = poses_through_insertion(helix_tips(max(frames, HELIX_FRAMES))[:frames], setup.instrument.insertion_in_eye)
     renderer.render(poses[0])  # warm caches
-    times, reacquisitions, errors, hidden, ghosts, nearby = [], [], [], 0, 0, 0
+    times, modes, reacquisitions, errors, hidden, ghosts, nearby = [], [], [], [], 0, 0, 0
     was_lost = False
     for index, pose in enumerate(progress(poses, desc=f"stress {size} px", unit="frame")):
         image = renderer.render(pose, seed=index)
@@ -251,6 +255,7 @@ def run_stress(size: int, frames: int = 300, hide_every: int = 8, beams: int = 1
         start = time.perf_counter()
         tracked = tracker.update(image)
         times.append(_ms_since(start))
+        modes.append(tracked.mode)
         if was_lost and tracked.mode in _FOUND_AGAIN:
             reacquisitions.append(times[-1])
             nearby += tracked.mode == "reacquired"
@@ -260,6 +265,7 @@ def run_stress(size: int, frames: int = 300, hide_every: int = 8, beams: int = 1
         elif tracked.estimate.ok:
             errors.append(float(np.linalg.norm(tracked.estimate.tip_in_eye - pose.tip_in_eye)))
     values = np.asarray(errors) if errors else np.array([np.nan])
+    slowest = 1 + int(np.argmax(times[1:]))
     return StressResult(
         size,
         frames,
@@ -273,6 +279,7 @@ def run_stress(size: int, frames: int = 300, hide_every: int = 8, beams: int = 1
         float(values.mean()),
         float(values.max()),
         int(np.sum(values > SILENT_ERROR_MM)) + ghosts,
+        (slowest, modes[slowest]),
     )
 
 
@@ -291,6 +298,12 @@ def stress_markdown(results: Sequence[StressResult]) -> str:
             f"| {every.median_ms:.2f} | {every.p99_ms:.2f} | {every.max_ms:.2f} | {median:.2f} | {slowest:.2f} "
             f"| {r.mean_mm:.4f} | {r.max_mm:.4f} | {r.silent} |"
         )
+    slowest = [f"{r.size_px} px: frame {r.slowest[0]} ({r.slowest[1]})" for r in results]
     return "\n".join(
-        [*lines, "", "median, p99 and max: every frame after the first (an acquisition on the whole image)"]
+        [
+            *lines,
+            "",
+            "median, p99 and max: every frame after the first (an acquisition on the whole image)",
+            f"the slowest: {'; '.join(slowest)}",
+        ]
     )
