@@ -123,7 +123,11 @@ def test_a_spot_that_leaves_the_image_is_clipped_not_guessed() -> None:
     setup = world()
     image = np.zeros((SIZE_PX, SIZE_PX, 3), np.uint8)
     far = PoseEstimate("ok", tip_in_eye=np.array([6.5, 0.0, 5.0]), axis=np.array([0.0, 0.0, -1.0]))
-    assert track_frame(image, setup, far).status == "clipped"
+    tracked = track_frame(image, setup, far)
+    assert (tracked.status, tracked.detail) == ("clipped", "a predicted spot reaches the image's border")
+    outside = replace(far, tip_in_eye=np.array([0.0, 0.0, -1.0]))  # above the eye's top
+    tracked = track_frame(image, setup, outside)
+    assert (tracked.status, tracked.detail) == ("unreliable", "the predicted tip lies outside the eye")
 
 
 def test_a_spot_whose_rays_leave_the_image_but_whose_edge_does_not_is_tracked() -> None:
@@ -204,11 +208,13 @@ def test_a_new_tracker_has_its_compiled_kernels_ready_before_the_first_frame() -
 import json
 import numba
 import spotnav.detect as d, spotnav.conefit as c, spotnav.checks as k, spotnav.geometry as g, spotnav.camera as m
-kernels = [d._edge_on_rays, d._rays_through_curve, c._residuals,
+import spotnav.track as t
+kernels = [t._predicted_rays, d._edge_on_rays, d._rays_through_curve, c._residuals,
            c._gauss_newton, c._levenberg_marquardt, c._frame_uncertainty, c.robust_sigma,
            k._seen_edge_kernel, g._cone_sphere_points, m._behind_segment, d._histogram, d.otsu_threshold,
            c._instrument_axis]
-every = [f for mod in (d, c, k, g, m) for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
+modules = (d, c, k, g, m, t)
+every = [f for mod in modules for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.render import Renderer

@@ -22,14 +22,15 @@ from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
+from numba import njit
 
-from spotnav.camera import project_points
+from spotnav.camera import _project_rows, camera_model, project_points
 from spotnav.checks import check_image_size, judge_edge, judge_fit
 from spotnav.conefit import ConeSolution, edge_angle, fit_cones
 from spotnav.config import Setup
-from spotnav.detect import detect_edge_along_rays, rays_through_curve
+from spotnav.detect import _rays_through_curve, detect_edge_along_rays, rays_through_curve
 from spotnav.estimate import PoseEstimate
-from spotnav.geometry import beam_axes, cone_sphere_curve, normalize
+from spotnav.geometry import _cone_sphere_points, beam_axes, cone_sphere_curve, normalize
 from spotnav.precise import localize_precise, localize_precise_with_edges, pose_problem
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 
@@ -43,6 +44,13 @@ _MIN_EDGE_RAY_FRACTION = 0.5  # fewer rays with an edge: the spot is not where i
 # A fit further than this from the prediction read its rays aslant (on the Cycles helix, 0.6 mm a frame, a
 # 0.2 mm miss biased the tip by 0.01 mm): its edges are read again from the fitted pose.
 _REREAD_MM = 0.03
+# What _predicted_rays found: rays on the image, or why a beam's predicted spot cannot be read (as an estimate).
+_ON_IMAGE, _OUTSIDE_EYE, _OFF_RETINA, _AT_BORDER = 0, 1, 2, 3
+_REFUSALS = {
+    _OUTSIDE_EYE: ("unreliable", "the predicted tip lies outside the eye"),
+    _OFF_RETINA: ("clipped", "a predicted spot leaves the retina"),
+    _AT_BORDER: ("clipped", "a predicted spot reaches the image's border"),
+}
 
 
 @dataclass(frozen=True)
@@ -143,22 +151,23 @@ def _track_once(
     angle = edge_angle(setup)
     axes = beam_axes(predicted_axis, instrument.beam_count, instrument.beam_tilt, predicted.roll)
     edges, sigmas = [], []
+    model, eye = camera_model(camera), setup.eye
     for beam_axis in axes:
-        try:
-            apex_in_eye = predicted_tip - beam_axis * instrument.light_radius_mm / np.tan(angle)
-            curve_in_eye = cone_sphere_curve(
-                apex_in_eye, beam_axis, angle, setup.eye.center_in_eye, setup.eye.radius_mm, _CURVE_POINTS
-            )
-        except ValueError:
-            return PoseEstimate("unreliable", detail="the predicted tip lies outside the eye"), (), None
-        curve_px = project_points(camera, curve_in_eye)
-        if not np.all(np.isfinite(curve_px)):
-            return PoseEstimate("clipped", detail="a predicted spot leaves the retina"), (), None
-        perimeter = float(np.sum(np.linalg.norm(np.diff(curve_px, axis=0, append=curve_px[:1]), axis=1)))
-        centre, ray_angles, radii = rays_through_curve(curve_px, int(np.clip(perimeter / 2.0, 64, max_rays)))
-        low, high = curve_px.min(axis=0) - _BORDER_PX, curve_px.max(axis=0) + _BORDER_PX
-        if np.any(low < 0) or high[0] > camera.width_px - 1 or high[1] > camera.height_px - 1:
-            return PoseEstimate("clipped", detail="a predicted spot reaches the image's border"), (), None
+        apex_in_eye = predicted_tip - beam_axis * instrument.light_radius_mm / np.tan(angle)
+        found, centre, ray_angles, radii = _predicted_rays(
+            model,
+            apex_in_eye,
+            beam_axis,
+            angle,
+            eye.center_in_eye,
+            eye.radius_mm,
+            max_rays,
+            camera.width_px,
+            camera.height_px,
+        )
+        if found != _ON_IMAGE:
+            status, detail = _REFUSALS[found]
+            return PoseEstimate(status, detail=detail), (), None
         edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True, response=camera.pixel_response)
         if len(edge.pixels) < _MIN_EDGE_RAY_FRACTION * edge.rays:
             found = f"an edge on only {100 * len(edge.pixels) / edge.rays:.0f} % of the rays near the predicted spot"
@@ -185,6 +194,47 @@ def _track_once(
     return judge_fit(fit, setup, spots=instrument.beam_count), tuple(visible), fit
 
 
+@njit(cache=True)
+def _predicted_rays(
+    model: np.ndarray,
+    apex_in_eye: np.ndarray,
+    beam_axis: np.ndarray,
+    angle: float,
+    eye_centre: np.ndarray,
+    eye_radius: float,
+    max_rays: int,
+    width_px: int,
+    height_px: int,
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """A beam's predicted edge in the image and the rays across it, compiled: one call per spot.
+
+    The cone of ``angle`` (radians) from ``apex_in_eye`` (3,) along ``beam_axis`` (3,) meets the eye (mm) in
+    ``_CURVE_POINTS`` points; ``model`` (:func:`spotnav.camera.camera_model`) projects them. Returns which of
+    ``_REFUSALS`` applies (``_ON_IMAGE``: none) and the rays of :func:`spotnav.detect.rays_through_curve`: their
+    centre (2,), angles (R,) in radians and radii (R,) in pixels, one per two pixels of the curve, 64 to
+    ``max_rays``.
+    """
+    none = np.empty(0)
+    offset = apex_in_eye - eye_centre
+    if not np.sum(offset * offset) < eye_radius * eye_radius:
+        return _OUTSIDE_EYE, np.empty(2), none, none
+    axis = beam_axis / np.sqrt(np.sum(beam_axis * beam_axis))
+    curve_in_eye = _cone_sphere_points(apex_in_eye, axis, angle, eye_centre, eye_radius, _CURVE_POINTS)
+    curve_px = _project_rows(model, curve_in_eye)
+    if not np.all(np.isfinite(curve_px)):
+        return _OFF_RETINA, np.empty(2), none, none
+    perimeter = 0.0
+    for n in range(len(curve_px)):
+        following = curve_px[(n + 1) % len(curve_px)]
+        perimeter += np.sqrt((following[0] - curve_px[n, 0]) ** 2 + (following[1] - curve_px[n, 1]) ** 2)
+    low_u, low_v = curve_px[:, 0].min() - _BORDER_PX, curve_px[:, 1].min() - _BORDER_PX
+    high_u, high_v = curve_px[:, 0].max() + _BORDER_PX, curve_px[:, 1].max() + _BORDER_PX
+    if low_u < 0 or low_v < 0 or high_u > width_px - 1 or high_v > height_px - 1:
+        return _AT_BORDER, np.empty(2), none, none
+    centre, ray_angles, radii = _rays_through_curve(curve_px, int(min(max(perimeter / 2.0, 64.0), max_rays)))
+    return _ON_IMAGE, centre, ray_angles, radii
+
+
 def prepare_kernels(setup: Setup) -> None:
     """Run tracking's compiled kernels, and the whole-frame method, once on synthetic spots and cones.
 
@@ -205,6 +255,18 @@ def prepare_kernels(setup: Setup) -> None:
     beams = beam_axes(axis, instrument.beam_count, instrument.beam_tilt)
     curves = [cone_sphere_curve(tip_in_eye, beam, angle, eye.center_in_eye, eye.radius_mm, 64) for beam in beams]
     edges = [project_points(setup.camera, curve) for curve in curves]
+    camera = setup.camera  # a tracked frame's rays
+    _predicted_rays(
+        camera_model(camera),
+        tip_in_eye,
+        beams[0],
+        angle,
+        eye.center_in_eye,
+        eye.radius_mm,
+        64,
+        camera.width_px,
+        camera.height_px,
+    )
     problem = pose_problem(setup, edges, list(range(instrument.beam_count)), tip_in_eye + 0.01, axis, 0.0)
     for solver in ("gauss-newton", "levenberg-marquardt"):  # tracking's and acquisition's fits, and their sigma
         fit = fit_cones(problem, solver=solver)
