@@ -429,7 +429,8 @@ _FLOAT32_EPSILON = float(np.finfo(np.float32).eps)
 @njit(cache=True)
 def otsu_threshold(histogram: np.ndarray) -> int:
     """Otsu's threshold of a histogram of the levels 0 to 255 (256,): the level that, with the levels up to it as
-    one class, maximises the variance between the classes (the first such level; as OpenCV's ``THRESH_OTSU``)."""
+    one class, maximises the variance between the classes (the first such level; as OpenCV's ``THRESH_OTSU``, but
+    for exact ties, which OpenCV's build with Intel's IPP may break for a later level)."""
     total = max(float(np.sum(histogram)), 1.0)
     mean = 0.0
     for level in range(256):
