@@ -154,7 +154,7 @@ def _track_once(
     model, eye = camera_model(camera), setup.eye
     for beam_axis in axes:
         apex_in_eye = predicted_tip - beam_axis * instrument.light_radius_mm / np.tan(angle)
-        found, centre, ray_angles, radii = _predicted_rays(
+        where, centre, ray_angles, radii = _predicted_rays(
             model,
             apex_in_eye,
             beam_axis,
@@ -165,8 +165,8 @@ def _track_once(
             camera.width_px,
             camera.height_px,
         )
-        if found != _ON_IMAGE:
-            status, detail = _REFUSALS[found]
+        if where != _ON_IMAGE:
+            status, detail = _REFUSALS[where]
             return PoseEstimate(status, detail=detail), (), None
         edge = detect_edge_along_rays(image, centre, ray_angles, radii, align=True, response=camera.pixel_response)
         if len(edge.pixels) < _MIN_EDGE_RAY_FRACTION * edge.rays:
