@@ -765,11 +765,13 @@ _NEAR_DARK_WIDTHS = 0.5  # rays this many edge widths ...
 _NEAR_DARK_PX = 1.0  # ... and pixels along the edge from a dark structure's are left out
 
 
-def detect_edge_subpixel(image: np.ndarray, spot: Spot, response: str | float = "srgb") -> SpotEdge:
+def detect_edge_subpixel(
+    image: np.ndarray, spot: Spot, response: str | float = "srgb", *, max_rays: int = 2048
+) -> SpotEdge:
     """Locate a spot's edge to a fraction of a pixel, independently of the light's power.
 
     Rays are cast from the centre of the spot's coarse (Otsu) boundary across
-    it, one per ``_RAY_SPACING_PX`` of perimeter (64 to 2048); see :func:`detect_edge_along_rays`.
+    it, one per ``_RAY_SPACING_PX`` of perimeter (64 to ``max_rays``); see :func:`detect_edge_along_rays`.
 
     Parameters
     ----------
@@ -779,14 +781,18 @@ def detect_edge_subpixel(image: np.ndarray, spot: Spot, response: str | float = 
         The spot's coarse detection.
     response : str or float
         How the frame's values relate to light (``camera.response``).
+    max_rays : int
+        Most rays (at least 64).
 
     Returns
     -------
     SpotEdge
     """
+    if max_rays < 64:
+        raise ValueError(f"max_rays must be at least 64, got {max_rays}")
     contour = spot.contour_px.astype(float)
     perimeter = float(cv2.arcLength(spot.contour_px.astype(np.float32).reshape(-1, 1, 2), True))
-    rays = int(np.clip(perimeter / _RAY_SPACING_PX, 64, 2048))
+    rays = int(np.clip(perimeter / _RAY_SPACING_PX, 64, max_rays))
     centre, ray_angles, radii = rays_through_curve(contour, rays)
     return detect_edge_along_rays(image, centre, ray_angles, radii, response=response)
 

@@ -60,6 +60,9 @@ _MAX_TIP_HEIGHT_MM = 10.0  # the highest: its spot is the largest
 _BACKGROUND_SPOTS = 3.0  # a background broader than this many of the largest spot's radii is not a spot
 _MIRROR_RESIDUAL_RATIO = 1.1
 _MIRROR_DISTANCE_MM = 0.1
+# A frame's fit gains nothing from more rays per spot: the error left is each spot's whole-edge shift, which no
+# number of rays averages away (calibration, which pools its frames' edges into the geometry, reads one per pixel).
+_MAX_RAYS = 256
 _SHAFT_MARGINS_MM = (0.05, 0.2)  # edge points this close to the shaft's outline are left out too
 _SHAFT_PASSES = 3
 # Three beams show the axis: refused when it misses the insertion line by this many sigmas (and this many degrees).
@@ -278,7 +281,8 @@ def prepare_edges(
     if assignment is None:
         return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
     beams, roll = assignment
-    spot_edges = [detect_edge_subpixel(image, spot, setup.camera.pixel_response) for spot in solution.spots]
+    response = setup.camera.pixel_response
+    spot_edges = [detect_edge_subpixel(image, spot, response, max_rays=_MAX_RAYS) for spot in solution.spots]
     radii_px = [np.sqrt(spot.area_px / np.pi) for spot in solution.spots]
     angle = edge_angle(setup)
     verdicts = [judge_edge(e, setup, r, angle) for e, r in zip(spot_edges, radii_px, strict=True)]
