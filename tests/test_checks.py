@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.checks import blur_shift_px
+from spotnav.camera import camera_depth_mm
+from spotnav.checks import blur_shift_px, residuals_px
 from spotnav.conefit import edge_angle
 from spotnav.detect import SpotEdge
 
@@ -29,3 +30,16 @@ def test_a_linear_camera_s_blur_is_a_blur_in_light() -> None:
     setup = small_setup(1024)
     linear = replace(setup, camera=replace(setup.camera, response="linear"))
     assert blur_shift_px(_edge(9.0), linear, 60.0, edge_angle(linear)) == pytest.approx(0.0, abs=0.05)
+
+
+def test_residuals_in_pixels_are_angles_times_distance_over_depth() -> None:
+    # A point r mm from its tip and a radians off its cone, at a depth of d mm, is a * r * f / d pixels off.
+    camera = small_setup(1024).camera
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-3.0, 3.0, (20, 3))
+    tips = rng.uniform(-1.0, 1.0, (20, 3)) + np.array([0.0, 0.0, 5.0])
+    residuals = rng.normal(0.0, 1e-3, 20)
+    expected = residuals * np.linalg.norm(points - tips, axis=1) * camera.focal_px / camera_depth_mm(camera, points)
+    np.testing.assert_allclose(residuals_px(camera, points, tips, residuals), expected, rtol=1e-12)
+    one_tip = residuals_px(camera, points, tips[0], residuals)  # one tip for every point
+    np.testing.assert_allclose(one_tip, residuals_px(camera, points, np.tile(tips[0], (20, 1)), residuals), rtol=1e-15)

@@ -407,35 +407,31 @@ def pixels_behind_segment(
     ndarray of bool, shape (...)
     """
     pixels = _check_last_axis("pixels", pixels, 2)
-    start, end = np.asarray(start_in_eye, dtype=float), np.asarray(end_in_eye, dtype=float)
-    # Pixels beyond the segment's image box (grown by the radius seen at the nearer end) cannot be hidden.
-    ends = np.stack([start, end])
-    ends_px = project_points(camera, ends)
-    reach = radius_mm * camera.focal_px / float(np.min(camera_depth_mm(camera, ends))) + 2.0
-    low, high = ends_px.min(axis=0) - reach, ends_px.max(axis=0) + reach
+    ends = np.array([start_in_eye, end_in_eye], dtype=float)
     rows = np.ascontiguousarray(pixels.reshape(-1, 2), dtype=float)
-    offset = np.asarray(camera.center_in_eye, dtype=float) - start
-    hidden = _behind_segment(camera_model(camera), rows, end - start, offset, float(radius_mm), low, high)
+    hidden = _behind_segment(camera_model(camera), rows, ends, float(radius_mm), camera.focal_px)
     return hidden.reshape(pixels.shape[:-1])
 
 
 @njit(cache=True)
 def _behind_segment(
-    model: np.ndarray,
-    pixels: np.ndarray,
-    along: np.ndarray,
-    offset: np.ndarray,
-    radius: float,
-    low: np.ndarray,
-    high: np.ndarray,
+    model: np.ndarray, pixels: np.ndarray, ends: np.ndarray, radius: float, focal_px: float
 ) -> np.ndarray:
-    """:func:`pixels_behind_segment` of pixels (N, 2) inside the box [low, high], compiled: the segment runs
-    ``along`` from its start, the camera lies ``offset`` from it."""
+    """:func:`pixels_behind_segment` of pixels (N, 2), compiled: the segment runs between ``ends`` (2, 3)."""
     hidden = np.zeros(len(pixels), dtype=np.bool_)
+    # Pixels beyond the segment's image box (grown by the radius seen at the nearer end) cannot be hidden.
+    ends_px = _project_rows(model, ends)
+    depth = np.inf
+    for k in range(2):  # along the optical axis: the rotation's third row
+        depth = min(depth, np.sum(model[_R + 6 : _R + 9] * (ends[k] - model[_CENTRE : _CENTRE + 3])))
+    reach = radius * focal_px / depth + 2.0
+    low_u, high_u = min(ends_px[0, 0], ends_px[1, 0]) - reach, max(ends_px[0, 0], ends_px[1, 0]) + reach
+    low_v, high_v = min(ends_px[0, 1], ends_px[1, 1]) - reach, max(ends_px[0, 1], ends_px[1, 1]) + reach
+    along, offset = ends[1] - ends[0], model[_CENTRE : _CENTRE + 3] - ends[0]
     c, e = np.sum(along * along), np.sum(along * offset)
     for n in range(len(pixels)):
         u, v = pixels[n, 0], pixels[n, 1]
-        if not (low[0] <= u <= high[0] and low[1] <= v <= high[1]):
+        if not (low_u <= u <= high_u and low_v <= v <= high_v):
             continue
         ray = np.array(pixel_ray(model, u, v))
         # Closest points of the ray's line and the segment's line, the segment's clamped to its ends.

@@ -241,8 +241,51 @@ def residuals_px(
     residuals : ndarray, shape (N,)
         Radians.
     """
-    distance = np.linalg.norm(points_in_eye - tips_in_eye, axis=-1)
-    return residuals * distance * camera.focal_px / camera_depth_mm(camera, points_in_eye)
+    points = np.ascontiguousarray(points_in_eye, dtype=float).reshape(-1, 3)
+    tips = np.ascontiguousarray(np.broadcast_to(tips_in_eye, points.shape), dtype=float)
+    return _residuals_px(points, tips, np.asarray(residuals, dtype=float), *_depth_of(camera))
+
+
+def _depth_of(camera: Camera) -> tuple[np.ndarray, float, float]:
+    """What :func:`_residuals_px` needs of ``camera``: the optical axis (3,) in the eye frame, its offset and the
+    focal length (pixels): a point's depth is ``axis @ point + offset`` (:func:`camera_depth_mm`)."""
+    return camera.rotation_to_camera[2], float(camera.translation_to_camera_mm[2]), camera.focal_px
+
+
+@njit(cache=True)
+def _residuals_px(
+    points: np.ndarray, tips: np.ndarray, residuals: np.ndarray, axis: np.ndarray, offset: float, focal_px: float
+) -> np.ndarray:
+    """:func:`residuals_px` of points (N, 3) from their tips (N, 3), compiled."""
+    out = np.empty(len(points))
+    for n in range(len(points)):
+        dx, dy, dz = points[n, 0] - tips[n, 0], points[n, 1] - tips[n, 1], points[n, 2] - tips[n, 2]
+        depth = axis[0] * points[n, 0] + axis[1] * points[n, 1] + axis[2] * points[n, 2] + offset
+        out[n] = residuals[n] * np.sqrt(dx * dx + dy * dy + dz * dz) * focal_px / depth
+    return out
+
+
+@njit(cache=True)
+def _fit_spread(
+    points: np.ndarray,
+    tip: np.ndarray,
+    residuals: np.ndarray,
+    inliers: np.ndarray,
+    axis: np.ndarray,
+    offset: float,
+    focal_px: float,
+) -> tuple[float, float, float]:
+    """A one-frame fit's inliers' RMS residual in pixels and in radians, and their fraction, compiled: points
+    (N, 3) around one ``tip`` (3,)."""
+    tips = np.empty_like(points)
+    tips[:] = tip
+    pixels = _residuals_px(points, tips, residuals, axis, offset, focal_px)
+    kept = np.flatnonzero(inliers)
+    return (
+        np.sqrt(np.mean(pixels[kept] ** 2)),
+        np.sqrt(np.mean(residuals[kept] ** 2)),
+        len(kept) / max(len(inliers), 1),
+    )
 
 
 def judge_fit(
@@ -276,14 +319,15 @@ def judge_fit(
         The cross-check axis.
     """
     tip = solution.tip()
-    residual_px = residuals_px(setup.camera, solution.problem.points_in_eye, tip, solution.residuals)
-    inliers = solution.inliers
-    rms_px = float(np.sqrt(np.mean(residual_px[inliers] ** 2)))
-    rms_deg = float(np.degrees(np.sqrt(np.mean(solution.residuals[inliers] ** 2))))
+    points = solution.problem.points_in_eye
+    rms_px, rms_rad, inlier_fraction = _fit_spread(
+        points, tip, solution.residuals, solution.inliers, *_depth_of(setup.camera)
+    )
+    rms_deg = float(np.degrees(rms_rad))
     own_sigma, sigma = solution.tip_sigma_mm(geometry=False), solution.tip_sigma_mm()
     problems = []
-    if inliers.mean() < _MIN_INLIER_FRACTION:
-        problems.append(f"only {100 * inliers.mean():.0f} % of the edge fits the cones")
+    if inlier_fraction < _MIN_INLIER_FRACTION:
+        problems.append(f"only {100 * inlier_fraction:.0f} % of the edge fits the cones")
     if rms_deg > MAX_RMS_DEG and rms_px > MAX_RMS_PX:
         problems.append(f"RMS residual {rms_deg:.3f} deg ({rms_px:.2f} px)")
     if own_sigma > MAX_SIGMA_MM:

@@ -268,10 +268,8 @@ def prepare_kernels(setup: Setup) -> None:
         camera.height_px,
     )
     problem = pose_problem(setup, edges, list(range(instrument.beam_count)), tip_in_eye + 0.01, axis, 0.0)
-    for solver in ("gauss-newton", "levenberg-marquardt"):  # tracking's and acquisition's fits, and their sigma
-        fit = fit_cones(problem, solver=solver)
-        fit.tip_sigma_mm()
-        fit.axis()
+    for solver in ("gauss-newton", "levenberg-marquardt"):  # tracking's and acquisition's fits, and their checks
+        judge_fit(fit_cones(problem, solver=solver), setup, spots=instrument.beam_count)
     hidden_by_shaft(setup, edges, tip_in_eye, axis)
     # The whole-frame method once, on a frame of the camera's size with those spots drawn: its tables and first
     # calls are ready before the first frame too.
