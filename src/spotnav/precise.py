@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -265,7 +266,7 @@ def prepare_edges(
 
     Returns the reason (a :class:`PoseEstimate` that is not ``ok``) when the frame cannot be used.
     """
-    plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
+    plain = _without_height_correction(setup)
     # Start from the spots' convex outlines: the shaft or a vessel in front of a spot carves into it.
     detection = replace(detection, spots=tuple(outer_boundary(spot) for spot in detection.spots))
     solution = solve_thesis(detection, plain)
@@ -291,6 +292,12 @@ def prepare_edges(
         return PoseEstimate(problems[0][0], spots=start.spots, detail=problems[0][1])
     sigmas = tuple(float(v) for v in verdicts)
     return EdgeFrame(tuple(e.pixels for e in spot_edges), sigmas, beams, start, axis, roll, solution)
+
+
+@lru_cache(maxsize=32)
+def _without_height_correction(setup: Setup) -> Setup:
+    """``setup`` with ``instrument.height_correction`` 1 (once per setup: a new setup is checked as it is built)."""
+    return replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from spotnav.geometry import normalize, rotation_about_y, rotation_about_z
 
@@ -71,32 +72,63 @@ def fit_ellipse(points: np.ndarray) -> Ellipse:
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 2 or len(points) < 5:
         raise ValueError(f"need at least 5 points of shape (N, 2), got {points.shape}")
-    offset = points.mean(axis=0)
-    scale = float(np.sqrt(np.mean(np.sum((points - offset) ** 2, axis=1)))) or 1.0
-    x, y = ((points - offset) / scale).T
-    quadratic = np.column_stack([x * x, x * y, y * y])
-    linear = np.column_stack([x, y, np.ones_like(x)])
-    s1, s2, s3 = quadratic.T @ quadratic, quadratic.T @ linear, linear.T @ linear
-    t = -np.linalg.solve(s3, s2.T)
-    m = s1 + s2 @ t
-    m = np.array([m[2] / 2.0, -m[1], m[0] / 2.0])  # the inverse of the constraint matrix, applied
-    _, vectors = np.linalg.eig(m)
-    vectors = np.real(vectors)
-    ellipse = 4.0 * vectors[0] * vectors[2] - vectors[1] ** 2 > 0
-    if not ellipse.any():
+    fitted, centre, semi_major, semi_minor, major_direction = _fit_ellipse(np.ascontiguousarray(points))
+    if not fitted:
         raise ValueError("no ellipse fits these points")
-    top = vectors[:, int(np.argmax(ellipse))]
-    a, b, c = top
-    d, e, f = t @ top
+    return Ellipse(centre, semi_major, semi_minor, major_direction)
+
+
+@njit(cache=True)
+def _fit_ellipse(points: np.ndarray) -> tuple[bool, np.ndarray, float, float, np.ndarray]:
+    """:func:`fit_ellipse` of points (N, 2), compiled: whether an ellipse fits, its centre, semi-axes and major
+    direction."""
+    failed = (False, np.zeros(2), np.nan, np.nan, np.zeros(2))
+    count = len(points)
+    offset = np.array([np.mean(points[:, 0]), np.mean(points[:, 1])])
+    spread = 0.0
+    for n in range(count):
+        spread += (points[n, 0] - offset[0]) ** 2 + (points[n, 1] - offset[1]) ** 2
+    scale = np.sqrt(spread / count)
+    scale = scale if scale > 0.0 else 1.0
+    # The scatter matrices of the quadratic (x^2, xy, y^2) and linear (x, y, 1) terms.
+    s1, s2, s3 = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    for n in range(count):
+        x, y = (points[n, 0] - offset[0]) / scale, (points[n, 1] - offset[1]) / scale
+        quadratic, linear = (x * x, x * y, y * y), (x, y, 1.0)
+        for i in range(3):
+            for j in range(3):
+                s1[i, j] += quadratic[i] * quadratic[j]
+                s2[i, j] += quadratic[i] * linear[j]
+                s3[i, j] += linear[i] * linear[j]
+    try:
+        t = -np.linalg.solve(s3, np.ascontiguousarray(s2.T))
+        m = s1 + s2 @ t
+        m = np.vstack((m[2:3] / 2.0, -m[1:2], m[0:1] / 2.0))  # the inverse of the constraint matrix, applied
+        _, vectors = np.linalg.eig(m)
+    except Exception:  # s3 singular (collinear points), or no real eigenvectors: no ellipse
+        return failed
+    chosen = -1
+    for k in range(3):
+        if chosen < 0 and 4.0 * vectors[0, k] * vectors[2, k] - vectors[1, k] ** 2 > 0:
+            chosen = k
+    if chosen < 0:
+        return failed
+    top = np.ascontiguousarray(vectors[:, chosen])
+    a, b, c = top[0], top[1], top[2]
+    rest = np.ascontiguousarray(t) @ top
+    d, e, f = rest[0], rest[1], rest[2]
     # The centre solves the conic's gradient; the axes are its quadratic form's at that centre.
     quadratic_form = np.array([[a, b / 2.0], [b / 2.0, c]])
-    centre = np.linalg.solve(quadratic_form, [-d / 2.0, -e / 2.0])
-    level = -(f + 0.5 * (d * centre[0] + e * centre[1]))
-    eigenvalues, axes = np.linalg.eigh(quadratic_form / level)
-    if not np.all(eigenvalues > 0):
-        raise ValueError("no ellipse fits these points")
+    try:
+        centre = np.linalg.solve(quadratic_form, np.array([-d / 2.0, -e / 2.0]))
+        level = -(f + 0.5 * (d * centre[0] + e * centre[1]))
+        eigenvalues, axes = np.linalg.eigh(quadratic_form / level)
+    except Exception:  # a parabola, a line pair, or no level
+        return failed
+    if not (eigenvalues[0] > 0 and eigenvalues[1] > 0):
+        return failed
     semi = 1.0 / np.sqrt(eigenvalues)  # eigh sorts ascending: the major axis first
-    return Ellipse(offset + scale * centre, scale * semi[0], scale * semi[1], axes[:, 0])
+    return True, offset + scale * centre, scale * semi[0], scale * semi[1], np.ascontiguousarray(axes[:, 0])
 
 
 def triangle_from_ellipse(semi_major: float, semi_minor: float, half_angle: float) -> tuple[float, float, float]:
