@@ -51,6 +51,19 @@ def test_fit_ellipse_returns_sorted_semi_axes_and_direction() -> None:
         fit_ellipse(np.zeros((4, 2)))
 
 
+@pytest.mark.parametrize(
+    "points",
+    [
+        np.column_stack([np.arange(10.0), 2.0 * np.arange(10.0)]),  # a line
+        np.column_stack([np.linspace(-2, 2, 20), np.linspace(-2, 2, 20) ** 2]),  # a parabola (NumPy's eig: 4e17 mm)
+        np.zeros((6, 2)),  # one point
+    ],
+)
+def test_fit_ellipse_refuses_points_no_ellipse_fits(points: np.ndarray) -> None:
+    with pytest.raises(ValueError, match="no ellipse fits"):
+        fit_ellipse(points)
+
+
 @settings(max_examples=40, deadline=None)
 @given(
     x=st.floats(-3, 3),
