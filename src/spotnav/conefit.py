@@ -344,6 +344,25 @@ class EdgePoints:
         return EdgePoints(self.pixels[keep], self.frame[keep], self.beam[keep], self.spot[keep], self.spot_sigma)
 
 
+@lru_cache(maxsize=64)
+def _parameter_index(
+    free_shared: tuple[int, ...], free_frame: tuple[int, ...], count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where each shared parameter (SHARED_SIZE,) and each frame's parameter (count, 6) is in the free vector, -1
+    where fixed: the free shared parameters first, then each frame's own in turn (read-only)."""
+    shared_index = np.full(SHARED_SIZE, -1, dtype=np.int64)
+    shared_index[list(free_shared)] = np.arange(len(free_shared))
+    frame_index = np.full((count, _FRAME_SIZE), -1, dtype=np.int64)
+    offset = len(free_shared)
+    for f in range(count):
+        for k in free_frame:
+            frame_index[f, k] = offset
+            offset += 1
+    shared_index.setflags(write=False)
+    frame_index.setflags(write=False)
+    return shared_index, frame_index
+
+
 @dataclass(frozen=True)
 class ConeProblem:
     """A cone fit: the edge points, the geometry they are seen in, the start, and what is free.
@@ -398,14 +417,7 @@ class ConeProblem:
     def __post_init__(self) -> None:
         frames = np.ascontiguousarray(self.frames, dtype=float).reshape(-1, _FRAME_SIZE)
         count = len(frames)
-        shared_index = np.full(SHARED_SIZE, -1, dtype=np.int64)
-        shared_index[list(self.free_shared)] = np.arange(len(self.free_shared))
-        frame_index = np.full((count, _FRAME_SIZE), -1, dtype=np.int64)
-        offset = len(self.free_shared)
-        for f in range(count):
-            for k in self.free_frame:
-                frame_index[f, k] = offset
-                offset += 1
+        shared_index, frame_index = _parameter_index(self.free_shared, self.free_frame, count)
         starts = np.searchsorted(self.points.frame, np.arange(count + 1))
         camera_free = any(_RADIUS <= i < _CAMERA_END for i in self.free_shared)
         model = perturbed_model(self.model, self.shared[_CAMERA:_CAMERA_END])
@@ -568,9 +580,9 @@ def cone_problem(
     free_frame = [0, 1, 2] if free_tips else []
     free_frame += [3, 4] if axis == "free" else []
     free_frame += [5] if instrument.beam_count > 1 else []
-    base = np.array([edge_angle(setup), instrument.light_radius_mm, setup.eye.radius_mm, *instrument.insertion_in_eye])
+    model, base, prior, steps = _setup_arrays(setup, one_frame)
     return ConeProblem(
-        model=camera_model(setup.camera),
+        model=model,
         base=base,
         beam_count=instrument.beam_count,
         tilt=instrument.beam_tilt,
@@ -581,9 +593,21 @@ def cone_problem(
         shared=np.zeros(SHARED_SIZE) if shared is None else np.asarray(shared, dtype=float),
         free_shared=tuple(int(i) for i in free_shared),
         free_frame=tuple(free_frame),
-        prior=geometry_covariance(setup, one_frame=one_frame),
-        steps=_difference_steps(setup.camera),
+        prior=prior,
+        steps=steps,
     )
+
+
+@lru_cache(maxsize=32)
+def _setup_arrays(setup: Setup, one_frame: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What a cone problem takes from ``setup`` (once per setup: every tracked frame asks): the camera model, the
+    base (edge angle, light radius, eye radius, insertion point), the geometry's covariance and the difference
+    steps, all read-only."""
+    instrument = setup.instrument
+    base = np.array([edge_angle(setup), instrument.light_radius_mm, setup.eye.radius_mm, *instrument.insertion_in_eye])
+    base.setflags(write=False)
+    prior = geometry_covariance(setup, one_frame=one_frame)
+    return camera_model(setup.camera), base, prior, _difference_steps(setup.camera)
 
 
 # --- the compiled model ---------------------------------------------------------------------------------------

@@ -362,9 +362,16 @@ def axis_rotations(axes: np.ndarray) -> np.ndarray:
         ``(about_y, about_z)``, radians.
     """
     axes = normalize(np.asarray(axes, dtype=float))
-    rotations = np.empty((*axes.shape[:-1], 2))
-    rotations[..., 0] = np.arccos(np.clip(-axes[..., 2], -1.0, 1.0))
-    rotations[..., 1] = np.arctan2(-axes[..., 1], -axes[..., 0])
+    return _axis_rotations(np.ascontiguousarray(axes.reshape(-1, 3))).reshape(*axes.shape[:-1], 2)
+
+
+@njit(cache=True)
+def _axis_rotations(axes: np.ndarray) -> np.ndarray:
+    """:func:`axis_rotations` of unit axes (N, 3), compiled."""
+    rotations = np.empty((len(axes), 2))
+    for n in range(len(axes)):
+        rotations[n, 0] = np.arccos(min(max(-axes[n, 2], -1.0), 1.0))
+        rotations[n, 1] = np.arctan2(-axes[n, 1], -axes[n, 0])
     return rotations
 
 
