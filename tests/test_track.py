@@ -208,12 +208,13 @@ def test_a_new_tracker_has_its_compiled_kernels_ready_before_the_first_frame() -
 import json
 import numba
 import spotnav.detect as d, spotnav.conefit as c, spotnav.checks as k, spotnav.geometry as g, spotnav.camera as m
+import spotnav.reconstruct as r
 import spotnav.track as t
 kernels = [t._predicted_rays, d._edge_on_rays, d._rays_through_curve, c._residuals,
            c._gauss_newton, c._levenberg_marquardt, c._frame_uncertainty, c.robust_sigma,
            k._seen_edge_kernel, k._fit_spread, g._cone_sphere_points, m._behind_segment, d._histogram, d.otsu_threshold,
-           c._instrument_axis]
-modules = (d, c, k, g, m, t)
+           c._instrument_axis, r._fit_ellipse, g._axis_rotations]
+modules = (d, c, k, g, m, r, t)
 every = [f for mod in modules for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion

@@ -32,6 +32,7 @@ from spotnav.detect import _rays_through_curve, detect_edge_along_rays, rays_thr
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import _cone_sphere_points, beam_axes, cone_sphere_curve, normalize
 from spotnav.precise import localize_precise, localize_precise_with_edges, pose_problem
+from spotnav.reconstruct import fit_ellipse
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 
 __all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "prepare_kernels", "track_frame"]
@@ -248,8 +249,9 @@ def prepare_kernels(setup: Setup) -> None:
     curve_px = 48 + 20 * np.column_stack([np.cos(circle), np.sin(circle)])
     edge = detect_edge_along_rays(image, *rays_through_curve(curve_px, 64), align=True)
     judge_edge(replace(edge, width_px=2.0 * edge.width_px), setup, 20.0, edge_angle(setup))  # the blur model's kernels
+    fit_ellipse(curve_px)  # the whole-frame method's start, which the frame below may not reach (a clipped spot)
     instrument, eye = setup.instrument, setup.eye
-    tip_in_eye = 0.5 * (instrument.insertion_in_eye + eye.center_in_eye)
+    tip_in_eye = eye.center_in_eye - np.array([0.0, 0.0, eye.radius_mm - 3.0])  # 3 mm above the pole: a whole spot
     axis = normalize(tip_in_eye - instrument.insertion_in_eye)
     angle = edge_angle(setup)
     beams = beam_axes(axis, instrument.beam_count, instrument.beam_tilt)
