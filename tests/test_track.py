@@ -234,3 +234,19 @@ print(json.dumps([ready, compiled, [len(f.signatures) for f in every], modes]))
     assert all(count >= 1 for count in ready)
     assert modes == ["acquired", "tracked", "tracked"]
     assert after_frames == compiled
+
+
+@pytest.mark.parametrize("beams", [1, 3])
+def test_prepare_kernels_runs_the_whole_frame_method_to_a_pose(beams: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Its synthetic frame must show whole spots: a clipped one stops the method before its start and fit, whose
+    # kernels the first real frame would then compile.
+    statuses = []
+
+    def recorded(image: np.ndarray, setup: Setup) -> PoseEstimate:
+        estimate = localize_precise(image, setup)
+        statuses.append(estimate.status)
+        return estimate
+
+    monkeypatch.setattr(track, "localize_precise", recorded)
+    track.prepare_kernels(with_true_edge(thesis_world(1024, beams)))
+    assert statuses == ["ok"]
