@@ -7,7 +7,7 @@ import pytest
 from conftest import small_setup
 
 from spotnav.camera import camera_depth_mm
-from spotnav.checks import blur_shift_px, residuals_px
+from spotnav.checks import _depth_of, _fit_spread, blur_shift_px, residuals_px
 from spotnav.conefit import edge_angle
 from spotnav.detect import SpotEdge
 
@@ -43,3 +43,27 @@ def test_residuals_in_pixels_are_angles_times_distance_over_depth() -> None:
     np.testing.assert_allclose(residuals_px(camera, points, tips, residuals), expected, rtol=1e-12)
     one_tip = residuals_px(camera, points, tips[0], residuals)  # one tip for every point
     np.testing.assert_allclose(one_tip, residuals_px(camera, points, np.tile(tips[0], (20, 1)), residuals), rtol=1e-15)
+
+
+def test_a_fit_s_spread_is_its_inliers_rms_in_pixels_and_radians() -> None:
+    camera = small_setup(1024).camera
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-3.0, 3.0, (30, 3))
+    tip = np.array([0.5, -0.5, 5.0])
+    residuals = rng.normal(0.0, 1e-3, 30)
+    inliers = rng.random(30) < 0.7
+    rms_px, rms_rad, fraction = _fit_spread(points, tip, residuals, inliers, *_depth_of(camera))
+    pixels = residuals_px(camera, points, tip, residuals)
+    assert rms_px == pytest.approx(np.sqrt(np.mean(pixels[inliers] ** 2)), rel=1e-12)
+    assert rms_rad == pytest.approx(np.sqrt(np.mean(residuals[inliers] ** 2)), rel=1e-12)
+    assert fraction == pytest.approx(inliers.mean())
+
+
+def test_residuals_in_pixels_refuse_shapes_that_do_not_match() -> None:
+    camera = small_setup(1024).camera
+    with pytest.raises(ValueError, match="must match"):
+        residuals_px(camera, np.zeros((20, 3)), np.zeros(3), np.zeros(3))
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+        residuals_px(camera, np.zeros((20, 2)), np.zeros(3), np.zeros(20))
+    grid = residuals_px(camera, np.ones((4, 5, 3)), np.zeros(3), 1e-3)  # any leading shape, a scalar residual
+    assert grid.shape == (4, 5) and np.all(grid == grid[0, 0])

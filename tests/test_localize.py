@@ -337,3 +337,18 @@ def test_a_wider_shaft_band_that_hides_more_points_is_not_taken_as_alike() -> No
     far = across[~wide[0]]
     hidden_far = hidden_by_shaft(setup, [far], tip, axis, 0.05)
     assert precise._hides_alike(setup, [far], [precise._ShaftView(tip, axis, hidden_far)], 0.2)
+
+
+def test_precise_reads_at_most_256_rays_a_spot_and_every_pixel_s_when_asked(renderer_2048: Renderer) -> None:
+    # A spot some 220 px across at 2048 px: one ray per pixel of its outline is some 700; a frame's fit reads 256
+    # and errs as it does with all of them (0.0010 and 0.0005 mm here), calibration reads all.
+    setup = with_true_edge(renderer_2048.setup)
+    pose = InstrumentPose.through_insertion([1.0, -1.5, 4.5], setup.instrument.insertion_in_eye)
+    image = renderer_2048.render(pose, seed=2)
+    capped = precise.localize_precise_with_edges(image, setup)
+    every = precise.localize_precise_with_edges(image, setup, max_rays=2048)
+    assert capped.estimate.ok and every.estimate.ok
+    (capped_edge,), (every_edge,) = capped.edges.edges_px, every.edges.edges_px
+    assert 0.9 * 256 <= len(capped_edge) <= 256 < 600 <= len(every_edge)
+    errors = [np.linalg.norm(result.estimate.tip_in_eye - pose.tip_in_eye) for result in (capped, every)]
+    assert max(errors) < 0.01 and abs(errors[0] - errors[1]) < 0.003

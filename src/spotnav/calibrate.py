@@ -107,6 +107,9 @@ PRIORITY: tuple[int, ...] = (
 )
 _MAX_AXES_CONDITION = 1e6  # the known axes' lines must cross at an angle (1e6: some 0.1 deg apart)
 _MIN_INLIER_FRACTION = 0.5
+# One ray per pixel of each spot's outline (up to this many): calibration pools its frames' edges into the geometry,
+# where more points do tell (a frame's own fit reads at most 256).
+_RAYS = 2048
 # The responses told apart when the setup states none: sRGB (the default reading) and a tone curve. Power laws
 # (linear, gammas) are not tried: on a textured retina a reading that compresses the texture makes the spots agree
 # better whatever the camera wrote (measured on spotnav's renderer: sRGB frames agree best read as linear).
@@ -214,7 +217,7 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
         return f"{frame.name}: {detection.regions}{cut}, {instrument.beam_count} beams"
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
-    edges = [detect_edge_subpixel(frame.image, spot, response).pixels for spot in spots]
+    edges = [detect_edge_subpixel(frame.image, spot, response, max_rays=_RAYS).pixels for spot in spots]
     beams, roll = [0], 0.0
     if len(spots) > 1:
         centres = np.array(
@@ -674,7 +677,7 @@ class RadiusSelfCalibration:
 
 def prepare_self_calibration(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, EdgeFrame | None]:
     """One frame's share of :func:`self_calibrate_radius`: its precise pose and its edges (None if unusable)."""
-    result = localize_precise_with_edges(image, setup)
+    result = localize_precise_with_edges(image, setup, max_rays=_RAYS)
     estimate, prepared = result.estimate, result.edges
     return estimate, prepared if estimate.ok else None
 

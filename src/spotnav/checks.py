@@ -229,21 +229,41 @@ def _mm_per_px(setup: Setup) -> float:
 def residuals_px(
     camera: Camera, points_in_eye: np.ndarray, tips_in_eye: np.ndarray, residuals: np.ndarray
 ) -> np.ndarray:
-    """Angular residuals (N,) as pixels: each point's distance from its tip over its depth, times the focal length.
+    """Angular residuals as pixels: each point's distance from its tip over its depth, times the focal length.
 
     Parameters
     ----------
     camera : Camera
-    points_in_eye : ndarray, shape (N, 3)
+    points_in_eye : ndarray, shape (..., 3)
         The edge points on the retina, mm.
-    tips_in_eye : ndarray, shape (N, 3) or (3,)
-        The tip of each point's frame, mm.
-    residuals : ndarray, shape (N,)
-        Radians.
+    tips_in_eye : ndarray, shape (..., 3) or (3,)
+        The tip of each point's frame, mm (broadcast to the points).
+    residuals : ndarray, shape (...)
+        Radians (broadcast to the points).
+
+    Returns
+    -------
+    ndarray, shape (...)
+        Pixels.
+
+    Raises
+    ------
+    ValueError
+        If the shapes do not match.
     """
-    points = np.ascontiguousarray(points_in_eye, dtype=float).reshape(-1, 3)
-    tips = np.ascontiguousarray(np.broadcast_to(tips_in_eye, points.shape), dtype=float)
-    return _residuals_px(points, tips, np.asarray(residuals, dtype=float), *_depth_of(camera))
+    points = np.asarray(points_in_eye, dtype=float)
+    if points.ndim == 0 or points.shape[-1] != 3:
+        raise ValueError(f"points_in_eye must have shape (..., 3), got {points.shape}")
+    shape = points.shape[:-1]
+    tips, angles = np.asarray(tips_in_eye, dtype=float), np.asarray(residuals, dtype=float)
+    try:
+        tips, angles = np.broadcast_to(tips, points.shape), np.broadcast_to(angles, shape)
+    except ValueError:
+        raise ValueError(
+            f"tips_in_eye {tips.shape} and residuals {angles.shape} must match points_in_eye {points.shape}"
+        ) from None
+    rows = [np.ascontiguousarray(values).reshape(-1, *values.shape[len(shape) :]) for values in (points, tips, angles)]
+    return _residuals_px(*rows, *_depth_of(camera)).reshape(shape)
 
 
 def _depth_of(camera: Camera) -> tuple[np.ndarray, float, float]:
@@ -275,8 +295,11 @@ def _fit_spread(
     offset: float,
     focal_px: float,
 ) -> tuple[float, float, float]:
-    """A one-frame fit's inliers' RMS residual in pixels and in radians, and their fraction, compiled: points
-    (N, 3) around one ``tip`` (3,)."""
+    """A one-frame fit's inliers' RMS residual in pixels and in radians, and their fraction, compiled.
+
+    ``points`` (N, 3) mm around one ``tip`` (3,); ``residuals`` (N,) radians; ``inliers`` (N,) bool; the camera
+    as :func:`_depth_of` gives it. With no inlier the RMS values are NaN.
+    """
     tips = np.empty_like(points)
     tips[:] = tip
     pixels = _residuals_px(points, tips, residuals, axis, offset, focal_px)

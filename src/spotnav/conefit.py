@@ -600,9 +600,9 @@ def cone_problem(
 
 @lru_cache(maxsize=32)
 def _setup_arrays(setup: Setup, one_frame: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """What a cone problem takes from ``setup`` (once per setup: every tracked frame asks): the camera model, the
-    base (edge angle, light radius, eye radius, insertion point), the geometry's covariance and the difference
-    steps, all read-only."""
+    """What a cone problem takes from ``setup`` (once per setup: every tracked frame asks): the camera model
+    (:func:`spotnav.camera.camera_model`'s cached array), the base (edge angle, light radius, eye radius, insertion
+    point; read-only), the geometry's covariance and the difference steps (both read-only). None is modified."""
     instrument = setup.instrument
     base = np.array([edge_angle(setup), instrument.light_radius_mm, setup.eye.radius_mm, *instrument.insertion_in_eye])
     base.setflags(write=False)

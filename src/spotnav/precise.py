@@ -215,7 +215,9 @@ def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool
     return localize_precise_with_edges(image, setup, through_insertion=through_insertion).estimate
 
 
-def localize_precise_with_edges(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PreciseResult:
+def localize_precise_with_edges(
+    image: np.ndarray, setup: Setup, *, through_insertion: bool = True, max_rays: int = _MAX_RAYS
+) -> PreciseResult:
     """spotnav's precise method (the module's docstring), with the edges and the fit it came from.
 
     The coarse detection accepts fainter spots than the thesis's; more bright
@@ -232,6 +234,8 @@ def localize_precise_with_edges(image: np.ndarray, setup: Setup, *, through_inse
     through_insertion : bool
         Constrain the axis through the insertion point (3 unknowns for one
         beam, 4 with the roll for three); ``False`` fits the axis too.
+    max_rays : int
+        Most rays per spot's edge (one per pixel of its outline up to this; at least 64).
 
     Returns
     -------
@@ -249,7 +253,7 @@ def localize_precise_with_edges(image: np.ndarray, setup: Setup, *, through_inse
             detail = f"{detection.regions}, {beams} beam{'s' if beams > 1 else ''}: more spots than beams"
             return PreciseResult(PoseEstimate("ambiguous", spots=len(spots), detail=detail))
         detection = replace(detection, spots=spots[:beams])
-    prepared = prepare_edges(image, detection, setup, through_insertion)
+    prepared = prepare_edges(image, detection, setup, through_insertion, max_rays)
     if isinstance(prepared, PoseEstimate):
         return PreciseResult(prepared)
     estimate, fit = _fit_precise(prepared, setup, through_insertion)
@@ -260,9 +264,10 @@ def localize_precise_with_edges(image: np.ndarray, setup: Setup, *, through_inse
 
 
 def prepare_edges(
-    image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool
+    image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool, max_rays: int = _MAX_RAYS
 ) -> EdgeFrame | PoseEstimate:
-    """The precise method up to its fit: spots, beams, starting pose and sub-pixel edges.
+    """The precise method up to its fit: spots, beams, starting pose and sub-pixel edges (at most ``max_rays`` per
+    spot).
 
     Returns the reason (a :class:`PoseEstimate` that is not ``ok``) when the frame cannot be used.
     """
@@ -283,7 +288,7 @@ def prepare_edges(
         return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
     beams, roll = assignment
     response = setup.camera.pixel_response
-    spot_edges = [detect_edge_subpixel(image, spot, response, max_rays=_MAX_RAYS) for spot in solution.spots]
+    spot_edges = [detect_edge_subpixel(image, spot, response, max_rays=max_rays) for spot in solution.spots]
     radii_px = [np.sqrt(spot.area_px / np.pi) for spot in solution.spots]
     angle = edge_angle(setup)
     verdicts = [judge_edge(e, setup, r, angle) for e, r in zip(spot_edges, radii_px, strict=True)]

@@ -67,15 +67,22 @@ def fit_ellipse(points: np.ndarray) -> Ellipse:
     Raises
     ------
     ValueError
-        For fewer than 5 points, or points no ellipse fits (collinear ones).
+        For fewer than 5 points, points that are not finite, or points no ellipse fits (collinear ones).
     """
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 2 or len(points) < 5:
         raise ValueError(f"need at least 5 points of shape (N, 2), got {points.shape}")
+    if not np.all(np.isfinite(points)):
+        raise ValueError("the points must be finite")
     fitted, centre, semi_major, semi_minor, major_direction = _fit_ellipse(np.ascontiguousarray(points))
     if not fitted:
         raise ValueError("no ellipse fits these points")
     return Ellipse(centre, semi_major, semi_minor, major_direction)
+
+
+# Points on a line: the linear terms' scatter matrix's determinant under this many N^3 (on points scaled to unit
+# spread it is N^3 / 4 on a circle, r^2 N^3 / 4 on an ellipse of axes r : 1).
+_SINGULAR = 1e-12
 
 
 @njit(cache=True)
@@ -100,12 +107,16 @@ def _fit_ellipse(points: np.ndarray) -> tuple[bool, np.ndarray, float, float, np
                 s1[i, j] += quadratic[i] * quadratic[j]
                 s2[i, j] += quadratic[i] * linear[j]
                 s3[i, j] += linear[i] * linear[j]
+    # Collinear points (or one point) make s3 singular: refused before solving (an exception raised in compiled
+    # code leaks what it had allocated).
+    if not np.linalg.det(s3) > _SINGULAR * count**3:
+        return failed
+    t = -np.linalg.solve(s3, np.ascontiguousarray(s2.T))
+    m = s1 + s2 @ t
+    m = np.vstack((m[2:3] / 2.0, -m[1:2], m[0:1] / 2.0))  # the inverse of the constraint matrix, applied
     try:
-        t = -np.linalg.solve(s3, np.ascontiguousarray(s2.T))
-        m = s1 + s2 @ t
-        m = np.vstack((m[2:3] / 2.0, -m[1:2], m[0:1] / 2.0))  # the inverse of the constraint matrix, applied
         _, vectors = np.linalg.eig(m)
-    except Exception:  # s3 singular (collinear points), or no real eigenvectors: no ellipse
+    except Exception:  # complex eigenvalues (NumPy's eig would return them; it took their real part): no ellipse
         return failed
     chosen = -1
     for k in range(3):
@@ -119,12 +130,11 @@ def _fit_ellipse(points: np.ndarray) -> tuple[bool, np.ndarray, float, float, np
     d, e, f = rest[0], rest[1], rest[2]
     # The centre solves the conic's gradient; the axes are its quadratic form's at that centre.
     quadratic_form = np.array([[a, b / 2.0], [b / 2.0, c]])
-    try:
-        centre = np.linalg.solve(quadratic_form, np.array([-d / 2.0, -e / 2.0]))
-        level = -(f + 0.5 * (d * centre[0] + e * centre[1]))
-        eigenvalues, axes = np.linalg.eigh(quadratic_form / level)
-    except Exception:  # a parabola, a line pair, or no level
+    centre = np.linalg.solve(quadratic_form, np.array([-d / 2.0, -e / 2.0]))
+    level = -(f + 0.5 * (d * centre[0] + e * centre[1]))
+    if not (np.isfinite(level) and level != 0.0):
         return failed
+    eigenvalues, axes = np.linalg.eigh(quadratic_form / level)
     if not (eigenvalues[0] > 0 and eigenvalues[1] > 0):
         return failed
     semi = 1.0 / np.sqrt(eigenvalues)  # eigh sorts ascending: the major axis first

@@ -249,7 +249,7 @@ def prepare_kernels(setup: Setup) -> None:
     curve_px = 48 + 20 * np.column_stack([np.cos(circle), np.sin(circle)])
     edge = detect_edge_along_rays(image, *rays_through_curve(curve_px, 64), align=True)
     judge_edge(replace(edge, width_px=2.0 * edge.width_px), setup, 20.0, edge_angle(setup))  # the blur model's kernels
-    fit_ellipse(curve_px)  # the whole-frame method's start, which the frame below may not reach (a clipped spot)
+    fit_ellipse(curve_px)  # the whole-frame method's start, warmed even where the frame below cannot show a spot
     instrument, eye = setup.instrument, setup.eye
     tip_in_eye = eye.center_in_eye - np.array([0.0, 0.0, eye.radius_mm - 3.0])  # 3 mm above the pole: a whole spot
     axis = normalize(tip_in_eye - instrument.insertion_in_eye)
