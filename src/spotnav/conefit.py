@@ -602,7 +602,8 @@ def cone_problem(
 def _setup_arrays(setup: Setup, one_frame: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What a cone problem takes from ``setup`` (once per setup: every tracked frame asks): the camera model
     (:func:`spotnav.camera.camera_model`'s cached array), the base (edge angle, light radius, eye radius, insertion
-    point; read-only), the geometry's covariance and the difference steps (both read-only). None is modified."""
+    point; read-only), the geometry's covariance and the difference steps (both read-only); callers must not
+    modify any of them."""
     instrument = setup.instrument
     base = np.array([edge_angle(setup), instrument.light_radius_mm, setup.eye.radius_mm, *instrument.insertion_in_eye])
     base.setflags(write=False)
