@@ -16,7 +16,9 @@ from spotnav.conefit import (
     EDGE_MODEL_SIGMA,
     PARAMETER_GROUPS,
     SHARED_SIZE,
+    SOLVERS,
     EdgePoints,
+    _fit_recipe,
     cone_problem,
     correlation_inflation,
     edge_angle,
@@ -133,6 +135,24 @@ def test_the_compiled_solver_gives_scipy_s_answer(x: float, y: float, z: float, 
     np.testing.assert_allclose(compiled.tip(), scipy.tip(), atol=1e-6)
     np.testing.assert_allclose(compiled.tip_sigma_mm(), scipy.tip_sigma_mm(), rtol=1e-6)
     assert np.array_equal(compiled.inliers, scipy.inliers) and compiled.settled == scipy.settled
+
+
+def test_the_fit_recipe_is_one_code_compiled_or_run_by_python() -> None:
+    # Gauss-Newton runs the recipe compiled; the same recipe run by Python gives the same bits. Compiled, it runs
+    # no other solver (they may need SciPy).
+    setup = replace(EXACT, instrument=Instrument(beam_count=3), uncertainty=Uncertainty())
+    pose = InstrumentPose.through_insertion([1.0, -0.5, 4.5], setup.instrument.insertion_in_eye)
+    rng = np.random.default_rng(4)
+    edges = [edge + rng.normal(0.0, 0.2, edge.shape) for edge in _edges_px(setup, pose, 0.1)]
+    problem = _one_frame(setup, edges, pose.tip_in_eye + 0.02, pose.axis, 0.0)
+    fit = fit_cones(problem, solver="gauss-newton")
+    x, box = problem.start, (np.full(problem.size, -np.inf), np.full(problem.size, np.inf), np.arange(0))
+    arguments = (x, problem._arrays, len(problem.free_frame), box, SOLVERS.index("gauss-newton"))
+    compiled, interpreted = _fit_recipe(*arguments, None), _fit_recipe.py_func(*arguments, (problem, None))
+    for a, b, c in zip(compiled, interpreted, (fit.x, fit.residuals, fit.inliers), strict=True):
+        assert np.array_equal(a, b) and np.array_equal(a, c)
+    with pytest.raises(ValueError, match="Gauss-Newton"):
+        _fit_recipe(*arguments[:-1], SOLVERS.index("levenberg-marquardt"), None)
 
 
 def test_the_compiled_solver_does_not_leap_to_the_box_wall() -> None:

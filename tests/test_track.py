@@ -211,7 +211,7 @@ import spotnav.detect as d, spotnav.conefit as c, spotnav.checks as k, spotnav.g
 import spotnav.reconstruct as r
 import spotnav.track as t
 kernels = [t._predicted_rays, d._edge_on_rays, d._rays_through_curve, c._residuals,
-           c._gauss_newton, c._levenberg_marquardt, c._frame_uncertainty, c.robust_sigma,
+           c._fit_recipe, c._levenberg_marquardt, c._frame_uncertainty, c.robust_sigma,
            k._seen_edge_kernel, k._fit_spread, g._cone_sphere_points, m._behind_segment, d._histogram, d.otsu_threshold,
            c._instrument_axis, r._fit_ellipse, g._axis_rotations]
 modules = (d, c, k, g, m, r, t)

@@ -35,6 +35,7 @@ from functools import cached_property, lru_cache, partial
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix, vstack
 
@@ -108,6 +109,7 @@ FRAME_PARAMETERS = ("tip_x_mm", "tip_y_mm", "tip_z_mm", "about_y", "about_z", "r
 _FRAME_SIZE = len(FRAME_PARAMETERS)
 AXIS_MODES = {"insertion": 0, "free": 1, "known": 2}
 SOLVERS = ("trust-region", "levenberg-marquardt", "gauss-newton")
+_GAUSS_NEWTON = SOLVERS.index("gauss-newton")
 _GROSS_RESIDUAL = 1.0  # radians: a point whose ray misses the bowl
 
 
@@ -1180,37 +1182,103 @@ def fit_cones(
     if solver != "trust-region" and (priors is not None or problem.free_shared):
         raise ValueError(f"solver {solver!r} fits the frames' own parameters without priors: use trust-region")
     x = problem.start
-    residuals = problem.residuals(x)
     low, high = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
     tip_index = problem._arrays[7][:, :3]
     tip_index = tip_index[tip_index >= 0]
     low[tip_index], high[tip_index] = x[tip_index] - max_tip_move_mm, x[tip_index] + max_tip_move_mm
-    per_frame = len(problem.free_frame)
+    box = (low, high, tip_index)
+    per_frame, code = len(problem.free_frame), SOLVERS.index(solver)
+    if solver == "gauss-newton":
+        x, residuals, inliers = _fit_recipe(x, problem._arrays, per_frame, box, code, None)
+    else:  # the same recipe run by Python, whose solve steps may call SciPy
+        x, residuals, inliers = _fit_recipe.py_func(x, problem._arrays, per_frame, box, code, (problem, priors))
+    return _solution(problem, x, residuals, inliers, contour_sigma, priors, settled=not _at_box(x, box))
 
-    def at_box(x: np.ndarray) -> bool:
-        """Whether a tip of ``x`` is held at its box's wall."""
-        tips = x[tip_index]
-        return bool(np.any((tips - low[tip_index] <= _AT_BOX_MM) | (high[tip_index] - tips <= _AT_BOX_MM)))
 
-    def solve(x: np.ndarray, rows: np.ndarray, scale: float | None) -> np.ndarray:
-        """From ``x`` on the points ``rows``: soft-L1 at ``scale``, or least squares (None)."""
-        if solver == "trust-region":
-            return _solve(problem, x, rows, scale, (low, high), priors)
-        if solver == "levenberg-marquardt":
-            tolerance = _LM_TOLERANCE if scale is None else _LM_ROBUST_TOLERANCE
-            fitted = _levenberg_marquardt(x, problem._arrays, rows, scale or 0.0, low, high, per_frame, tolerance)
-            if not at_box(fitted):
-                return fitted
-            # Its first, barely damped steps can leap from a poor start to the box's wall: SciPy's trust region,
-            # which grows its steps only as the model earns it, from the same start.
-            return _solve(problem, x, rows, scale, (low, high), priors)
-        return _gauss_newton(x, problem._arrays, rows, scale or 0.0, per_frame, 1 if scale is None else 2)
+def _at_box(x: np.ndarray, box: tuple[np.ndarray, np.ndarray, np.ndarray]) -> bool:
+    """Whether a tip of ``x`` is held at its box's wall; ``box`` is (low, high, the tips' indices in ``x``)."""
+    low, high, tip_index = box
+    tips = x[tip_index]
+    return bool(np.any((tips - low[tip_index] <= _AT_BOX_MM) | (high[tip_index] - tips <= _AT_BOX_MM)))
 
-    x = solve(x, np.ones(len(residuals), dtype=bool), max(robust_sigma(residuals, True), 1e-6))
-    residuals = problem.residuals(x)
+
+@njit(cache=True)
+def _fit_recipe(
+    x: np.ndarray, arrays: tuple, per_frame: int, box: tuple, solver: int, context: object
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The one robust recipe of :func:`fit_cones`: from ``x``, a soft-L1 solve at the residuals' robust scale, the
+    points within 3 robust sigmas of the cones, a least-squares solve on them. Returns the parameters, their
+    residuals (N,) and the inliers (N,).
+
+    Compiled for Gauss-Newton (``context`` None); the other solvers run this same code as ``_fit_recipe.py_func``,
+    whose solve steps (:func:`_solve_step`) may call SciPy with ``context`` = (problem, priors).
+    """
+    residuals = _residuals(x, arrays)
+    rows = np.ones(len(residuals), dtype=np.bool_)
+    x = _solve_step(solver, x, arrays, rows, max(robust_sigma(residuals, True), 1e-6), per_frame, box, context)
+    residuals = _residuals(x, arrays)
     inliers = np.abs(residuals) < 3.0 * max(robust_sigma(residuals, False), 1e-7)
-    x = solve(x, inliers, None)
-    return _solution(problem, x, problem.residuals(x), inliers, contour_sigma, priors, settled=not at_box(x))
+    x = _solve_step(solver, x, arrays, inliers, 0.0, per_frame, box, context)
+    return x, _residuals(x, arrays), inliers
+
+
+def _solve_step(
+    solver: int,
+    x: np.ndarray,
+    arrays: tuple,
+    rows: np.ndarray,
+    scale: float,
+    per_frame: int,
+    box: tuple[np.ndarray, np.ndarray, np.ndarray],
+    context: tuple[ConeProblem, np.ndarray | None],
+) -> np.ndarray:
+    """One solve of the recipe from ``x`` on the points ``rows`` (N,): soft-L1 at ``scale``, least squares at 0.
+
+    ``solver`` indexes :data:`SOLVERS`; ``box`` is (low, high, the tips' indices) and ``context`` (problem,
+    priors), for SciPy. Compiled code calls :func:`_compiled_solve_step` instead.
+    """
+    least = None if scale <= 0.0 else scale
+    if SOLVERS[solver] == "gauss-newton":
+        return _gauss_newton(x, arrays, rows, scale, per_frame, 2 if least else 1)
+    (problem, priors), (low, high, _) = context, box
+    if SOLVERS[solver] == "levenberg-marquardt":
+        tolerance = _LM_ROBUST_TOLERANCE if least else _LM_TOLERANCE
+        fitted = _levenberg_marquardt(x, arrays, rows, scale, low, high, per_frame, tolerance)
+        if not _at_box(fitted, box):
+            return fitted
+        # Its first, barely damped steps can leap from a poor start to the box's wall: SciPy's trust region, which
+        # grows its steps only as the model earns it, from the same start.
+    return _solve(problem, x, rows, least, (low, high), priors)
+
+
+@overload(_solve_step)
+def _compiled_solve_step(
+    solver: object,
+    x: object,
+    arrays: object,
+    rows: object,
+    scale: object,
+    per_frame: object,
+    box: object,
+    context: object,
+) -> Callable:
+    """:func:`_solve_step` in compiled code: Gauss-Newton's (the solver that needs no SciPy)."""
+
+    def solve_step(  # Numba asks for the overload's own parameters, annotations included
+        solver: object,
+        x: object,
+        arrays: object,
+        rows: object,
+        scale: object,
+        per_frame: object,
+        box: object,
+        context: object,
+    ) -> np.ndarray:
+        if solver != _GAUSS_NEWTON:
+            raise ValueError("compiled fits are Gauss-Newton's")
+        return _gauss_newton(x, arrays, rows, scale, per_frame, 2 if scale > 0.0 else 1)
+
+    return solve_step
 
 
 @njit(cache=True)
