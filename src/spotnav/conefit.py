@@ -1230,16 +1230,17 @@ def _solve_step(
     scale: float,
     per_frame: int,
     box: tuple[np.ndarray, np.ndarray, np.ndarray],
-    context: tuple[ConeProblem, np.ndarray | None],
+    context: tuple[ConeProblem, np.ndarray | None] | None,
 ) -> np.ndarray:
     """One solve of the recipe from ``x`` on the points ``rows`` (N,): soft-L1 at ``scale``, least squares at 0.
 
     ``solver`` indexes :data:`SOLVERS`; ``box`` is (low, high, the tips' indices) and ``context`` (problem,
-    priors), for SciPy. Compiled code calls :func:`_compiled_solve_step` instead.
+    priors), for SciPy (None for Gauss-Newton). Compiled code calls :func:`_compiled_solve_step` instead; the
+    Gauss-Newton branch here keeps the recipe's source runnable both ways (a test compares them).
     """
     least = None if scale <= 0.0 else scale
     if SOLVERS[solver] == "gauss-newton":
-        return _gauss_newton(x, arrays, rows, scale, per_frame, 2 if least else 1)
+        return _gauss_newton(x, arrays, rows, scale, per_frame, 2 if scale > 0.0 else 1)
     (problem, priors), (low, high, _) = context, box
     if SOLVERS[solver] == "levenberg-marquardt":
         tolerance = _LM_ROBUST_TOLERANCE if least else _LM_TOLERANCE
