@@ -114,10 +114,10 @@ def _fit_ellipse(points: np.ndarray) -> tuple[bool, np.ndarray, float, float, np
     t = -np.linalg.solve(s3, np.ascontiguousarray(s2.T))
     m = s1 + s2 @ t
     m = np.vstack((m[2:3] / 2.0, -m[1:2], m[0:1] / 2.0))  # the inverse of the constraint matrix, applied
-    try:
-        _, vectors = np.linalg.eig(m)
-    except Exception:  # complex eigenvalues (NumPy's eig would return them; it took their real part): no ellipse
-        return failed
+    # On exact points rounding may pair the ellipse's eigenvalue (near 0) with another as complex conjugates: the
+    # complex decomposition, and the vectors' real parts (the ellipse's imaginary part is rounding).
+    _, complex_vectors = np.linalg.eig(m.astype(np.complex128))
+    vectors = np.ascontiguousarray(complex_vectors.real)
     chosen = -1
     for k in range(3):
         if chosen < 0 and 4.0 * vectors[0, k] * vectors[2, k] - vectors[1, k] ** 2 > 0:
