@@ -1,6 +1,8 @@
 from __future__ import annotations
 
 import csv
+import os
+import time
 from pathlib import Path
 
 import cv2
@@ -9,10 +11,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from spotnav import files
 from spotnav.config import Bump, Instrument, Setup, SetupError, World, setup_from_toml
 from spotnav.estimate import PoseEstimate
 from spotnav.files import (
     POSES_COLUMNS,
+    Frame,
     ImageReadError,
     PosesWriter,
     SequenceWriter,
@@ -135,19 +139,92 @@ def test_read_known_poses(tmp_path: Path) -> None:
         read_known_poses(tmp_path / "missing.csv")
 
 
-@pytest.mark.parametrize("ring", [0, 2])
-def test_video_frames_decode_exactly_and_a_ring_reuses_its_buffers(tmp_path: Path, ring: int) -> None:
+def _clip(tmp_path: Path, count: int) -> tuple[Path, list[np.ndarray]]:
     rng = np.random.default_rng(3)
-    frames = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(4)]
+    frames = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(count)]
     with SequenceWriter(tmp_path / "clip.mkv", fps=30.0) as writer:
         for index, rgb in enumerate(frames):
             writer.write(index, rgb)
+    return tmp_path / "clip.mkv", frames
+
+
+@pytest.mark.parametrize("ring", [0, 2])
+def test_video_frames_decode_exactly_and_a_ring_reuses_its_buffers(tmp_path: Path, ring: int) -> None:
+    clip, frames = _clip(tmp_path, 4)
     decoded = []
-    for frame in iter_frames(str(tmp_path / "clip.mkv"), ring=ring):
+    for frame in iter_frames(str(clip), ring=ring):
         np.testing.assert_array_equal(frame.pixels, frames[frame.index])  # lossless, as handed over
         decoded.append(frame.pixels)
     assert len(decoded) == 4
     assert (decoded[0] is decoded[2]) == (ring == 2) and decoded[0] is not decoded[1]
+
+
+def _child_processes() -> set[str]:
+    return {
+        child
+        for task in Path(f"/proc/{os.getpid()}/task").iterdir()
+        for child in (task / "children").read_text().split()
+    }
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
+def test_a_decoder_process_hands_over_every_frame_and_keeps_the_one_before(tmp_path: Path) -> None:
+    clip, frames = _clip(tmp_path, 7)
+    cores, before = os.sched_getaffinity(0), _child_processes()
+    handed: list[Frame] = []
+    waited_on: list[np.ndarray] = []
+    for frame in iter_frames(str(clip), ring=2, while_waiting=waited_on.append):
+        np.testing.assert_array_equal(frame.pixels, frames[frame.index])  # lossless, as handed over
+        if handed:  # the frame before is not written over yet: a rehearsal reads it
+            np.testing.assert_array_equal(handed[-1].pixels, frames[frame.index - 1])
+        assert frame.ready_s <= time.perf_counter() and frame.decode_ms > 0
+        assert len(os.sched_getaffinity(0)) == (1 if len(cores) > 1 else len(cores))  # this thread on one core
+        assert len(_child_processes() - before) == 1
+        handed.append(frame)
+    assert [frame.index for frame in handed] == list(range(7))
+    assert np.shares_memory(handed[0].pixels, handed[3].pixels)  # a ring of three buffers
+    assert not np.shares_memory(handed[0].pixels, handed[1].pixels)
+    assert all(any(pixels is frame.pixels for frame in handed) for pixels in waited_on)  # only the last frame
+    assert os.sched_getaffinity(0) == cores and _child_processes() == before
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
+def test_a_decoder_process_stops_when_its_frames_are_no_longer_read(tmp_path: Path) -> None:
+    clip, frames = _clip(tmp_path, 5)
+    cores, before = os.sched_getaffinity(0), _child_processes()
+    source = iter_frames(str(clip), ring=1, while_waiting=lambda pixels: None)
+    np.testing.assert_array_equal(next(source).pixels, frames[0])
+    source.close()
+    assert os.sched_getaffinity(0) == cores and _child_processes() == before
+    with pytest.raises(ValueError, match="ring must be at least 1, got 0"):
+        next(iter_frames(str(clip), ring=0, while_waiting=lambda pixels: None))
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
+def test_without_room_for_shared_buffers_a_video_is_decoded_in_this_thread(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clip, frames = _clip(tmp_path, 3)
+    allocate = os.posix_fallocate
+
+    def full_shared_memory(descriptor: int, offset: int, size: int) -> None:
+        if os.readlink(f"/proc/self/fd/{descriptor}").startswith("/dev/shm/"):
+            raise OSError(28, "No space left on device")
+        allocate(descriptor, offset, size)
+
+    monkeypatch.setattr(os, "posix_fallocate", full_shared_memory)
+    backing = files._buffers_file(1000)
+    assert backing is not None and not backing.name.startswith("/dev/shm/")  # the temporary folder instead
+    backing.close()
+
+    def no_room(descriptor: int, offset: int, size: int) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "posix_fallocate", no_room)
+    before = _child_processes()
+    for frame in iter_frames(str(clip), ring=2, while_waiting=lambda pixels: None):
+        np.testing.assert_array_equal(frame.pixels, frames[frame.index])
+        assert _child_processes() == before  # no decoder process
 
 
 def test_a_negative_ring_is_refused_for_any_source(tmp_path: Path) -> None:

@@ -172,6 +172,25 @@ def test_a_lost_spot_is_reacquired_where_it_was_last_seen_else_on_the_whole_fram
     assert far.mode == "acquired" and np.linalg.norm(far.estimate.tip_in_eye - poses[3].tip_in_eye) < 0.03
 
 
+@pytest.mark.parametrize("beams", [1, 3])
+def test_rehearsals_between_frames_change_no_answer(beams: int) -> None:
+    # While a video's next frame is decoded, the tracker rehearses the last one (reading its edges, then fitting
+    # them, call by call): the same frames tracked with and without rehearsals must give the same bits.
+    setup = world(beams)
+    renderer = Renderer(setup)
+    poses = poses_through_insertion(helix_tips(300)[:6], setup.instrument.insertion_in_eye)
+    images = [renderer.render(pose, seed=i) for i, pose in enumerate(poses)]
+    plain, rehearsing = Tracker(setup), Tracker(setup)
+    rehearsing.rehearse(images[0])  # nothing to rehearse before a pose: it does nothing
+    for index, image in enumerate(images):
+        for _ in range(index % 3 + 1):  # one, two or three steps: a rehearsal left half-way too
+            rehearsing.rehearse(images[index - 1])
+        expected, got = plain.update(image), rehearsing.update(image)
+        assert got.mode == expected.mode and got.estimate.status == expected.estimate.status == "ok"
+        np.testing.assert_array_equal(got.estimate.tip_in_eye, expected.estimate.tip_in_eye)
+        np.testing.assert_array_equal(got.estimate.axis, expected.estimate.axis)
+
+
 def test_the_prediction_continues_a_steady_turn_not_noise_or_tremor_and_restarts_after_a_loss() -> None:
     # Tips on a parabola (a steady turn, 0.3 mm a frame): once two changes of the step agree, the next tip is
     # predicted exactly; before, the last step is repeated. A tremor sampled three times a period changes the step

@@ -2,4 +2,5 @@
 
 from spotnav.cli import main
 
-raise SystemExit(main())
+if __name__ == "__main__":  # not in a process that multiprocessing spawns
+    raise SystemExit(main())

@@ -263,8 +263,10 @@ def _cmd_track(args: argparse.Namespace) -> int:
             tracker = Tracker(setup, through_insertion=args.method == "precise")
         report = partial(print, file=sys.stderr)
         size = (setup.camera.width_px, setup.camera.height_px)
-        # The tracker keeps no image: frames are decoded into a ring of two buffers.
-        source = iter_frames(args.source, ring=2, camera=camera, report=report, expected_size=size)
+        # The tracker keeps no image: frames are decoded into a ring of two buffers, a video's in a second process.
+        source = iter_frames(
+            args.source, ring=2, camera=camera, report=report, expected_size=size, while_waiting=tracker.rehearse
+        )
         with contextlib.closing(source) as frames:
             server = None
             try:
@@ -340,12 +342,11 @@ def _track_frames(
         if signals.received:  # before the first frame (a signal while compiling or opening the source)
             run.stop = f"stopped by {signals.received}"
             break
-        start = time.perf_counter()
         if frame.pixels is None:
             tracked = TrackedFrame(PoseEstimate(frame.error_status, detail=frame.error), "lost")
         else:
             tracked = tracker.update(frame.pixels)
-        latency = 1000 * (time.perf_counter() - start)
+        latency = 1000 * (time.perf_counter() - frame.ready_s)
         if server is not None:
             server.send(tracked.estimate, frame.index, frame.timestamp_s, tracked.mode)
         out.write(track_row(frame, tracked.estimate, tracked.mode, latency))

@@ -7,15 +7,26 @@ names the file.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import glob
+import itertools
 import json
+import math
+import mmap
 import os
+import select
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import IO
 
 import cv2
 import numpy as np
@@ -75,6 +86,11 @@ class ImageReadError(InputError):
         self.status = status
 
 
+_DECODER_JOIN_S = 5.0  # how long a decoder told to stop may take to finish its frame
+# A decoder process's record of a frame: its index (or _END, or _FAILED and then a message of the length in the
+# second field), decoding ms, Unix seconds when grabbed and perf_counter seconds when decoded.
+_RECORD = struct.Struct("<qddd")
+_END, _FAILED = -1, -2
 MAX_IMAGE_BYTES = 1 << 30  # the most memory one decoded image may take (8 bytes a pixel at most: RGBA, 16 bits)
 
 
@@ -548,6 +564,10 @@ class Frame:
         held it a few frames before), when a file was read.
     error_status : str
         The status of a frame without ``pixels``: ``unreadable`` or ``wrong_size``.
+    ready_s : float
+        When the frame was decoded and asked for, the later of the two,
+        :func:`time.perf_counter` seconds (the same clock in every process on
+        Linux): where its latency starts.
     """
 
     index: int
@@ -557,6 +577,7 @@ class Frame:
     error: str = ""
     timestamp_s: float = 0.0
     error_status: str = "unreadable"
+    ready_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -619,6 +640,7 @@ def iter_frames(
     camera: CameraSettings | None = None,
     report: Callable[[str], None] | None = None,
     expected_size: tuple[int, int] | None = None,
+    while_waiting: Callable[[np.ndarray], object] | None = None,
 ) -> Iterator[Frame]:
     """Decode a sequence in order: a folder or glob of images, a video file, a camera, a URL or a pipeline.
 
@@ -641,17 +663,27 @@ def iter_frames(
     expected_size : (int, int), optional
         Width and height an image file must have: one that is not is not
         decoded (its frame's ``error_status`` is ``wrong_size``).
+    while_waiting : callable, optional
+        Decode a video file in a second process instead, one frame ahead, on
+        other cores than the caller's thread, which is kept to one core while
+        it iterates (when it may run on two or more). While the next frame is
+        not decoded yet, this is called with the last frame's pixels, again
+        and again (:meth:`spotnav.track.Tracker.rehearse` keeps a tracked
+        frame's code and data in that core's caches). ``ring`` must then be
+        at least 1. Images and live sources are decoded in the caller's
+        thread all the same.
 
     Raises
     ------
     ImageReadError
         If ``source`` names nothing that can be read (an unreadable image
-        inside a folder yields a :class:`Frame` with its ``error`` instead).
+        inside a folder yields a :class:`Frame` with its ``error`` instead),
+        or a decoder process ends without the video's end.
     ValueError
         If ``camera`` settings are given for a source that is not live.
     """
-    if ring < 0:
-        raise ValueError(f"ring must be at least 0, got {ring}")
+    if ring < 0 or (while_waiting is not None and ring < 1):
+        raise ValueError(f"ring must be at least {0 if while_waiting is None else 1}, got {ring}")
     wanted = camera.requests() if camera is not None else {}
     if wanted and not is_live(source):
         raise InputError(f"{source}: camera settings need a live camera, URL or pipeline, not files")
@@ -667,6 +699,8 @@ def iter_frames(
         for number, value in wanted.items():
             if abs(capture.get(number) - value) > 1e-6 * max(abs(value), 1.0):
                 report(f"{source}: asked for {PROPERTY_NAMES[number]} {value:g}, it reports {capture.get(number):g}")
+    if while_waiting is not None and not is_live(source):
+        return _read_capture_in_process(source, capture, ring, while_waiting)
     return _read_capture(capture, ring)
 
 
@@ -678,8 +712,8 @@ def _read_files(files: Sequence[str], expected_size: tuple[int, int] | None) -> 
             pixels, error, status = read_image(name, expected_size=expected_size), "", "unreadable"
         except ImageReadError as failure:
             pixels, error, status = None, str(failure), failure.status
-        elapsed_ms = 1000 * (time.perf_counter() - start)
-        yield Frame(index, display_name(name), pixels, elapsed_ms, error, stamp, status)
+        ready = time.perf_counter()
+        yield Frame(index, display_name(name), pixels, 1000 * (ready - start), error, stamp, status, ready)
 
 
 def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
@@ -699,8 +733,159 @@ def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
             pixels = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=buffers[slot])
             if ring:
                 buffers[slot] = pixels
-            yield Frame(index, "", pixels, 1000 * (time.perf_counter() - start), timestamp_s=stamp)
+            ready = time.perf_counter()
+            yield Frame(index, "", pixels, 1000 * (ready - start), timestamp_s=stamp, ready_s=ready)
             index += 1
+    finally:
+        capture.release()
+
+
+def _split_cores() -> tuple[set[int], set[int]]:
+    """One core for the caller's thread and the others for a decoder, of those this thread may run on; two empty
+    sets (no pinning) with fewer than two."""
+    cores = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else set()
+    if len(cores) < 2:
+        return set(), set()
+    own = {min(cores)}
+    return own, cores - own
+
+
+def _read_capture_in_process(
+    source: str, capture: cv2.VideoCapture, ring: int, while_waiting: Callable[[np.ndarray], object]
+) -> Iterator[Frame]:
+    """:func:`iter_frames`'s video frames from a decoder process, through a ring of ``ring + 1`` shared buffers:
+    a frame's buffer is written again once the frame ``ring`` later is handed over."""
+    shape = (ring + 1, int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)), int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), 3)
+    backing = _buffers_file(math.prod(shape))
+    if backing is None:  # no room for the shared buffers: decode in this thread
+        return _read_capture(capture, ring)
+    capture.release()
+    return _frames_from_process(source, backing, shape, while_waiting)
+
+
+def _buffers_file(size: int) -> IO[bytes] | None:
+    """A temporary file of ``size`` bytes, its blocks allocated (a full file system would otherwise kill the
+    process that writes it), in shared memory if it has room, else in the temporary folder; None if neither has."""
+    for folder in ("/dev/shm", None):
+        if folder is not None and not os.path.isdir(folder):
+            continue
+        backing = tempfile.NamedTemporaryFile(prefix="spotnav-frames-", dir=folder)
+        try:
+            if hasattr(os, "posix_fallocate"):
+                os.posix_fallocate(backing.fileno(), 0, size)
+            else:
+                backing.truncate(size)
+        except OSError:
+            backing.close()
+            continue
+        return backing
+    return None
+
+
+def _frames_from_process(
+    source: str, backing: IO[bytes], shape: tuple[int, int, int, int], while_waiting: Callable[[np.ndarray], object]
+) -> Iterator[Frame]:
+    """Start :func:`_decode_frames_main` in a new interpreter (not a fork: OpenCV's threads do not survive one) and
+    hand over its frames, decoded into ``backing``. It decodes a frame once the one before was handed over (a byte
+    on its standard input each) and sends a :data:`_RECORD` for each (then :data:`_END`, or :data:`_FAILED` and a
+    message)."""
+    own, others = _split_cores()
+    with backing:
+        ring = np.frombuffer(mmap.mmap(backing.fileno(), math.prod(shape)), dtype=np.uint8).reshape(shape)
+        records, records_out = os.pipe()
+        package_root = str(Path(__file__).resolve().parents[1])
+        environment = {**os.environ, "PYTHONPATH": os.pathsep.join([package_root, os.environ.get("PYTHONPATH", "")])}
+        arguments = [source, backing.name, ",".join(map(str, shape)), str(records_out), ",".join(map(str, others))]
+        decoder = subprocess.Popen(
+            [sys.executable, "-c", "import spotnav.files as f; f._decode_frames_main()", *arguments],
+            stdin=subprocess.PIPE,
+            pass_fds=(records_out,),
+            env=environment,
+        )
+        os.close(records_out)
+        affinity = os.sched_getaffinity(0) if own else set()
+        try:
+            if own:
+                os.sched_setaffinity(0, own)
+            last: np.ndarray | None = None
+            while True:
+                asked = time.perf_counter()
+                while last is not None and not select.select([records], [], [], 0)[0]:
+                    while_waiting(last)
+                record = _read_exactly(records, _RECORD.size)
+                if len(record) < _RECORD.size:
+                    code = decoder.wait(_DECODER_JOIN_S)
+                    raise ImageReadError(f"{source}: the decoder process ended before the video did (exit code {code})")
+                index, decode_ms, stamp, decoded = _RECORD.unpack(record)
+                if index == _END:
+                    return
+                if index == _FAILED:
+                    raise ImageReadError(_read_exactly(records, int(decode_ms)).decode(errors="replace"))
+                last = ring[index % len(ring)]
+                with contextlib.suppress(BrokenPipeError):  # a decoder that died: the next read says so
+                    os.write(decoder.stdin.fileno(), b"\0")  # the decoder may go on with the next frame
+                yield Frame(index, "", last, decode_ms, timestamp_s=stamp, ready_s=max(decoded, asked))
+        finally:
+            decoder.stdin.close()
+            try:
+                decoder.wait(_DECODER_JOIN_S)
+            except subprocess.TimeoutExpired:
+                decoder.kill()
+                decoder.wait()
+            os.close(records)
+            if own:
+                os.sched_setaffinity(0, affinity)
+
+
+def _read_exactly(descriptor: int, size: int) -> bytes:
+    """``size`` bytes from a pipe, or fewer if it ends first."""
+    data = b""
+    while len(data) < size:
+        more = os.read(descriptor, size - len(data))
+        if not more:
+            break
+        data += more
+    return data
+
+
+def _decode_frames_main() -> None:
+    """A decoder process's work (started by :func:`_frames_from_process`; its arguments: the source, the buffers'
+    file, their shape, the records' file descriptor and the cores to run on, comma-separated).
+
+    Frame ``k`` is decoded into buffer ``k % len(buffers)``, the first at once and each next one when a byte on
+    standard input says that the one before was handed over; the process ends at the video's end or when its
+    standard input does (the parent stopped, or is gone).
+    """
+    source, path, shape_text, descriptor, cores = sys.argv[1:]
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C reaches the whole process group: the parent stops this
+    if cores:
+        os.sched_setaffinity(0, {int(core) for core in cores.split(",")})
+    shape = tuple(int(n) for n in shape_text.split(","))
+    records = int(descriptor)
+    with open(path, "r+b") as backing:
+        ring = np.frombuffer(mmap.mmap(backing.fileno(), math.prod(shape)), dtype=np.uint8).reshape(shape)
+    capture, decoded = _open_capture(source, {}), None
+    try:
+        for index in itertools.count():
+            if index > 0 and not os.read(0, 1):
+                return
+            start = time.perf_counter()
+            if not capture.grab():
+                break
+            stamp = time.time()
+            ok, decoded = capture.retrieve(decoded)
+            if not ok:
+                break
+            if decoded.shape != shape[1:] or decoded.dtype != np.uint8:
+                message = f"{source}: frame {index} is {decoded.shape} {decoded.dtype}, not {shape[1:]} uint8".encode()
+                os.write(records, _RECORD.pack(_FAILED, len(message), 0.0, 0.0) + message)
+                return
+            cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=ring[index % len(ring)])
+            done = time.perf_counter()
+            os.write(records, _RECORD.pack(index, 1000 * (done - start), stamp, done))
+        os.write(records, _RECORD.pack(_END, 0.0, 0.0, 0.0))
+    except BrokenPipeError:  # the parent stopped reading
+        return
     finally:
         capture.release()
 
