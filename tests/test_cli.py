@@ -392,19 +392,26 @@ def _complete_rows(path: Path) -> list[dict[str, str]]:
     return [dict(zip(rows[0], row, strict=True)) for row in rows[1:]]
 
 
-@pytest.mark.parametrize("number", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize(
+    ("number", "to_group"), [(signal.SIGINT, False), (signal.SIGTERM, False), (signal.SIGTERM, True)]
+)
 def test_a_stopped_track_keeps_every_finished_frame(
-    tmp_path: Path, long_video: tuple[Path, Path], number: signal.Signals
+    tmp_path: Path, long_video: tuple[Path, Path], number: signal.Signals, to_group: bool
 ) -> None:
+    # A signal to the whole process group (a service manager's stop, Ctrl-C in a terminal) reaches only the tracker,
+    # not its video decoder: the run ends as cleanly.
     scene, video = long_video
     poses = tmp_path / "poses.csv"
     argv = [sys.executable, "-m", "spotnav", "track", "--scene", str(scene), str(video), "--out", str(poses)]
-    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and (not poses.exists() or poses.read_bytes().count(b"\n") < 6):
         time.sleep(0.02)
     assert poses.exists() and poses.read_bytes().count(b"\n") >= 6, "tracking did not start"
-    process.send_signal(number)
+    if to_group:
+        os.killpg(process.pid, number)
+    else:
+        process.send_signal(number)
     _, err = process.communicate(timeout=60)
     assert process.returncode == 0, err
     rows = _complete_rows(poses)

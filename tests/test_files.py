@@ -11,7 +11,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from spotnav import files
 from spotnav.config import Bump, Instrument, Setup, SetupError, World, setup_from_toml
 from spotnav.estimate import PoseEstimate
 from spotnav.files import (
@@ -171,60 +170,71 @@ def _child_processes() -> set[str]:
 def test_a_decoder_process_hands_over_every_frame_and_keeps_the_one_before(tmp_path: Path) -> None:
     clip, frames = _clip(tmp_path, 7)
     cores, before = os.sched_getaffinity(0), _child_processes()
-    handed: list[Frame] = []
     waited_on: list[np.ndarray] = []
-    for frame in iter_frames(str(clip), ring=2, while_waiting=waited_on.append):
-        np.testing.assert_array_equal(frame.pixels, frames[frame.index])  # lossless, as handed over
-        if handed:  # the frame before is not written over yet: a rehearsal reads it
-            np.testing.assert_array_equal(handed[-1].pixels, frames[frame.index - 1])
-        assert frame.ready_s <= time.perf_counter() and frame.decode_ms > 0
+    source = iter_frames(str(clip), ring=2, while_waiting=waited_on.append)
+    handed: list[Frame] = []
+    for index in range(7):
+        asked, waits = time.perf_counter(), len(waited_on)
+        frame = next(source)
+        # Asked for 50 ms after the frame before, once the decoder had it: its latency starts when it is asked for.
+        assert frame.index == index and asked <= frame.ready_s <= time.perf_counter() and frame.decode_ms > 0
+        np.testing.assert_array_equal(frame.pixels, frames[index])  # lossless, as handed over
+        assert all(pixels is handed[-1].pixels for pixels in waited_on[waits:])  # it rehearsed the frame before
+        time.sleep(0.05)  # the decoder has decoded the next frame meanwhile, into a buffer of its own
+        if handed:  # the frame before is not written over: a rehearsal reads it
+            np.testing.assert_array_equal(handed[-1].pixels, frames[index - 1])
         assert len(os.sched_getaffinity(0)) == (1 if len(cores) > 1 else len(cores))  # this thread on one core
-        assert len(_child_processes() - before) == 1
+        assert len(_child_processes() - before) == (1 if len(cores) > 1 else 0)
         handed.append(frame)
-    assert [frame.index for frame in handed] == list(range(7))
-    assert np.shares_memory(handed[0].pixels, handed[3].pixels)  # a ring of three buffers
+    with pytest.raises(StopIteration):
+        next(source)
+    assert np.shares_memory(handed[0].pixels, handed[3].pixels) == (len(cores) > 1)  # a ring of three buffers
     assert not np.shares_memory(handed[0].pixels, handed[1].pixels)
-    assert all(any(pixels is frame.pixels for frame in handed) for pixels in waited_on)  # only the last frame
     assert os.sched_getaffinity(0) == cores and _child_processes() == before
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
-def test_a_decoder_process_stops_when_its_frames_are_no_longer_read(tmp_path: Path) -> None:
+def test_a_decoder_process_stops_with_its_reader_and_reports_its_failure(tmp_path: Path) -> None:
     clip, frames = _clip(tmp_path, 5)
     cores, before = os.sched_getaffinity(0), _child_processes()
     source = iter_frames(str(clip), ring=1, while_waiting=lambda pixels: None)
     np.testing.assert_array_equal(next(source).pixels, frames[0])
     source.close()
     assert os.sched_getaffinity(0) == cores and _child_processes() == before
+
+    def failing(pixels: np.ndarray) -> None:
+        raise RuntimeError("a rehearsal failed")
+
+    source = iter_frames(str(clip), ring=2, while_waiting=failing)
+    next(source)
+    with pytest.raises(RuntimeError, match="a rehearsal failed"):
+        next(source)
+    assert os.sched_getaffinity(0) == cores and _child_processes() == before
+    source = iter_frames(str(clip), ring=2, while_waiting=lambda pixels: None)  # opened and checked here ...
+    clip.unlink()  # ... then gone when the decoder opens it
+    with pytest.raises(ImageReadError, match=r"clip\.mkv: the decoder process failed: .*no such file"):
+        next(source)
+    assert os.sched_getaffinity(0) == cores and _child_processes() == before
     with pytest.raises(ValueError, match="ring must be at least 1, got 0"):
-        next(iter_frames(str(clip), ring=0, while_waiting=lambda pixels: None))
+        next(iter_frames(str(tmp_path), ring=0, while_waiting=lambda pixels: None))
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
-def test_without_room_for_shared_buffers_a_video_is_decoded_in_this_thread(
+def test_without_shared_memory_or_a_second_core_a_video_is_decoded_in_this_thread(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     clip, frames = _clip(tmp_path, 3)
-    allocate = os.posix_fallocate
-
-    def full_shared_memory(descriptor: int, offset: int, size: int) -> None:
-        if os.readlink(f"/proc/self/fd/{descriptor}").startswith("/dev/shm/"):
-            raise OSError(28, "No space left on device")
-        allocate(descriptor, offset, size)
-
-    monkeypatch.setattr(os, "posix_fallocate", full_shared_memory)
-    backing = files._buffers_file(1000)
-    assert backing is not None and not backing.name.startswith("/dev/shm/")  # the temporary folder instead
-    backing.close()
 
     def no_room(descriptor: int, offset: int, size: int) -> None:
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(os, "posix_fallocate", no_room)
     before = _child_processes()
-    for frame in iter_frames(str(clip), ring=2, while_waiting=lambda pixels: None):
-        np.testing.assert_array_equal(frame.pixels, frames[frame.index])
-        assert _child_processes() == before  # no decoder process
+    for patch in [(os, "posix_fallocate", no_room), (os, "sched_getaffinity", lambda pid: {0})]:
+        with monkeypatch.context() as patched:
+            patched.setattr(*patch)
+            for frame in iter_frames(str(clip), ring=2, while_waiting=lambda pixels: None):
+                np.testing.assert_array_equal(frame.pixels, frames[frame.index])
+                assert _child_processes() == before  # no decoder process
 
 
 def test_a_negative_ring_is_refused_for_any_source(tmp_path: Path) -> None:

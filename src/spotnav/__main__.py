@@ -2,5 +2,5 @@
 
 from spotnav.cli import main
 
-if __name__ == "__main__":  # not in a process that multiprocessing spawns
+if __name__ == "__main__":
     raise SystemExit(main())

@@ -16,17 +16,14 @@ import math
 import mmap
 import os
 import select
-import signal
 import struct
 import subprocess
 import sys
-import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import IO
 
 import cv2
 import numpy as np
@@ -87,9 +84,9 @@ class ImageReadError(InputError):
 
 
 _DECODER_JOIN_S = 5.0  # how long a decoder told to stop may take to finish its frame
-# A decoder process's record of a frame: its index (or _END, or _FAILED and then a message of the length in the
-# second field), decoding ms, Unix seconds when grabbed and perf_counter seconds when decoded.
-_RECORD = struct.Struct("<qddd")
+# A decoder process's record of a frame: its index (or _END, or _FAILED), the length of the note that follows (why
+# a frame has no pixels, or the failure), decoding ms, Unix seconds when grabbed, perf_counter seconds when decoded.
+_RECORD = struct.Struct("<qqddd")
 _END, _FAILED = -1, -2
 MAX_IMAGE_BYTES = 1 << 30  # the most memory one decoded image may take (8 bytes a pixel at most: RGBA, 16 bits)
 
@@ -556,6 +553,10 @@ class Frame:
         RGB (or grey) pixels; None when the file could not be read (see ``error``).
     decode_ms : float
         Time spent reading and decoding, ms.
+    ready_s : float
+        When the frame was decoded and asked for, the later of the two,
+        :func:`time.perf_counter` seconds (one clock for every process on
+        Linux): where its latency starts.
     error : str
         Why ``pixels`` is None.
     timestamp_s : float
@@ -564,20 +565,16 @@ class Frame:
         held it a few frames before), when a file was read.
     error_status : str
         The status of a frame without ``pixels``: ``unreadable`` or ``wrong_size``.
-    ready_s : float
-        When the frame was decoded and asked for, the later of the two,
-        :func:`time.perf_counter` seconds (the same clock in every process on
-        Linux): where its latency starts.
     """
 
     index: int
     image: str
     pixels: np.ndarray | None
     decode_ms: float
+    ready_s: float
     error: str = ""
     timestamp_s: float = 0.0
     error_status: str = "unreadable"
-    ready_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -666,12 +663,14 @@ def iter_frames(
     while_waiting : callable, optional
         Decode a video file in a second process instead, one frame ahead, on
         other cores than the caller's thread, which is kept to one core while
-        it iterates (when it may run on two or more). While the next frame is
-        not decoded yet, this is called with the last frame's pixels, again
-        and again (:meth:`spotnav.track.Tracker.rehearse` keeps a tracked
-        frame's code and data in that core's caches). ``ring`` must then be
-        at least 1. Images and live sources are decoded in the caller's
-        thread all the same.
+        it iterates (threads it starts meanwhile stay there too). While the
+        next frame is not decoded yet, this is called with the last frame's
+        pixels, again and again (:meth:`spotnav.track.Tracker.rehearse`
+        keeps a tracked frame's code and data in that core's caches).
+        ``ring`` must then be at least 1; frames are kept for ``ring`` frames
+        as above. On Linux with two cores or more; elsewhere, and without
+        room for the shared buffers, the video is decoded in the caller's
+        thread, as are images and live sources.
 
     Raises
     ------
@@ -713,7 +712,7 @@ def _read_files(files: Sequence[str], expected_size: tuple[int, int] | None) -> 
         except ImageReadError as failure:
             pixels, error, status = None, str(failure), failure.status
         ready = time.perf_counter()
-        yield Frame(index, display_name(name), pixels, 1000 * (ready - start), error, stamp, status, ready)
+        yield Frame(index, display_name(name), pixels, 1000 * (ready - start), ready, error, stamp, status)
 
 
 def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
@@ -734,7 +733,7 @@ def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
             if ring:
                 buffers[slot] = pixels
             ready = time.perf_counter()
-            yield Frame(index, "", pixels, 1000 * (ready - start), timestamp_s=stamp, ready_s=ready)
+            yield Frame(index, "", pixels, 1000 * (ready - start), ready, timestamp_s=stamp)
             index += 1
     finally:
         capture.release()
@@ -742,7 +741,7 @@ def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
 
 def _split_cores() -> tuple[set[int], set[int]]:
     """One core for the caller's thread and the others for a decoder, of those this thread may run on; two empty
-    sets (no pinning) with fewer than two."""
+    sets with fewer than two (or where threads cannot be kept to cores)."""
     cores = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else set()
     if len(cores) < 2:
         return set(), set()
@@ -753,88 +752,100 @@ def _split_cores() -> tuple[set[int], set[int]]:
 def _read_capture_in_process(
     source: str, capture: cv2.VideoCapture, ring: int, while_waiting: Callable[[np.ndarray], object]
 ) -> Iterator[Frame]:
-    """:func:`iter_frames`'s video frames from a decoder process, through a ring of ``ring + 1`` shared buffers:
-    a frame's buffer is written again once the frame ``ring`` later is handed over."""
+    """:func:`iter_frames`'s video frames from a decoder process, through a ring of ``ring + 1`` buffers in shared
+    memory: a frame's buffer is written again once the frame ``ring`` later is handed over. In this thread, as
+    :func:`_read_capture`, without a second core to decode on or shared memory to decode into."""
+    own, others = _split_cores()
     shape = (ring + 1, int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)), int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), 3)
-    backing = _buffers_file(math.prod(shape))
-    if backing is None:  # no room for the shared buffers: decode in this thread
+    buffers = _shared_buffers(math.prod(shape)) if own and min(shape) > 0 else None
+    if buffers is None:
         return _read_capture(capture, ring)
     capture.release()
-    return _frames_from_process(source, backing, shape, while_waiting)
+    return _frames_from_process(source, buffers, shape, (own, others), while_waiting)
 
 
-def _buffers_file(size: int) -> IO[bytes] | None:
-    """A temporary file of ``size`` bytes, its blocks allocated (a full file system would otherwise kill the
-    process that writes it), in shared memory if it has room, else in the temporary folder; None if neither has."""
-    for folder in ("/dev/shm", None):
-        if folder is not None and not os.path.isdir(folder):
-            continue
-        backing = tempfile.NamedTemporaryFile(prefix="spotnav-frames-", dir=folder)
-        try:
-            if hasattr(os, "posix_fallocate"):
-                os.posix_fallocate(backing.fileno(), 0, size)
-            else:
-                backing.truncate(size)
-        except OSError:
-            backing.close()
-            continue
-        return backing
-    return None
+def _shared_buffers(size: int) -> int | None:
+    """A file descriptor of ``size`` bytes of anonymous shared memory, allocated (so that no write to it can fail
+    later), which no file names (nothing is left behind however the process ends); None where there is none or
+    no room."""
+    if not hasattr(os, "memfd_create"):
+        return None
+    descriptor = os.memfd_create("spotnav-frames")
+    try:
+        os.posix_fallocate(descriptor, 0, size)
+    except OSError:
+        os.close(descriptor)
+        return None
+    return descriptor
 
 
 def _frames_from_process(
-    source: str, backing: IO[bytes], shape: tuple[int, int, int, int], while_waiting: Callable[[np.ndarray], object]
+    source: str,
+    buffers: int,
+    shape: tuple[int, int, int, int],
+    cores: tuple[set[int], set[int]],
+    while_waiting: Callable[[np.ndarray], object],
 ) -> Iterator[Frame]:
     """Start :func:`_decode_frames_main` in a new interpreter (not a fork: OpenCV's threads do not survive one) and
-    hand over its frames, decoded into ``backing``. It decodes a frame once the one before was handed over (a byte
-    on its standard input each) and sends a :data:`_RECORD` for each (then :data:`_END`, or :data:`_FAILED` and a
-    message)."""
-    own, others = _split_cores()
-    with backing:
-        ring = np.frombuffer(mmap.mmap(backing.fileno(), math.prod(shape)), dtype=np.uint8).reshape(shape)
-        records, records_out = os.pipe()
-        package_root = str(Path(__file__).resolve().parents[1])
-        environment = {**os.environ, "PYTHONPATH": os.pathsep.join([package_root, os.environ.get("PYTHONPATH", "")])}
-        arguments = [source, backing.name, ",".join(map(str, shape)), str(records_out), ",".join(map(str, others))]
-        decoder = subprocess.Popen(
-            [sys.executable, "-c", "import spotnav.files as f; f._decode_frames_main()", *arguments],
-            stdin=subprocess.PIPE,
-            pass_fds=(records_out,),
-            env=environment,
-        )
-        os.close(records_out)
-        affinity = os.sched_getaffinity(0) if own else set()
+    hand over the frames it decodes into ``buffers`` (a file descriptor), this thread on the first of ``cores``
+    (own, the decoder's) meanwhile.
+
+    The decoder decodes a frame once the one before was handed over (a byte on its standard input each) and sends
+    a :data:`_RECORD` for each, then :data:`_END` (or :data:`_FAILED`), each followed by its note if any. It runs in
+    its own session: a signal to this process group is this process's to act on.
+    """
+    own, others = cores
+    ring = np.frombuffer(mmap.mmap(buffers, math.prod(shape)), dtype=np.uint8).reshape(shape)
+    records, records_out = os.pipe()
+    arguments = [source, str(buffers), ",".join(map(str, shape)), str(records_out), ",".join(map(str, others))]
+    package_root = str(Path(__file__).resolve().parents[1])
+    paths = [package_root, *filter(None, [os.environ.get("PYTHONPATH")])]
+    decoder = subprocess.Popen(
+        [sys.executable, "-P", "-c", "import spotnav.files as f; f._decode_frames_main()", *arguments],
+        stdin=subprocess.PIPE,
+        pass_fds=(buffers, records_out),
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(paths)},
+        start_new_session=True,
+    )
+    os.close(records_out)
+    os.close(buffers)
+    arrived = select.poll()
+    arrived.register(records, select.POLLIN)
+    affinity = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, own)
+        last: np.ndarray | None = None
+        while True:
+            asked = time.perf_counter()
+            while last is not None and not arrived.poll(0):
+                while_waiting(last)
+            record = _read_exactly(records, _RECORD.size)
+            if len(record) < _RECORD.size:
+                code = decoder.wait(_DECODER_JOIN_S)
+                raise ImageReadError(f"{source}: the decoder process ended before the video did (exit code {code})")
+            index, note_length, decode_ms, stamp, decoded = _RECORD.unpack(record)
+            note = _read_exactly(records, note_length).decode(errors="replace")
+            if index == _END:
+                return
+            if index == _FAILED:
+                raise ImageReadError(note)
+            pixels = None if note else ring[index % len(ring)]
+            with contextlib.suppress(BrokenPipeError):  # a decoder that died: the next read says so
+                os.write(decoder.stdin.fileno(), b"\0")  # the decoder may go on with the next frame
+            last = last if pixels is None else pixels
+            ready = max(decoded, asked)
+            yield Frame(index, "", pixels, decode_ms, ready, note, stamp, "wrong_size" if note else "unreadable")
+    finally:
         try:
-            if own:
-                os.sched_setaffinity(0, own)
-            last: np.ndarray | None = None
-            while True:
-                asked = time.perf_counter()
-                while last is not None and not select.select([records], [], [], 0)[0]:
-                    while_waiting(last)
-                record = _read_exactly(records, _RECORD.size)
-                if len(record) < _RECORD.size:
-                    code = decoder.wait(_DECODER_JOIN_S)
-                    raise ImageReadError(f"{source}: the decoder process ended before the video did (exit code {code})")
-                index, decode_ms, stamp, decoded = _RECORD.unpack(record)
-                if index == _END:
-                    return
-                if index == _FAILED:
-                    raise ImageReadError(_read_exactly(records, int(decode_ms)).decode(errors="replace"))
-                last = ring[index % len(ring)]
-                with contextlib.suppress(BrokenPipeError):  # a decoder that died: the next read says so
-                    os.write(decoder.stdin.fileno(), b"\0")  # the decoder may go on with the next frame
-                yield Frame(index, "", last, decode_ms, timestamp_s=stamp, ready_s=max(decoded, asked))
+            os.sched_setaffinity(0, affinity)
         finally:
+            os.close(records)
             decoder.stdin.close()
             try:
                 decoder.wait(_DECODER_JOIN_S)
             except subprocess.TimeoutExpired:
                 decoder.kill()
                 decoder.wait()
-            os.close(records)
-            if own:
-                os.sched_setaffinity(0, affinity)
 
 
 def _read_exactly(descriptor: int, size: int) -> bytes:
@@ -848,23 +859,41 @@ def _read_exactly(descriptor: int, size: int) -> bytes:
     return data
 
 
+def _send_record(
+    descriptor: int, index: int, note: str = "", times: tuple[float, float, float] = (0.0, 0.0, 0.0)
+) -> None:
+    """One :data:`_RECORD` and its note."""
+    encoded = note.encode()
+    os.write(descriptor, _RECORD.pack(index, len(encoded), *times) + encoded)
+
+
 def _decode_frames_main() -> None:
     """A decoder process's work (started by :func:`_frames_from_process`; its arguments: the source, the buffers'
-    file, their shape, the records' file descriptor and the cores to run on, comma-separated).
+    file descriptor, their shape, the records' file descriptor and the cores to run on, comma-separated).
 
     Frame ``k`` is decoded into buffer ``k % len(buffers)``, the first at once and each next one when a byte on
-    standard input says that the one before was handed over; the process ends at the video's end or when its
-    standard input does (the parent stopped, or is gone).
+    standard input says that the one before was handed over; a frame of another size is not (its record's note
+    says why). The process ends at the video's end or when its standard input does (the parent stopped, or is
+    gone); a failure is sent as :data:`_FAILED` with its message.
     """
-    source, path, shape_text, descriptor, cores = sys.argv[1:]
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C reaches the whole process group: the parent stops this
-    if cores:
-        os.sched_setaffinity(0, {int(core) for core in cores.split(",")})
-    shape = tuple(int(n) for n in shape_text.split(","))
+    source, buffers, shape_text, descriptor, cores = sys.argv[1:]
     records = int(descriptor)
-    with open(path, "r+b") as backing:
-        ring = np.frombuffer(mmap.mmap(backing.fileno(), math.prod(shape)), dtype=np.uint8).reshape(shape)
-    capture, decoded = _open_capture(source, {}), None
+    try:
+        if cores:
+            os.sched_setaffinity(0, {int(core) for core in cores.split(",")})
+        shape = tuple(int(n) for n in shape_text.split(","))
+        ring = np.frombuffer(mmap.mmap(int(buffers), math.prod(shape)), dtype=np.uint8).reshape(shape)
+        _decode_into(_open_capture(source, {}), ring, records)
+    except BrokenPipeError:  # the parent stopped reading
+        return
+    except Exception as error:  # any failure is the parent's to report, in one line
+        with contextlib.suppress(BrokenPipeError):
+            _send_record(records, _FAILED, f"{source}: the decoder process failed: {error}")
+
+
+def _decode_into(capture: cv2.VideoCapture, ring: np.ndarray, records: int) -> None:
+    """:func:`_decode_frames_main`'s loop: ``capture``'s frames into the buffers ``ring`` (B, H, W, 3)."""
+    decoded = None
     try:
         for index in itertools.count():
             if index > 0 and not os.read(0, 1):
@@ -876,16 +905,15 @@ def _decode_frames_main() -> None:
             ok, decoded = capture.retrieve(decoded)
             if not ok:
                 break
-            if decoded.shape != shape[1:] or decoded.dtype != np.uint8:
-                message = f"{source}: frame {index} is {decoded.shape} {decoded.dtype}, not {shape[1:]} uint8".encode()
-                os.write(records, _RECORD.pack(_FAILED, len(message), 0.0, 0.0) + message)
-                return
+            times = (1000 * (time.perf_counter() - start), stamp)
+            if decoded.shape != ring.shape[1:] or decoded.dtype != np.uint8:
+                size, first = f"{decoded.shape[1]}x{decoded.shape[0]}", f"{ring.shape[2]}x{ring.shape[1]}"
+                wrong = f"frame {index} is {size} px {decoded.dtype}, the video's first {first} px uint8"
+                _send_record(records, index, wrong, (*times, time.perf_counter()))
+                continue
             cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=ring[index % len(ring)])
-            done = time.perf_counter()
-            os.write(records, _RECORD.pack(index, 1000 * (done - start), stamp, done))
-        os.write(records, _RECORD.pack(_END, 0.0, 0.0, 0.0))
-    except BrokenPipeError:  # the parent stopped reading
-        return
+            _send_record(records, index, "", (*times, time.perf_counter()))
+        _send_record(records, _END)
     finally:
         capture.release()
 

@@ -370,12 +370,18 @@ class Tracker:
         return TrackedFrame(self._remember(estimate), mode, edges)
 
     def rehearse(self, image: np.ndarray) -> None:
-        """Track ``image`` (the last frame) again from the last pose, with the fewest rays, keeping nothing.
+        """Track the last frame again from the last pose, a step a call, with the fewest rays, keeping nothing.
 
         Called again and again while the next frame is awaited, this keeps the
         code and data a tracked frame runs from in the core's caches: met
         cold, after a video decoder ran in the same thread, a tracked frame at
-        2048 px took twice as long. Does nothing without a pose.
+        2048 px took twice as long. The steps alternate: the edges along the
+        rays, then their fit. Does nothing without a pose.
+
+        Parameters
+        ----------
+        image : ndarray, shape (H, W, 3) or (H, W)
+            The last frame given to :meth:`update`.
         """
         if self._last is None:
             return
