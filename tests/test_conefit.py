@@ -137,22 +137,25 @@ def test_the_compiled_solver_gives_scipy_s_answer(x: float, y: float, z: float, 
     assert np.array_equal(compiled.inliers, scipy.inliers) and compiled.settled == scipy.settled
 
 
-def test_the_fit_recipe_is_one_code_compiled_or_run_by_python() -> None:
-    # Gauss-Newton runs the recipe compiled; the same recipe run by Python gives the same bits. Compiled, it runs
-    # no other solver (they may need SciPy).
+@pytest.mark.parametrize("solver", ["gauss-newton", "levenberg-marquardt"])
+def test_the_fit_recipe_is_one_code_compiled_or_run_by_python(solver: str) -> None:
+    # Gauss-Newton and Levenberg-Marquardt run the recipe compiled; the same recipe run by Python gives the same
+    # bits. Compiled, it runs no trust region (SciPy's).
     setup = replace(EXACT, instrument=Instrument(beam_count=3), uncertainty=Uncertainty())
     pose = InstrumentPose.through_insertion([1.0, -0.5, 4.5], setup.instrument.insertion_in_eye)
     rng = np.random.default_rng(4)
     edges = [edge + rng.normal(0.0, 0.2, edge.shape) for edge in _edges_px(setup, pose, 0.1)]
     problem = _one_frame(setup, edges, pose.tip_in_eye + 0.02, pose.axis, 0.0)
-    fit = fit_cones(problem, solver="gauss-newton")
-    x, box = problem.start, (np.full(problem.size, -np.inf), np.full(problem.size, np.inf), np.arange(0))
-    arguments = (x, problem._arrays, len(problem.free_frame), box, SOLVERS.index("gauss-newton"))
+    fit = fit_cones(problem, solver=solver)
+    low, high = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
+    x, box = problem.start, (low, high, np.arange(0))
+    arguments = (x, problem._arrays, len(problem.free_frame), box, SOLVERS.index(solver))
     compiled, interpreted = _fit_recipe(*arguments, None), _fit_recipe.py_func(*arguments, (problem, None))
-    for a, b, c in zip(compiled, interpreted, (fit.x, fit.residuals, fit.inliers), strict=True):
+    assert compiled[3] and interpreted[3]  # done
+    for a, b, c in zip(compiled[:3], interpreted[:3], (fit.x, fit.residuals, fit.inliers), strict=True):
         assert np.array_equal(a, b) and np.array_equal(a, c)
-    with pytest.raises(ValueError, match="Gauss-Newton"):
-        _fit_recipe(*arguments[:-1], SOLVERS.index("levenberg-marquardt"), None)
+    with pytest.raises(ValueError, match="Gauss-Newton's or Levenberg-Marquardt's"):
+        _fit_recipe(*arguments[:-1], SOLVERS.index("trust-region"), None)
 
 
 def test_the_compiled_solver_does_not_leap_to_the_box_wall() -> None:

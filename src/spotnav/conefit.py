@@ -110,6 +110,7 @@ _FRAME_SIZE = len(FRAME_PARAMETERS)
 AXIS_MODES = {"insertion": 0, "free": 1, "known": 2}
 SOLVERS = ("trust-region", "levenberg-marquardt", "gauss-newton")
 _GAUSS_NEWTON = SOLVERS.index("gauss-newton")
+_LEVENBERG_MARQUARDT = SOLVERS.index("levenberg-marquardt")
 _GROSS_RESIDUAL = 1.0  # radians: a point whose ray misses the bowl
 
 
@@ -1181,45 +1182,54 @@ def fit_cones(
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
     if solver != "trust-region" and (priors is not None or problem.free_shared):
         raise ValueError(f"solver {solver!r} fits the frames' own parameters without priors: use trust-region")
-    x = problem.start
+    start = problem.start
     low, high = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
     tip_index = problem._arrays[7][:, :3]
     tip_index = tip_index[tip_index >= 0]
-    low[tip_index], high[tip_index] = x[tip_index] - max_tip_move_mm, x[tip_index] + max_tip_move_mm
+    low[tip_index], high[tip_index] = start[tip_index] - max_tip_move_mm, start[tip_index] + max_tip_move_mm
     box = (low, high, tip_index)
-    per_frame, code = len(problem.free_frame), SOLVERS.index(solver)
-    if solver == "gauss-newton":
-        x, residuals, inliers = _fit_recipe(x, problem._arrays, per_frame, box, code, None)
-    else:  # the same recipe run by Python, whose solve steps may call SciPy
-        x, residuals, inliers = _fit_recipe.py_func(x, problem._arrays, per_frame, box, code, (problem, priors))
+    per_frame, code, arrays = len(problem.free_frame), SOLVERS.index(solver), problem._arrays
+    done = False
+    if solver != "trust-region":
+        x, residuals, inliers, done = _fit_recipe(start, arrays, per_frame, box, code, None)
+    if not done:  # the same recipe run by Python, whose solve steps may call SciPy
+        x, residuals, inliers, _ = _fit_recipe.py_func(start, arrays, per_frame, box, code, (problem, priors))
     return _solution(problem, x, residuals, inliers, contour_sigma, priors, settled=not _at_box(x, box))
 
 
-def _at_box(x: np.ndarray, box: tuple[np.ndarray, np.ndarray, np.ndarray]) -> bool:
+@njit(cache=True)
+def _at_box(x: np.ndarray, box: tuple) -> bool:
     """Whether a tip of ``x`` is held at its box's wall; ``box`` is (low, high, the tips' indices in ``x``)."""
     low, high, tip_index = box
-    tips = x[tip_index]
-    return bool(np.any((tips - low[tip_index] <= _AT_BOX_MM) | (high[tip_index] - tips <= _AT_BOX_MM)))
+    for i in tip_index:
+        if x[i] - low[i] <= _AT_BOX_MM or high[i] - x[i] <= _AT_BOX_MM:
+            return True
+    return False
 
 
 @njit(cache=True)
 def _fit_recipe(
     x: np.ndarray, arrays: tuple, per_frame: int, box: tuple, solver: int, context: object
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """The one robust recipe of :func:`fit_cones`: from ``x``, a soft-L1 solve at the residuals' robust scale, the
     points within 3 robust sigmas of the cones, a least-squares solve on them. Returns the parameters, their
-    residuals (N,) and the inliers (N,).
+    residuals (N,), the inliers (N,) and whether it is done: false when a compiled solve step would need SciPy
+    (the rest is then not run).
 
-    Compiled for Gauss-Newton (``context`` None); the other solvers run this same code as ``_fit_recipe.py_func``,
-    whose solve steps (:func:`_solve_step`) may call SciPy with ``context`` = (problem, priors).
+    Compiled for Gauss-Newton and Levenberg-Marquardt (``context`` None); the trust region, and a
+    Levenberg-Marquardt fit whose compiled run was not done, run this same code as ``_fit_recipe.py_func``, whose
+    solve steps (:func:`_solve_step`) may call SciPy with ``context`` = (problem, priors).
     """
     residuals = _residuals(x, arrays)
     rows = np.ones(len(residuals), dtype=np.bool_)
-    x = _solve_step(solver, x, arrays, rows, max(robust_sigma(residuals, True), 1e-6), per_frame, box, context)
+    scale = max(robust_sigma(residuals, True), 1e-6)
+    x, done = _solve_step(solver, x, arrays, rows, scale, per_frame, box, context)
+    if not done:
+        return x, residuals, rows, False
     residuals = _residuals(x, arrays)
     inliers = np.abs(residuals) < 3.0 * max(robust_sigma(residuals, False), 1e-7)
-    x = _solve_step(solver, x, arrays, inliers, 0.0, per_frame, box, context)
-    return x, _residuals(x, arrays), inliers
+    x, done = _solve_step(solver, x, arrays, inliers, 0.0, per_frame, box, context)
+    return x, _residuals(x, arrays), inliers, done
 
 
 def _solve_step(
@@ -1231,25 +1241,34 @@ def _solve_step(
     per_frame: int,
     box: tuple[np.ndarray, np.ndarray, np.ndarray],
     context: tuple[ConeProblem, np.ndarray | None] | None,
-) -> np.ndarray:
+) -> tuple[np.ndarray, bool]:
     """One solve of the recipe from ``x`` on the points ``rows`` (N,): soft-L1 at ``scale``, least squares at 0.
 
     ``solver`` indexes :data:`SOLVERS`; ``box`` is (low, high, the tips' indices) and ``context`` (problem,
-    priors), for SciPy (None for Gauss-Newton). Compiled code calls :func:`_compiled_solve_step` instead; the
-    Gauss-Newton branch here keeps the recipe's source runnable both ways (a test compares them).
+    priors), for SciPy. Returns the parameters and whether the step is done (always here, where SciPy can run);
+    compiled code calls :func:`_compiled_solve_step` instead.
     """
-    least = None if scale <= 0.0 else scale
     if SOLVERS[solver] == "gauss-newton":
-        return _gauss_newton(x, arrays, rows, scale, per_frame, 2 if scale > 0.0 else 1)
-    (problem, priors), (low, high, _) = context, box
+        return _gauss_newton(x, arrays, rows, scale, per_frame, 2 if scale > 0.0 else 1), True
     if SOLVERS[solver] == "levenberg-marquardt":
-        tolerance = _LM_ROBUST_TOLERANCE if least else _LM_TOLERANCE
-        fitted = _levenberg_marquardt(x, arrays, rows, scale, low, high, per_frame, tolerance)
+        fitted = _levenberg_marquardt_step(x, arrays, rows, scale, per_frame, box)
         if not _at_box(fitted, box):
-            return fitted
-        # Its first, barely damped steps can leap from a poor start to the box's wall: SciPy's trust region, which
-        # grows its steps only as the model earns it, from the same start.
-    return _solve(problem, x, rows, least, (low, high), priors)
+            return fitted, True
+    (problem, priors), (low, high, _) = context, box
+    return _solve(problem, x, rows, None if scale <= 0.0 else scale, (low, high), priors), True
+
+
+@njit(cache=True)
+def _levenberg_marquardt_step(
+    x: np.ndarray, arrays: tuple, rows: np.ndarray, scale: float, per_frame: int, box: tuple
+) -> np.ndarray:
+    """The recipe's Levenberg-Marquardt solve: :func:`_levenberg_marquardt` in ``box`` at the step's tolerance.
+
+    Its first, barely damped steps can leap from a poor start to the box's wall: such a solve is done again by
+    SciPy's trust region, which grows its steps only as the model earns it, from the same start.
+    """
+    tolerance = _LM_ROBUST_TOLERANCE if scale > 0.0 else _LM_TOLERANCE
+    return _levenberg_marquardt(x, arrays, rows, scale, box[0], box[1], per_frame, tolerance)
 
 
 @overload(_solve_step)
@@ -1263,7 +1282,8 @@ def _compiled_solve_step(
     box: object,
     context: object,
 ) -> Callable:
-    """:func:`_solve_step` in compiled code: Gauss-Newton's (the solver that needs no SciPy)."""
+    """:func:`_solve_step` in compiled code: Gauss-Newton's and Levenberg-Marquardt's, not done when the latter
+    ends on the box's wall (SciPy's trust region then runs in Python)."""
 
     def solve_step(  # Numba asks for the overload's own parameters, annotations included
         solver: object,
@@ -1274,10 +1294,13 @@ def _compiled_solve_step(
         per_frame: object,
         box: object,
         context: object,
-    ) -> np.ndarray:
-        if solver != _GAUSS_NEWTON:
-            raise ValueError("compiled fits are Gauss-Newton's")
-        return _gauss_newton(x, arrays, rows, scale, per_frame, 2 if scale > 0.0 else 1)
+    ) -> tuple[np.ndarray, bool]:
+        if solver == _GAUSS_NEWTON:
+            return _gauss_newton(x, arrays, rows, scale, per_frame, 2 if scale > 0.0 else 1), True
+        if solver != _LEVENBERG_MARQUARDT:
+            raise ValueError("compiled fits are Gauss-Newton's or Levenberg-Marquardt's")
+        fitted = _levenberg_marquardt_step(x, arrays, rows, scale, per_frame, box)
+        return fitted, not _at_box(fitted, box)
 
     return solve_step
 
