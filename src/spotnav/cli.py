@@ -263,7 +263,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
             tracker = Tracker(setup, through_insertion=args.method == "precise")
         report = partial(print, file=sys.stderr)
         size = (setup.camera.width_px, setup.camera.height_px)
-        # The tracker keeps no image: frames are decoded into a ring of two buffers, a video's in a second process.
+        # The tracker keeps no image: a frame's buffer is reused two frames later; a video is decoded in a second
+        # process, and the tracker rehearses the last frame while it waits.
         source = iter_frames(
             args.source, ring=2, camera=camera, report=report, expected_size=size, while_waiting=tracker.rehearse
         )
