@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from spotnav import files
 from spotnav.config import Bump, Instrument, Setup, SetupError, World, setup_from_toml
 from spotnav.estimate import PoseEstimate
 from spotnav.files import (
@@ -235,6 +236,21 @@ def test_without_shared_memory_or_a_second_core_a_video_is_decoded_in_this_threa
             for frame in iter_frames(str(clip), ring=2, while_waiting=lambda pixels: None):
                 np.testing.assert_array_equal(frame.pixels, frames[frame.index])
                 assert _child_processes() == before  # no decoder process
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
+def test_the_tracker_keeps_to_the_core_it_runs_on() -> None:
+    # Two trackers on one machine each keep to the core the scheduler gave it, not both to the first one.
+    cores = os.sched_getaffinity(0)
+    try:
+        for core in sorted(cores):
+            os.sched_setaffinity(0, {core})
+            assert files._current_core(cores) == core
+    finally:
+        os.sched_setaffinity(0, cores)
+    assert files._current_core(set(range(10_000, 10_002))) == 10_000  # a core it may not run on: the first allowed
+    own, others = files._split_cores()
+    assert (len(own), own | others, own & others) == ((1, cores, set()) if len(cores) > 1 else (0, set(), set()))
 
 
 def test_a_negative_ring_is_refused_for_any_source(tmp_path: Path) -> None:

@@ -19,6 +19,7 @@ import select
 import struct
 import subprocess
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -662,8 +663,9 @@ def iter_frames(
         decoded (its frame's ``error_status`` is ``wrong_size``).
     while_waiting : callable, optional
         Decode a video file in a second process instead, one frame ahead, on
-        other cores than the caller's thread, which is kept to one core while
-        it iterates (threads it starts meanwhile stay there too). While the
+        other cores than the caller's thread, which is kept to the core it
+        runs on while it iterates (threads it starts meanwhile stay there
+        too; two trackers on one machine keep to two cores). While the
         next frame is not decoded yet, this is called with the last frame's
         pixels, again and again (:meth:`spotnav.track.Tracker.rehearse`
         keeps a tracked frame's code and data in that core's caches).
@@ -740,13 +742,24 @@ def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
 
 
 def _split_cores() -> tuple[set[int], set[int]]:
-    """One core for the caller's thread and the others for a decoder, of those this thread may run on; two empty
-    sets with fewer than two (or where threads cannot be kept to cores)."""
+    """One core for the caller's thread, the one it runs on (the scheduler's choice keeps two trackers on one
+    machine apart), and the others for a decoder, of those this thread may run on; two empty sets with fewer than
+    two (or where threads cannot be kept to cores)."""
     cores = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else set()
     if len(cores) < 2:
         return set(), set()
-    own = {min(cores)}
+    own = {_current_core(cores)}
     return own, cores - own
+
+
+def _current_core(cores: set[int]) -> int:
+    """The core this thread last ran on (Linux's ``/proc``), if it is one of ``cores``; else the first of them."""
+    try:
+        stat = Path(f"/proc/self/task/{threading.get_native_id()}/stat").read_text()
+        core = int(stat.rsplit(")", 1)[1].split()[36])  # field 39, "processor"; the fields after the name from 3
+    except (OSError, ValueError, IndexError):
+        return min(cores)
+    return core if core in cores else min(cores)
 
 
 def _read_capture_in_process(
