@@ -10,7 +10,6 @@ from __future__ import annotations
 import contextlib
 import csv
 import glob
-import itertools
 import json
 import math
 import mmap
@@ -717,28 +716,34 @@ def _read_files(files: Sequence[str], expected_size: tuple[int, int] | None) -> 
         yield Frame(index, display_name(name), pixels, 1000 * (ready - start), ready, error, stamp, status)
 
 
-def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
-    buffers: list[np.ndarray | None] = [None] * max(ring, 1)
+def _grabbed(capture: cv2.VideoCapture, reuse: bool) -> Iterator[tuple[np.ndarray, float, float]]:
+    """``capture``'s frames as OpenCV decodes them (BGR; into one buffer with ``reuse``), each with the
+    :func:`time.perf_counter` seconds when its decoding started and the Unix seconds when it was grabbed; the capture
+    is released at the end."""
     decoded: np.ndarray | None = None
     try:
-        index = 0
         while True:
             start = time.perf_counter()
             if not capture.grab():
                 return
             stamp = time.time()
-            ok, decoded = capture.retrieve(decoded if ring else None)
+            ok, decoded = capture.retrieve(decoded if reuse else None)
             if not ok:
                 return
-            slot = index % len(buffers)
-            pixels = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=buffers[slot])
-            if ring:
-                buffers[slot] = pixels
-            ready = time.perf_counter()
-            yield Frame(index, "", pixels, 1000 * (ready - start), ready, timestamp_s=stamp)
-            index += 1
+            yield decoded, start, stamp
     finally:
         capture.release()
+
+
+def _read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
+    buffers: list[np.ndarray | None] = [None] * max(ring, 1)
+    for index, (decoded, start, stamp) in enumerate(_grabbed(capture, bool(ring))):
+        slot = index % len(buffers)
+        pixels = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=buffers[slot])
+        if ring:
+            buffers[slot] = pixels
+        ready = time.perf_counter()
+        yield Frame(index, "", pixels, 1000 * (ready - start), ready, timestamp_s=stamp)
 
 
 def _split_cores() -> tuple[set[int], set[int]]:
@@ -905,30 +910,22 @@ def _decode_frames_main() -> None:
 
 
 def _decode_into(capture: cv2.VideoCapture, ring: np.ndarray, records: int) -> None:
-    """:func:`_decode_frames_main`'s loop: ``capture``'s frames into the buffers ``ring`` (B, H, W, 3)."""
-    decoded = None
-    try:
-        for index in itertools.count():
-            if index > 0 and not os.read(0, 1):
-                return
-            start = time.perf_counter()
-            if not capture.grab():
-                break
-            stamp = time.time()
-            ok, decoded = capture.retrieve(decoded)
-            if not ok:
-                break
+    """:func:`_decode_frames_main`'s loop: ``capture``'s frames into the buffers ``ring`` (B, H, W, 3), each next
+    one once a byte on standard input says so."""
+    frames = _grabbed(capture, reuse=True)
+    with contextlib.closing(frames):
+        for index, (decoded, start, stamp) in enumerate(frames):
             times = (1000 * (time.perf_counter() - start), stamp)
+            note = ""
             if decoded.shape != ring.shape[1:] or decoded.dtype != np.uint8:
                 size, first = f"{decoded.shape[1]}x{decoded.shape[0]}", f"{ring.shape[2]}x{ring.shape[1]}"
-                wrong = f"frame {index} is {size} px {decoded.dtype}, the video's first {first} px uint8"
-                _send_record(records, index, wrong, (*times, time.perf_counter()))
-                continue
-            cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=ring[index % len(ring)])
-            _send_record(records, index, "", (*times, time.perf_counter()))
+                note = f"frame {index} is {size} px {decoded.dtype}, the video's first {first} px uint8"
+            else:
+                cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB, dst=ring[index % len(ring)])
+            _send_record(records, index, note, (*times, time.perf_counter()))
+            if not os.read(0, 1):  # the frame was handed over: decode the next one (or the parent stopped)
+                return
         _send_record(records, _END)
-    finally:
-        capture.release()
 
 
 def _open_capture(source: str, wanted: Mapping[int, float]) -> cv2.VideoCapture:
