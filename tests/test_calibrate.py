@@ -99,6 +99,13 @@ def test_a_wrong_geometry_is_measured_and_localized_within_its_sigma() -> None:
     world = replace(world, instrument=instrument)
     setup = replace(nominal, uncertainty=Uncertainty())
     result = calibrate(known_frames(world, 10, seed=11, axes=True), setup)
+    # The parameters left at the setup's values (the camera's centre and principal point, the eye) still move a
+    # tip found from the edges alone along the instrument's axis: the calibration frames' own tips miss by about
+    # 0.01 mm, more than the fit's covariance says, and it is scaled up (by 1.8).
+    assert len(result.tip_misses_mm) == 10 and np.mean(result.tip_misses_mm) > 0.008
+    assert result.covariance_scale > 1.5
+    record = result.setup.calibration
+    np.testing.assert_allclose(np.sqrt(np.diag(record.covariance)), result.sigmas, rtol=1e-12)
     for group in ("edge_half_angle_deg", "camera_rotation_x_deg", "camera_rotation_z_deg", "distortion_k1"):
         assert group in result.fitted
     np.testing.assert_allclose(result.setup.instrument.insertion_point_mm, (0.4, 5.7, 20.5), atol=1e-3)
@@ -121,6 +128,8 @@ def test_a_plain_calibration_of_an_exact_geometry_does_not_make_it_worse() -> No
     world = small_setup(1024, blend=0.15)
     exact = with_true_edge(world)
     result = calibrate(known_frames(world, 10, seed=3, axes=True), replace(world, uncertainty=Uncertainty()))
+    assert result.covariance_scale == 1.0  # its own frames' tips miss by no more than its covariance says
+    assert max(result.tip_misses_mm) < 0.01
     renderer = Renderer(world)
     errors: dict[str, list[float]] = {"exact": [], "calibrated": []}
     for i, tip in enumerate(helix_tips(6)):

@@ -207,6 +207,12 @@ def test_the_geometry_adds_its_uncertainty_to_the_tip() -> None:
     assert tilt == max(sum(shares.get(i, 0.0) for i in ids) for ids in PARAMETER_GROUPS.values())
     # A camera tilted by 0.5 deg sees the world 0.96 mm aside: that is the tip's uncertainty.
     assert real.tip_sigma_mm() == pytest.approx(np.radians(0.5) * 110.0 * np.sqrt(2 / 3), rel=0.3)
+    # The tip's covariance is its points' part and the geometry's through the tip's gain.
+    data, gain = real.tip_terms()
+    ids = list(real.geometry_ids)
+    covariance = data + gain @ real.problem.prior[np.ix_(ids, ids)] @ gain.T
+    assert np.sqrt(np.trace(covariance) / 3) == pytest.approx(real.tip_sigma_mm(), rel=1e-9)
+    assert np.sqrt(np.trace(data) / 3) == pytest.approx(real.tip_sigma_mm(geometry=False), rel=1e-9)
 
 
 @settings(max_examples=10)

@@ -42,6 +42,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.linalg import block_diag
+from scipy.optimize import minimize_scalar
 from scipy.stats import chi2
 
 from spotnav.camera import unproject_pixels_to_sphere
@@ -67,7 +69,7 @@ from spotnav.detect import detect_edge_subpixel
 from spotnav.errors import InputError
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import assign_beams, normalize
-from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges
+from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges, pose_problem
 from spotnav.thesis import fit_height_correction
 
 __all__ = [
@@ -107,6 +109,7 @@ PRIORITY: tuple[int, ...] = (
 )
 _MAX_AXES_CONDITION = 1e6  # the known axes' lines must cross at an angle (1e6: some 0.1 deg apart)
 _MIN_INLIER_FRACTION = 0.5
+_MAX_COVARIANCE_SCALE = 100.0
 # One ray per pixel of each spot's outline (up to this many): calibration pools its frames' edges into the geometry,
 # where more points do tell (a frame's own fit reads at most 256).
 _RAYS = 2048
@@ -177,6 +180,14 @@ class Calibration:
         When the setup stated no response: each candidate tried and the RMS
         of its spots' mean offsets from their cones after its calibration,
         pixels (NaN: its calibration failed); empty otherwise.
+    covariance_scale : float
+        The factor on the geometry's sigmas (already in ``setup`` and
+        ``sigmas``) that its frames' own tips needed (see ``tip_misses_mm``); 1:
+        none.
+    tip_misses_mm : tuple of float
+        How far each frame's tip, localized from its edges in the calibrated
+        setup as a new frame would be, is from the known one (the frames whose
+        fit settled).
     """
 
     setup: Setup
@@ -192,6 +203,8 @@ class Calibration:
     points: int
     skipped: tuple[str, ...] = ()
     responses: tuple[tuple[str | float, float], ...] = ()
+    covariance_scale: float = 1.0
+    tip_misses_mm: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -482,9 +495,10 @@ def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str]
 
 
 def _finish(fitted: _GeometryFit) -> Calibration:
-    """The calibration of a fit: its frame-edge sigma, its check and its covariance."""
+    """The calibration of a fit: its frame-edge sigma, its check and its covariance, scaled up if its own frames,
+    localized as new ones, miss their tips by more than it says (:func:`_covariance_scale`)."""
     frame_edge = _frame_edge_sigma(fitted.setup, fitted.edges, fitted.axis_mode, fitted.chosen, fitted.solution.shared)
-    return _calibration(
+    calibration = _calibration(
         fitted.setup,
         fitted.solution,
         fitted.chosen,
@@ -494,6 +508,53 @@ def _finish(fitted: _GeometryFit) -> Calibration:
         fitted.lines,
         fitted.skipped,
     )
+    scale, misses = _covariance_scale(calibration.setup, fitted.edges)
+    record = calibration.setup.calibration
+    covariance = tuple(tuple(scale**2 * v for v in row) for row in record.covariance)
+    setup = replace(calibration.setup, calibration=replace(record, covariance=covariance))
+    return replace(
+        calibration, setup=setup, sigmas=scale * calibration.sigmas, covariance_scale=scale, tip_misses_mm=misses
+    )
+
+
+def _covariance_scale(calibrated: Setup, edges: list[_FrameEdges]) -> tuple[float, tuple[float, ...]]:
+    """How much the calibrated geometry's sigmas must grow (a factor, at least 1) for its own frames' tips, each
+    localized from its edges as a new frame's would be, to miss the known tips as its covariance says; and each
+    frame's miss, mm.
+
+    Each frame's pose is fitted to its edges in ``calibrated``, the tip free and the axis through the insertion
+    point. The calibration fit made the edges agree with the known tips; what it left at the setup's values (several
+    parameters wrong at once) still moves a tip found from the edges alone, mostly along the instrument's axis. The
+    misses (3F,) of the F frames whose fits settled are Gaussian with covariance ``B + k^2 G R G^T``: ``B`` block
+    diagonal, each frame's own (its edge points' and one frame's edge-model error), ``R`` the calibrated geometry's
+    (:func:`~spotnav.conefit.geometry_covariance`), one error shared by every frame, through the fits' geometry
+    gains ``G`` (3F, G). ``k`` is the most likely factor in [1, ``_MAX_COVARIANCE_SCALE``]; 1 with fewer than two
+    frames.
+    """
+    one_frame, geometry = geometry_covariance(calibrated), geometry_covariance(calibrated, one_frame=False)
+    misses, own, gains, ids = [], [], [], np.flatnonzero(np.diag(one_frame) > 0)  # every fit's geometry_ids
+    for frame in edges:
+        problem = pose_problem(calibrated, frame.edges_px, frame.beams, frame.tip, frame.axis, frame.roll)
+        fit = fit_cones(problem, solver="levenberg-marquardt")
+        if not fit.settled:
+            continue
+        data, gain = fit.tip_terms()
+        misses.append(fit.tip() - frame.tip)
+        own.append(data + gain @ (one_frame - geometry)[np.ix_(ids, ids)] @ gain.T)
+        gains.append(gain)
+    distances = tuple(float(np.linalg.norm(miss)) for miss in misses)
+    if len(misses) < 2:
+        return 1.0, distances
+    stacked, gain = np.concatenate(misses), np.vstack(gains)
+    independent, shared = block_diag(*own), gain @ geometry[np.ix_(ids, ids)] @ gain.T
+
+    def deviance(log_scale: float) -> float:
+        """Minus twice the misses' log-likelihood (less a constant) with the geometry's sigmas scaled by e^log_scale."""
+        covariance = independent + np.exp(2.0 * log_scale) * shared
+        return float(stacked @ np.linalg.solve(covariance, stacked) + np.linalg.slogdet(covariance)[1])
+
+    best = minimize_scalar(deviance, bounds=(0.0, np.log(_MAX_COVARIANCE_SCALE)), method="bounded")
+    return (float(np.exp(best.x)) if deviance(best.x) < deviance(0.0) else 1.0), distances
 
 
 def _frame_edge_sigma(

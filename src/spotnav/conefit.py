@@ -962,9 +962,22 @@ class ConeSolution:
 
     def tip_sigma_mm(self, frame: int = 0, *, geometry: bool = True) -> float:
         """1-sigma tip uncertainty per axis: the root of a third of the covariance's trace, mm."""
-        index = self.problem._arrays[7][frame, :3]
+        index = self._tip_index(frame)
         covariance = self.covariance if geometry else self.data_covariance
         return float(np.sqrt(covariance[index[index >= 0], index[index >= 0]].sum() / 3))
+
+    def tip_terms(self, frame: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``frame``'s tip covariance from its edge points alone (3, 3), mm^2, and the geometry's gain on its tip
+        (3, G): a fixed geometry parameter one unit (engine units, ``geometry_ids`` order) from its assumed value
+        moves the tip by its column. The frame's tip must be free."""
+        index = self._tip_index(frame)
+        if np.any(index < 0):
+            raise ValueError(f"frame {frame}'s tip is not free")
+        return self.data_covariance[np.ix_(index, index)], self.geometry_gain[index]
+
+    def _tip_index(self, frame: int) -> np.ndarray:
+        """Where ``frame``'s tip (3,) is in the free parameters, -1 where fixed."""
+        return self.problem._arrays[7][frame, :3]
 
     def frame_solution(self, frame: int) -> ConeSolution:
         """One frame of a joint fit as a one-frame solution: its points, its block of the covariance.
@@ -1001,7 +1014,7 @@ class ConeSolution:
 
     def geometry_share(self, frame: int = 0) -> np.ndarray:
         """Each fixed geometry parameter's share of ``frame``'s tip variance (G,), mm^2, in ``geometry_ids`` order."""
-        index = self.problem._arrays[7][frame, :3]
+        index = self._tip_index(frame)
         if not self.geometry_ids or np.any(index < 0):
             return np.zeros(len(self.geometry_ids))
         gain = self.geometry_gain[index]
