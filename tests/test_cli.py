@@ -514,7 +514,9 @@ def test_show_draws_a_frame_and_prints_its_fit(tmp_path: Path, capsys: pytest.Ca
     capsys.readouterr()
     assert main(["show", "--scene", str(scene), str(frame), "--out", str(tmp_path / "o.png"), "--crop"]) == 0
     out = capsys.readouterr().out
-    assert out.startswith("ok: tip 0.5") and "beam 0:" in out and "fitted points kept" in out
+    assert out.startswith("ok: tip ") and "beam 0:" in out and "fitted points kept" in out
+    tip = np.array([float(v) for v in out.split()[2:5]])
+    assert np.linalg.norm(tip - [0.5, 0.0, 4.5]) < 0.005  # the printed tip is the frame's (to 4 decimals)
     overlay = cv2.imread(str(tmp_path / "o.png"))
     assert overlay is not None and max(overlay.shape[:2]) < 300  # cropped to the spot
 

@@ -113,6 +113,9 @@ _MAX_COVARIANCE_SCALE = 100.0
 # One ray per pixel of each spot's outline (up to this many): calibration pools its frames' edges into the geometry,
 # where more points do tell (a frame's own fit reads at most 256).
 _RAYS = 2048
+# The spots are found on a frame shrunk less than a frame's own fit shrinks it (precise._FIND_SPOT_RADIUS_PX): the
+# outlines place the rays, and the calibration, which every later frame carries, keeps the finer placement.
+_FIND_RADIUS_PX = 6.0
 # The responses told apart when the setup states none: sRGB (the default reading) and a tone curve. Power laws
 # (linear, gammas) are not tried: on a textured retina a reading that compresses the texture makes the spots agree
 # better whatever the camera wrote (measured on spotnav's renderer: sRGB frames agree best read as linear).
@@ -222,7 +225,7 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
     wrong = check_image_size(frame.image, setup)
     if wrong is not None:
         return f"{frame.name}: {wrong.detail}"
-    detection = detect_spots(frame.image, setup)
+    detection = detect_spots(frame.image, setup, _FIND_RADIUS_PX)
     spots = detection.spots
     whole = [spot for spot in spots if not spot.touches_border]
     if len(spots) != instrument.beam_count or len(whole) != len(spots):
@@ -738,7 +741,7 @@ class RadiusSelfCalibration:
 
 def prepare_self_calibration(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, EdgeFrame | None]:
     """One frame's share of :func:`self_calibrate_radius`: its precise pose and its edges (None if unusable)."""
-    result = localize_precise_with_edges(image, setup, max_rays=_RAYS)
+    result = localize_precise_with_edges(image, setup, max_rays=_RAYS, find_radius_px=_FIND_RADIUS_PX)
     estimate, prepared = result.estimate, result.edges
     return estimate, prepared if estimate.ok else None
 

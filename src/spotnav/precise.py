@@ -54,7 +54,7 @@ _VESSEL_MM = 0.3  # the widest gap vessels (two side by side) may cut in a spot:
 _COARSE_BLUR_PX = 5  # the coarse detection's blur widens a vessel's gap by about its kernel (shrunk pixels) ...
 _SHRUNK_BLUR_PX = 3  # ... a shrunk frame, already averaged over its cells, needs less
 _MIN_SPOT_RADIUS_PX = 12.0  # the smallest spot keeps this radius in the shrunk image the outlines are drawn on
-_FIND_SPOT_RADIUS_PX = 6.0  # ... and this radius in the shrunk image the spots are found on
+_FIND_SPOT_RADIUS_PX = 3.0  # ... and this radius in the shrunk image the spots are found on (by default)
 _MAX_CLUTTER_AREA = 0.25
 _MIN_TIP_HEIGHT_MM = 1.0  # the lowest tip considered: its spot is the smallest
 _MAX_TIP_HEIGHT_MM = 10.0  # the highest: its spot is the largest
@@ -103,7 +103,7 @@ class EdgeFrame:
     solution: ThesisSolution
 
 
-def detect_spots(image: np.ndarray, setup: Setup) -> SpotDetection:
+def detect_spots(image: np.ndarray, setup: Setup, find_radius_px: float = _FIND_SPOT_RADIUS_PX) -> SpotDetection:
     """The coarse detection of the precise methods: fainter spots than the thesis's, fragments grouped into spots.
 
     A background broader than any spot (an endo-illuminator's glow) is
@@ -111,9 +111,11 @@ def detect_spots(image: np.ndarray, setup: Setup) -> SpotDetection:
     those closer than a vessel's width (``_VESSEL_MM``) are grouped by the
     ellipse their outer boundaries share
     (:func:`spotnav.detect.group_fragments`): the pieces of a spot that dark
-    vessels cut are one spot, and two spots stay two.
+    vessels cut are one spot, and two spots stay two. The spots are found on the frame shrunk as far as leaves
+    the smallest ``find_radius_px`` wide (:func:`detection_decimation`), their outlines drawn again where it
+    leaves it ``_MIN_SPOT_RADIUS_PX`` wide.
     """
-    decimate, find = detection_decimation(setup), detection_decimation(setup, _FIND_SPOT_RADIUS_PX)
+    decimate, find = detection_decimation(setup), detection_decimation(setup, find_radius_px)
     blur_px = _blur_px(decimate)
     detection = detect_spots_otsu(
         image,
@@ -217,7 +219,12 @@ def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool
 
 
 def localize_precise_with_edges(
-    image: np.ndarray, setup: Setup, *, through_insertion: bool = True, max_rays: int = _MAX_RAYS
+    image: np.ndarray,
+    setup: Setup,
+    *,
+    through_insertion: bool = True,
+    max_rays: int = _MAX_RAYS,
+    find_radius_px: float = _FIND_SPOT_RADIUS_PX,
 ) -> PreciseResult:
     """spotnav's precise method (the module's docstring), with the edges and the fit it came from.
 
@@ -237,6 +244,8 @@ def localize_precise_with_edges(
         beam, 4 with the roll for three); ``False`` fits the axis too.
     max_rays : int
         Most rays per spot's edge (one per pixel of its outline up to this; at least 64).
+    find_radius_px : float
+        The smallest spot's radius on the shrunk frame the spots are found on (:func:`detect_spots`).
 
     Returns
     -------
@@ -245,7 +254,7 @@ def localize_precise_with_edges(
     wrong = check_image_size(image, setup)
     if wrong is not None:
         return PreciseResult(wrong)
-    detection = detect_spots(image, setup)
+    detection = detect_spots(image, setup, find_radius_px)
     beams = setup.instrument.beam_count
     spots = detection.spots
     if len(spots) > beams:
