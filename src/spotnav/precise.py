@@ -326,9 +326,9 @@ class _ShaftView:
 
 def _fit_unhidden(
     prepared: EdgeFrame, setup: Setup, margin_mm: float
-) -> tuple[ConeSolution, list[np.ndarray], list[_ShaftView]] | PoseEstimate:
-    """The fit through the insertion point to the edge the shaft leaves visible, that edge (pixels), and each pose
-    at which the hidden points were found, with them.
+) -> tuple[ConeSolution, list[_ShaftView]] | PoseEstimate:
+    """The fit through the insertion point to the edge the shaft leaves visible (its problem's points), and each
+    pose at which the hidden points were found, with them.
 
     Which points the shaft hides depends on the pose: they are found again at
     each fitted pose until they stop changing (at most ``_SHAFT_PASSES``
@@ -346,8 +346,7 @@ def _fit_unhidden(
     for _ in range(_SHAFT_PASSES):
         if isinstance(visible, PoseEstimate):
             return visible
-        used = visible
-        problem = pose_problem(setup, used, prepared.beams, tip, axis, roll, edge_sigmas=prepared.edge_sigmas)
+        problem = pose_problem(setup, visible, prepared.beams, tip, axis, roll, edge_sigmas=prepared.edge_sigmas)
         fit = fit_cones(problem, solver="levenberg-marquardt")
         tip, axis, roll = fit.tip(), fit.axis(), fit.roll()
         now_hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
@@ -356,7 +355,7 @@ def _fit_unhidden(
             break
         hidden = now_hidden
         visible = visible_edge_points(setup, prepared.edges_px, hidden)
-    return fit, used, views
+    return fit, views
 
 
 def _hides_alike(setup: Setup, edges_px: Sequence[np.ndarray], views: list[_ShaftView], margin_mm: float) -> bool:
@@ -377,7 +376,7 @@ def _fit_precise(
     prepared: EdgeFrame, setup: Setup, through_insertion: bool
 ) -> tuple[PoseEstimate, ConeSolution | None]:
     """The pose from the prepared edges, and the fit it comes from (None when none ran to the end)."""
-    start, beams = prepared.start, prepared.beams
+    start = prepared.start
     # Leave out the edge the shaft hides; if the fit fails its checks, leave out a wider band around it (unless
     # that band hides no more points at any pose the fit passed: the fit would be the same).
     views: list[_ShaftView] = []
@@ -387,7 +386,7 @@ def _fit_precise(
         unhidden = _fit_unhidden(prepared, setup, margin_mm)
         if isinstance(unhidden, PoseEstimate):
             return unhidden, None
-        constrained, visible, views = unhidden
+        constrained, views = unhidden
         verdict = judge_fit(constrained, setup, spots=start.spots, detail=start.detail)
         if verdict.status != "unreliable":
             break
@@ -397,9 +396,9 @@ def _fit_precise(
     # leave out the arc a miscalibrated axis misses, which would hide it. Three beams fix the free axis:
     # Gauss-Newton steps from there reach it (within 0.005 deg); one beam's is loose (0.25 deg short), and
     # precise-free answers with it.
+    # Its points are the constrained fit's own.
     tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
-    sigmas = prepared.edge_sigmas
-    problem = pose_problem(setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=sigmas)
+    problem = cone_problem(setup, constrained.problem.points, tip[None], axis[None], np.array([roll]), axis="free")
     steps = through_insertion and setup.instrument.beam_count == 3
     free = fit_cones(problem, solver="gauss-newton" if steps else "levenberg-marquardt")
     if through_insertion:
