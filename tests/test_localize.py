@@ -64,6 +64,23 @@ def test_the_coarse_detection_shrinks_large_frames_and_keeps_the_smallest_spot_1
     assert radius_px < 24.0 or size_px < 2048  # no more than twice as wide as needed at 2048 px and over
 
 
+def test_spots_found_on_a_coarser_shrink_are_the_same_spots(renderer_2048: Renderer) -> None:
+    # Localization finds the spots with the smallest 3 px wide (8 at 2048 px), calibration with it 6 px wide (4):
+    # the same spots, their outlines (drawn again at 2) within a pixel, and the poses within 0.005 mm of the truth.
+    setup = with_true_edge(renderer_2048.setup)
+    assert (detection_decimation(setup, 3.0), detection_decimation(setup, 6.0)) == (8, 4)
+    pose = InstrumentPose.through_insertion([1.0, -1.5, 4.5], setup.instrument.insertion_in_eye)
+    image = renderer_2048.render(pose, seed=4)
+    coarse, fine = precise.detect_spots(image, setup), precise.detect_spots(image, setup, 6.0)
+    assert len(coarse.spots) == len(fine.spots) == 1
+    (spot,), (other,) = coarse.spots, fine.spots
+    assert np.linalg.norm(spot.contour_px.mean(axis=0) - other.contour_px.mean(axis=0)) < 1.0
+    assert spot.area_px == pytest.approx(other.area_px, rel=0.02)
+    for radius_px in (3.0, 6.0):
+        estimate = precise.localize_precise_with_edges(image, setup, find_radius_px=radius_px).estimate
+        assert estimate.ok and np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < 0.005
+
+
 @pytest.mark.parametrize("method", METHOD_NAMES)
 def test_no_spot(renderer_512: Renderer, method: str) -> None:
     image = renderer_512.render(InstrumentPose([0.0, 0.0, 5.0], [0.0, 0.0, -1.0]), power_w=0.0)
