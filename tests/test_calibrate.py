@@ -10,6 +10,7 @@ from conftest import small_setup
 from hypothesis import given
 from hypothesis import strategies as st
 
+from spotnav import calibrate as calibration_module
 from spotnav.calibrate import (
     RESPONSE_CANDIDATES,
     RESPONSE_MARGIN,
@@ -18,8 +19,9 @@ from spotnav.calibrate import (
     insertion_from_axes,
     self_calibrate_radius,
 )
-from spotnav.conefit import SHARED_SIZE, setup_with_geometry
+from spotnav.conefit import SHARED_SIZE, geometry_covariance, setup_with_geometry
 from spotnav.config import GEOMETRY_PARAMETERS, Instrument, Setup, Uncertainty, World
+from spotnav.errors import InputError
 from spotnav.experiments import helix_tips, working_volume_tips
 from spotnav.experiments.chapter6 import with_true_edge
 from spotnav.geometry import InstrumentPose, edge_angle_of_blend, normalize
@@ -85,7 +87,7 @@ def test_the_eye_radius_is_fitted_with_three_beams() -> None:
     assert result.setup.eye.radius_mm == pytest.approx(value)
 
 
-def test_a_wrong_geometry_is_measured_and_localized_within_its_sigma() -> None:
+def test_a_wrong_geometry_is_measured_and_localized_within_its_sigma(monkeypatch: pytest.MonkeyPatch) -> None:
     # The world differs from the setup in every way at once (camera tilted and shifted, 0.5 % longer, a lens,
     # the principal point, the eye, the insertion point, the beam): a plain calibrate on 10 known poses
     # with axes, then new frames are localized as the Cycles frames must be at this size (mean 0.010 mm,
@@ -98,14 +100,24 @@ def test_a_wrong_geometry_is_measured_and_localized_within_its_sigma() -> None:
     instrument = replace(world.instrument, insertion_point_mm=(0.4, 5.7, 20.5), beam_half_angle_deg=9.2)
     world = replace(world, instrument=instrument)
     setup = replace(nominal, uncertainty=Uncertainty())
-    result = calibrate(known_frames(world, 10, seed=11, axes=True), setup)
+    known = known_frames(world, 10, seed=11, axes=True)
+    result = calibrate(known, setup)
     # The parameters left at the setup's values (the camera's centre and principal point, the eye) still move a
     # tip found from the edges alone along the instrument's axis: the calibration frames' own tips miss by about
-    # 0.01 mm, more than the fit's covariance says, and it is scaled up (by 1.8).
+    # 0.01 mm, more than the fit's covariance says, and it is scaled up (by 1.8) where every pose reads it.
     assert len(result.tip_misses_mm) == 10 and np.mean(result.tip_misses_mm) > 0.008
-    assert result.covariance_scale > 1.5
-    record = result.setup.calibration
-    np.testing.assert_allclose(np.sqrt(np.diag(record.covariance)), result.sigmas, rtol=1e-12)
+    scale = result.covariance_scale
+    assert scale > 1.5
+    with monkeypatch.context() as patch:
+        patch.setattr(calibration_module, "_most_likely_scale", lambda *_: 1.0)
+        unscaled = calibrate(known, setup)
+    np.testing.assert_allclose(result.sigmas, scale * unscaled.sigmas, rtol=1e-12)
+    np.testing.assert_allclose(
+        geometry_covariance(result.setup, one_frame=False),
+        scale**2 * geometry_covariance(unscaled.setup, one_frame=False),
+        rtol=1e-9,
+        atol=1e-30,
+    )
     for group in ("edge_half_angle_deg", "camera_rotation_x_deg", "camera_rotation_z_deg", "distortion_k1"):
         assert group in result.fitted
     np.testing.assert_allclose(result.setup.instrument.insertion_point_mm, (0.4, 5.7, 20.5), atol=1e-3)
@@ -219,3 +231,28 @@ def test_calibration_tells_a_tone_curve_from_srgb_when_the_response_is_not_state
     # A stated response is the camera's: nothing is estimated.
     stated = calibrate(known_frames(world, count=4, axes=True), replace(setup, camera=world.camera))
     assert stated.responses == () and stated.setup.camera.response == written
+
+
+def test_the_most_likely_scale_of_the_geometry_s_sigmas() -> None:
+    # Frames' misses drawn with their own covariance and a shared geometry error k times the stated one: the
+    # scale found is near k (30 shared directions tell it), 1 when the stated one holds, the cap when nothing does.
+    rng = np.random.default_rng(7)
+    frames, parameters = 40, 30
+    own = [np.diag(rng.uniform(0.5, 2.0, 3)) ** 2 for _ in range(frames)]
+    gains = [rng.normal(size=(3, parameters)) for _ in range(frames)]
+    geometry = np.diag(rng.uniform(0.1, 0.3, parameters) ** 2)
+    found = []
+    for true_scale in (1.0, 3.0):
+        shared = rng.multivariate_normal(np.zeros(parameters), true_scale**2 * geometry)
+        misses = [gain @ shared + rng.multivariate_normal(np.zeros(3), c) for gain, c in zip(gains, own, strict=True)]
+        found.append(calibration_module._most_likely_scale(misses, own, gains, geometry))
+    assert found[0] < 1.4 and 2.2 < found[1] < 4.0
+    misses = [np.full(3, 1e3)] * frames
+    assert calibration_module._most_likely_scale(misses, own, gains, geometry) > 0.99 * 10.0
+
+
+def test_a_calibration_that_misses_its_own_frames_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    world = small_setup(512, blend=0.15)
+    monkeypatch.setattr(calibration_module, "_most_likely_scale", lambda *_: 10.0)
+    with pytest.raises(InputError, match="does not find its own frames' tips"):
+        calibrate(known_frames(world, 5), _only(world, edge_half_angle_deg=0.3))

@@ -189,7 +189,7 @@ def test_calibrate_writes_a_setup_that_localize_uses(tmp_path: Path, capsys: pyt
     out = capsys.readouterr().out
     assert "instrument.edge_half_angle_deg = " in out and "before" in out
     # Its own frames' tips, found from their edges alone, miss by no more than the covariance says.
-    assert "the frames' tips, localized from their edges as new frames: mean miss" in out
+    assert "the frames' tips, found from their edges alone (4 of 4 frames): mean miss" in out
     assert "within what the covariance says" in out
     fitted = setup_from_toml(calibrated.read_text()).instrument.edge_half_angle_deg
     assert fitted == pytest.approx(np.degrees(edge_angle_of_blend(np.radians(9.0), 0.3)), abs=0.03)

@@ -272,6 +272,8 @@ def test_known_poses_recover_a_tilted_camera_with_a_lens() -> None:
     problem = cone_problem(EXACT, points, tips, axes, axis="known", free_tips=False, free_shared=free)
     fit = fit_cones(problem)
     np.testing.assert_allclose(fit.shared[free], truth[free], rtol=1e-4, atol=1e-9)
+    with pytest.raises(ValueError, match="tip is not free"):
+        fit.tip_terms()
 
 
 def test_scatter_covariance_is_the_textbook_formula() -> None:

@@ -109,12 +109,12 @@ PRIORITY: tuple[int, ...] = (
 )
 _MAX_AXES_CONDITION = 1e6  # the known axes' lines must cross at an angle (1e6: some 0.1 deg apart)
 _MIN_INLIER_FRACTION = 0.5
-_MAX_COVARIANCE_SCALE = 100.0
+_MAX_COVARIANCE_SCALE = 10.0  # a calibration whose own frames need more is refused
 # One ray per pixel of each spot's outline (up to this many): calibration pools its frames' edges into the geometry,
 # where more points do tell (a frame's own fit reads at most 256).
 _RAYS = 2048
-# The spots are found on a frame shrunk less than a frame's own fit shrinks it (precise._FIND_SPOT_RADIUS_PX): the
-# outlines place the rays, and the calibration, which every later frame carries, keeps the finer placement.
+# The spots are found on a frame shrunk less than a frame's own detection shrinks it (precise._FIND_SPOT_RADIUS_PX):
+# the outlines place the rays, and the calibration, which every later frame carries, keeps the finer placement.
 _FIND_RADIUS_PX = 6.0
 # The responses told apart when the setup states none: sRGB (the default reading) and a tone curve. Power laws
 # (linear, gammas) are not tried: on a textured retina a reading that compresses the texture makes the spots agree
@@ -186,11 +186,10 @@ class Calibration:
     covariance_scale : float
         The factor on the geometry's sigmas (already in ``setup`` and
         ``sigmas``) that its frames' own tips needed (see ``tip_misses_mm``); 1:
-        none.
+        none, or fewer than two frames to tell.
     tip_misses_mm : tuple of float
-        How far each frame's tip, localized from its edges in the calibrated
-        setup as a new frame would be, is from the known one (the frames whose
-        fit settled).
+        How far each frame's tip, found from its edges alone in the calibrated
+        setup, is from the known one, mm (the frames whose fit settled).
     """
 
     setup: Setup
@@ -498,8 +497,9 @@ def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str]
 
 
 def _finish(fitted: _GeometryFit) -> Calibration:
-    """The calibration of a fit: its frame-edge sigma, its check and its covariance, scaled up if its own frames,
-    localized as new ones, miss their tips by more than it says (:func:`_covariance_scale`)."""
+    """The calibration of a fit: its frame-edge sigma, its check and its covariance, scaled up if its own frames'
+    tips, found from their edges alone, miss the known ones by more than it says (:func:`_frame_misses`,
+    :func:`_most_likely_scale`); refused when that takes more than ``_MAX_COVARIANCE_SCALE`` times its sigmas."""
     frame_edge = _frame_edge_sigma(fitted.setup, fitted.edges, fitted.axis_mode, fitted.chosen, fitted.solution.shared)
     calibration = _calibration(
         fitted.setup,
@@ -511,53 +511,86 @@ def _finish(fitted: _GeometryFit) -> Calibration:
         fitted.lines,
         fitted.skipped,
     )
-    scale, misses = _covariance_scale(calibration.setup, fitted.edges)
+    misses, own, gains, geometry = _frame_misses(calibration.setup, fitted.edges)
+    scale = _most_likely_scale(misses, own, gains, geometry) if len(misses) >= 2 else 1.0
+    distances = tuple(float(np.linalg.norm(miss)) for miss in misses)
+    if scale >= _MAX_COVARIANCE_SCALE:
+        raise InputError(
+            f"the calibrated geometry does not find its own frames' tips: from their edges alone they land "
+            f"{np.mean(distances):.4f} mm from the known ones on average, over {_MAX_COVARIANCE_SCALE:g} times what "
+            "its covariance allows; check known.csv (tips in the eye frame, images in its order) and the setup's beam"
+        )
     record = calibration.setup.calibration
     covariance = tuple(tuple(scale**2 * v for v in row) for row in record.covariance)
     setup = replace(calibration.setup, calibration=replace(record, covariance=covariance))
     return replace(
-        calibration, setup=setup, sigmas=scale * calibration.sigmas, covariance_scale=scale, tip_misses_mm=misses
+        calibration, setup=setup, sigmas=scale * calibration.sigmas, covariance_scale=scale, tip_misses_mm=distances
     )
 
 
-def _covariance_scale(calibrated: Setup, edges: list[_FrameEdges]) -> tuple[float, tuple[float, ...]]:
-    """How much the calibrated geometry's sigmas must grow (a factor, at least 1) for its own frames' tips, each
-    localized from its edges as a new frame's would be, to miss the known tips as its covariance says; and each
-    frame's miss, mm.
+def _frame_misses(
+    calibrated: Setup, edges: list[_FrameEdges]
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """Each calibration frame's tip found from its edges alone in ``calibrated``, against the known one.
 
-    Each frame's pose is fitted to its edges in ``calibrated``, the tip free and the axis through the insertion
-    point. The calibration fit made the edges agree with the known tips; what it left at the setup's values (several
-    parameters wrong at once) still moves a tip found from the edges alone, mostly along the instrument's axis. The
-    misses (3F,) of the F frames whose fits settled are Gaussian with covariance ``B + k^2 G R G^T``: ``B`` block
-    diagonal, each frame's own (its edge points' and one frame's edge-model error), ``R`` the calibrated geometry's
-    (:func:`~spotnav.conefit.geometry_covariance`), one error shared by every frame, through the fits' geometry
-    gains ``G`` (3F, G). ``k`` is the most likely factor in [1, ``_MAX_COVARIANCE_SCALE``]; 1 with fewer than two
-    frames.
+    The pose is fitted to the frame's calibration edges (one ray per pixel, the points the shaft hides kept, no
+    spot's own blur term), the tip free and the axis through the insertion point, from the known pose. The
+    calibration fit made the edges agree with the known tips; what it left at the setup's values (several parameters
+    wrong at once) still moves a tip found from the edges alone, mostly along the instrument's axis. Frames whose fit
+    did not settle (a tip held at its box) are left out.
+
+    Returns
+    -------
+    misses : list of ndarray, shape (3,)
+        Fitted tip minus known tip, mm.
+    own : list of ndarray, shape (3, 3)
+        Each one's covariance from its own frame: its edge points' and one frame's edge-model error, mm^2.
+    gains : list of ndarray, shape (3, G)
+        How each tip moves with the geometry's parameters that carry uncertainty (engine units).
+    geometry : ndarray, shape (G, G)
+        Their covariance, shared by every frame (the calibrated one, without the one-frame edge-model error).
     """
     one_frame, geometry = geometry_covariance(calibrated), geometry_covariance(calibrated, one_frame=False)
-    misses, own, gains, ids = [], [], [], np.flatnonzero(np.diag(one_frame) > 0)  # every fit's geometry_ids
+    ids = np.flatnonzero(np.diag(one_frame) > 0)
+    misses, own, gains = [], [], []
     for frame in edges:
-        problem = pose_problem(calibrated, frame.edges_px, frame.beams, frame.tip, frame.axis, frame.roll)
-        fit = fit_cones(problem, solver="levenberg-marquardt")
+        fit = fit_cones(
+            pose_problem(calibrated, frame.edges_px, frame.beams, frame.tip, frame.axis, frame.roll),
+            solver="levenberg-marquardt",
+        )
         if not fit.settled:
             continue
+        if not np.array_equal(fit.geometry_ids, ids):
+            raise ValueError(f"the fit carries geometry parameters {fit.geometry_ids}, expected {ids.tolist()}")
         data, gain = fit.tip_terms()
         misses.append(fit.tip() - frame.tip)
         own.append(data + gain @ (one_frame - geometry)[np.ix_(ids, ids)] @ gain.T)
         gains.append(gain)
-    distances = tuple(float(np.linalg.norm(miss)) for miss in misses)
-    if len(misses) < 2:
-        return 1.0, distances
+    return misses, own, gains, geometry[np.ix_(ids, ids)]
+
+
+def _most_likely_scale(
+    misses: Sequence[np.ndarray], own: Sequence[np.ndarray], gains: Sequence[np.ndarray], geometry: np.ndarray
+) -> float:
+    """The most likely factor ``k`` in [1, ``_MAX_COVARIANCE_SCALE``] on the geometry's sigmas, given frames' misses.
+
+    The misses (F of (3,), stacked (3F,)) are taken as Gaussian with covariance ``B + k^2 G R G^T``: ``B`` block
+    diagonal, each frame's ``own`` (3, 3); ``R`` the ``geometry`` (G, G), one error shared by every frame, through
+    the ``gains`` (F of (3, G), stacked (3F, G)). Within 0.5 % of 1 is 1.
+    """
     stacked, gain = np.concatenate(misses), np.vstack(gains)
-    independent, shared = block_diag(*own), gain @ geometry[np.ix_(ids, ids)] @ gain.T
+    independent, shared = block_diag(*own), gain @ geometry @ gain.T
 
     def deviance(log_scale: float) -> float:
         """Minus twice the misses' log-likelihood (less a constant) with the geometry's sigmas scaled by e^log_scale."""
         covariance = independent + np.exp(2.0 * log_scale) * shared
         return float(stacked @ np.linalg.solve(covariance, stacked) + np.linalg.slogdet(covariance)[1])
 
-    best = minimize_scalar(deviance, bounds=(0.0, np.log(_MAX_COVARIANCE_SCALE)), method="bounded")
-    return (float(np.exp(best.x)) if deviance(best.x) < deviance(0.0) else 1.0), distances
+    best = minimize_scalar(
+        deviance, bounds=(0.0, np.log(_MAX_COVARIANCE_SCALE)), method="bounded", options={"xatol": 1e-4}
+    )
+    scale = float(np.exp(best.x))
+    return scale if scale > 1.005 and deviance(best.x) < deviance(0.0) else 1.0
 
 
 def _frame_edge_sigma(

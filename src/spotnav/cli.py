@@ -567,16 +567,18 @@ def _calibration_lines(result: Calibration) -> list[str]:
     )
     edge = result.setup.calibration.frame_edge_sigma_deg
     lines.append(f"one frame's edge strays from the model by {edge:.4f} deg (1 sigma, each frame left out in turn)")
-    if result.tip_misses_mm:
-        misses = np.array(result.tip_misses_mm)
+    misses, settled = np.array(result.tip_misses_mm), f"{len(result.tip_misses_mm)} of {result.frames} frames"
+    if len(misses) < 2:
+        lines.append(f"the frames' tips, found from their edges alone: not checked ({settled} settled)")
+    else:
         covered = (
             "within what the covariance says"
             if result.covariance_scale == 1.0
             else f"more than the covariance said: its sigmas are scaled by {result.covariance_scale:.2f}"
         )
         lines.append(
-            f"the frames' tips, localized from their edges as new frames: mean miss {misses.mean():.4f} mm, "
-            f"max {misses.max():.4f}, {covered}"
+            f"the frames' tips, found from their edges alone ({settled}): mean miss {misses.mean():.4f} mm, "
+            f"max {misses.max():.4f} mm, {covered}"
         )
     if result.responses:
         tried = ", ".join(f"{r} {spread:.4f}" for r, spread in result.responses if np.isfinite(spread))

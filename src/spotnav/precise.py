@@ -111,9 +111,21 @@ def detect_spots(image: np.ndarray, setup: Setup, find_radius_px: float = _FIND_
     those closer than a vessel's width (``_VESSEL_MM``) are grouped by the
     ellipse their outer boundaries share
     (:func:`spotnav.detect.group_fragments`): the pieces of a spot that dark
-    vessels cut are one spot, and two spots stay two. The spots are found on the frame shrunk as far as leaves
-    the smallest ``find_radius_px`` wide (:func:`detection_decimation`), their outlines drawn again where it
-    leaves it ``_MIN_SPOT_RADIUS_PX`` wide.
+    vessels cut are one spot, and two spots stay two.
+
+    Parameters
+    ----------
+    image : ndarray
+        The frame (see :func:`spotnav.detect.detect_spots_otsu`).
+    setup : Setup
+        Its camera (response, focal length) and beam: how small a spot can be.
+    find_radius_px : float
+        The spots are found on the frame shrunk as far as leaves the smallest spot's radius this many pixels
+        (:func:`detection_decimation`); their outlines are drawn again where it leaves ``_MIN_SPOT_RADIUS_PX``.
+
+    Returns
+    -------
+    SpotDetection
     """
     decimate, find = detection_decimation(setup), detection_decimation(setup, find_radius_px)
     blur_px = _blur_px(decimate)
@@ -138,9 +150,9 @@ def _blur_px(decimate: int) -> int:
 
 
 def detection_decimation(setup: Setup, min_radius_px: float = _MIN_SPOT_RADIUS_PX) -> int:
-    """How much the coarse detection shrinks the frame: the largest power of two that leaves the smallest spot
-    ``min_radius_px`` wide in radius (1 for small frames). The outlines are drawn at ``_MIN_SPOT_RADIUS_PX``; the
-    spots are found at ``_FIND_SPOT_RADIUS_PX``."""
+    """How much the coarse detection shrinks the frame: the largest power of two that leaves the smallest spot's
+    radius ``min_radius_px`` (1 for small frames). The outlines are drawn at ``_MIN_SPOT_RADIUS_PX``; the spots are
+    found at ``detect_spots``' ``find_radius_px``."""
     radius_px = np.sqrt(smallest_spot_area_px(setup) / np.pi)
     return int(2 ** max(np.floor(np.log2(radius_px / min_radius_px)), 0))
 
@@ -395,8 +407,7 @@ def _fit_precise(
     # The cross-check continues from the constrained fit and finds its own inliers: those of the constrained fit
     # leave out the arc a miscalibrated axis misses, which would hide it. Three beams fix the free axis:
     # Gauss-Newton steps from there reach it (within 0.005 deg); one beam's is loose (0.25 deg short), and
-    # precise-free answers with it.
-    # Its points are the constrained fit's own.
+    # precise-free answers with it. Its points are the constrained fit's own.
     tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
     problem = cone_problem(setup, constrained.problem.points, tip[None], axis[None], np.array([roll]), axis="free")
     steps = through_insertion and setup.instrument.beam_count == 3
