@@ -139,9 +139,10 @@ def test_read_known_poses(tmp_path: Path) -> None:
         read_known_poses(tmp_path / "missing.csv")
 
 
-def _clip(tmp_path: Path, count: int) -> tuple[Path, list[np.ndarray]]:
+def _clip(tmp_path: Path, count: int, shape: tuple[int, int] = (48, 64)) -> tuple[Path, list[np.ndarray]]:
+    """An FFV1 clip of ``count`` noise frames of ``shape`` (rows, columns), and the frames."""
     rng = np.random.default_rng(3)
-    frames = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(count)]
+    frames = [rng.integers(0, 256, (*shape, 3), dtype=np.uint8) for _ in range(count)]
     with SequenceWriter(tmp_path / "clip.mkv", fps=30.0) as writer:
         for index, rgb in enumerate(frames):
             writer.write(index, rgb)
@@ -206,7 +207,10 @@ def test_a_decoder_process_stops_with_its_reader_and_reports_its_failure(tmp_pat
     def failing(pixels: np.ndarray) -> None:
         raise RuntimeError("a rehearsal failed")
 
-    source = iter_frames(str(clip), ring=2, while_waiting=failing)
+    # Frames that take milliseconds to decode: the next one is surely still being decoded when it is asked for,
+    # and the rehearsal runs (a frame already there is handed over without one).
+    slow, _ = _clip(tmp_path / "slow", 2, (1024, 1024))
+    source = iter_frames(str(slow), ring=2, while_waiting=failing)
     next(source)
     with pytest.raises(RuntimeError, match="a rehearsal failed"):
         next(source)
