@@ -576,7 +576,7 @@ def _most_likely_scale(
 
     The misses (F of (3,), stacked (3F,)) are taken as Gaussian with covariance ``B + k^2 G R G^T``: ``B`` block
     diagonal, each frame's ``own`` (3, 3); ``R`` the ``geometry`` (G, G), one error shared by every frame, through
-    the ``gains`` (F of (3, G), stacked (3F, G)). Within 0.5 % of 1 is 1.
+    the ``gains`` (F of (3, G), stacked (3F, G)). Within 0.5 % of 1 is 1; within 0.1 % of the bound, the bound.
     """
     stacked, gain = np.concatenate(misses), np.vstack(gains)
     independent, shared = block_diag(*own), gain @ geometry @ gain.T
@@ -590,6 +590,8 @@ def _most_likely_scale(
         deviance, bounds=(0.0, np.log(_MAX_COVARIANCE_SCALE)), method="bounded", options={"xatol": 1e-4}
     )
     scale = float(np.exp(best.x))
+    if scale > 0.999 * _MAX_COVARIANCE_SCALE:
+        return _MAX_COVARIANCE_SCALE  # the bound itself, or more
     return scale if scale > 1.005 and deviance(best.x) < deviance(0.0) else 1.0
 
 
