@@ -6,12 +6,17 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from spotnav.camera import (
+    CHANGE_SIZE,
+    camera_model,
     decode_values,
     decoding_table,
     encode_light,
+    perturbed_model,
     pixel_rays,
     pixels_behind_segment,
     project_points,
+    sphere_point_rates,
+    sphere_points,
     unproject_pixels_to_plane,
     unproject_pixels_to_sphere,
 )
@@ -150,6 +155,47 @@ def test_projection_is_opencvs(count: int, seed: int, rotation: tuple, shift: tu
     towards = points - camera.center_in_eye
     rays = towards / np.linalg.norm(towards, axis=1)[:, None]
     np.testing.assert_allclose(pixel_rays(camera, pixels), rays, atol=1e-9)
+
+
+@given(
+    seed=st.integers(0, 2**16),
+    rotation=st.tuples(*[st.floats(-1.0, 1.0)] * 3),
+    tilted=st.booleans(),
+)
+def test_sphere_point_rates_are_the_points_derivatives(seed: int, rotation: tuple, tilted: bool) -> None:
+    # A distorted camera (a tilted sensor or not), turned and moved from its start by a random change: the points'
+    # derivatives with respect to the eye's radius and each of the change's values agree with central differences
+    # of the points (extrapolated, Richardson's), to 1e-6 of each column's largest and the reference's rounding:
+    # the undistortion stops within 1e-14 of the normalized plane (1.1e-12 mm at 110 mm), which the step divides.
+    rng = np.random.default_rng(seed)
+    distortion = list(rng.normal(0.0, 0.05, 14 if tilted else 5))
+    distortion[0] = rng.uniform(-4.0, 4.0)
+    if tilted:
+        distortion[12:] = rng.uniform(-0.02, 0.02, 2)
+    model = camera_model(_calibrated(distortion, rotation, (0.3, -0.2, 0.5)))
+    # The change's scales: radians, mm, a relative focal length, pixels, then k1, k2, p1, p2, k3.
+    scales = np.array([1e-2] * 3 + [0.3] * 3 + [3e-3, 1.0, 1.0, 0.3, 0.1, 1e-3, 1e-3, 0.1])
+    change = rng.normal(0.0, 1.0, CHANGE_SIZE) * scales
+    pixels = rng.uniform(300.0, 700.0, (40, 2))
+    radius = 12.0
+    rates = sphere_point_rates(model, change, pixels, radius)
+    on_bowl = np.all(np.isfinite(sphere_points(perturbed_model(model, change), pixels, radius)), axis=1)
+    assert on_bowl.sum() > 20
+    steps = np.concatenate([[1e-3], 1e-3 * scales])
+
+    def moved(k: int, by: float) -> np.ndarray:
+        changed = change.copy()
+        if k > 0:
+            changed[k - 1] += by
+        return sphere_points(perturbed_model(model, changed), pixels, radius + (by if k == 0 else 0.0))
+
+    for k, step in enumerate(steps):
+        wide = (moved(k, step) - moved(k, -step)) / (2 * step)
+        narrow = (moved(k, step / 2) - moved(k, -step / 2)) / step
+        numeric = ((4 * narrow - wide) / 3)[on_bowl]
+        rounding = 3 * 1.1e-12 / step
+        np.testing.assert_allclose(rates[on_bowl, :, k], numeric, atol=1e-6 * np.abs(numeric).max() + rounding)
+    assert np.all(rates[~on_bowl] == 0.0)
 
 
 def test_the_ideal_camera_is_the_calibrated_special_case() -> None:

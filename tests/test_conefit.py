@@ -221,37 +221,36 @@ def test_the_geometry_adds_its_uncertainty_to_the_tip() -> None:
 def test_the_jacobian_is_the_residuals_derivative(seed: int, beams: int, axis: str) -> None:
     # Every shared parameter free and each frame's own (the tip, the roll, the free axis's angles), at a random
     # point: the engine's derivatives agree with central differences of its residual, to their truncation and
-    # rounding. The shared parameters' are forward differences (to 1e-3); the frames' are the residual
-    # differentiated, exact but for the beam axes' central differences (to 1e-6). The reference is extrapolated
-    # from central differences at a step and at half of it (Richardson's): a plain one's truncation reached
-    # 5e-6 of a tip's column at a point where the residual curves fast (seed 15490). The residual's evaluation
-    # loses up to 4 of its 16 digits (the across-axis distance is the root of a difference of squares), and a
-    # difference's step divides that loss: for a column whose derivative is 1e-9, more than its size.
+    # rounding. The engine differentiates the residual and the camera's points, exact but for the beam axes' central
+    # differences (to 1e-6). The reference is extrapolated from central differences at a step and at half of it
+    # (Richardson's): a plain one's truncation reached 5e-6 of a tip's column at a point where the residual curves
+    # fast (seed 15490). The residual's evaluation loses up to 4 of its 16 digits (the across-axis distance is the
+    # root of a difference of squares), and a difference's step divides that loss: for a column whose derivative is
+    # 1e-9, more than its size.
     rng = np.random.default_rng(seed)
     setup = _tilted(replace(EXACT, instrument=Instrument(beam_count=beams)), (0.2, 0.1, -0.3), (-2.0, 0, 0, 0, 0))
     tips = np.array([[0.5, -0.5, 4.0], [-1.0, 1.0, 5.0]])
     axes = tips - setup.instrument.insertion_in_eye
     edges = [_edges_px(setup, InstrumentPose(t, a), 0.3) for t, a in zip(tips, axes, strict=True)]
     points = EdgePoints.of_frames(edges, [list(range(beams))] * 2)
-    shared = rng.normal(0.0, 0.2, SHARED_SIZE) * prior_sigmas(replace(setup, uncertainty=Uncertainty()))
+    sigmas = prior_sigmas(replace(setup, uncertainty=Uncertainty()))
+    shared = rng.normal(0.0, 0.2, SHARED_SIZE) * sigmas
     problem = cone_problem(
         setup, points, tips, axes, [0.3, 0.3], axis=axis, free_shared=range(SHARED_SIZE), shared=shared
     )
     x = problem.start + rng.normal(0.0, 1e-3, problem.size) * (np.arange(problem.size) >= SHARED_SIZE)
     jacobian = problem.jacobian_matrix(x)
-    steps = np.concatenate([problem.steps, np.full(problem.size - SHARED_SIZE, 1e-7)])  # the reference's: 100 times
+    steps = np.concatenate([1e-4 * sigmas, np.full(problem.size - SHARED_SIZE, 1e-5)])
     lost = 1e4 * np.finfo(float).eps * np.abs(problem.residuals(x)).max()
     for column in range(problem.size):
         step = np.zeros(problem.size)
-        step[column] = 100 * steps[column]
+        step[column] = steps[column]
         wide = (problem.residuals(x + step) - problem.residuals(x - step)) / (2 * step[column])
         narrow = (problem.residuals(x + step / 2) - problem.residuals(x - step / 2)) / step[column]
         numeric = (4 * narrow - wide) / 3
-        rtol = 1e-3 if column < SHARED_SIZE else 1e-6
-        # The engine's rounding, or the reference's: (4 * 2 + 1) / 3 times a central difference's at the step.
-        rounding = lost / (steps[column] if column < SHARED_SIZE else step[column] / 3)
-        atol = rtol * np.abs(numeric).max() + rounding + 1e-12
-        np.testing.assert_allclose(jacobian[:, column], numeric, rtol=rtol, atol=atol)
+        # The reference's rounding: (4 * 2 + 1) / 3 times a central difference's at the step.
+        atol = 1e-6 * np.abs(numeric).max() + lost / (step[column] / 3) + 1e-12
+        np.testing.assert_allclose(jacobian[:, column], numeric, rtol=1e-6, atol=atol)
 
 
 def test_known_poses_recover_a_tilted_camera_with_a_lens() -> None:

@@ -39,6 +39,7 @@ __all__ = [
     "project_point",
     "project_points",
     "sphere_point",
+    "sphere_point_rates",
     "sphere_points",
     "unproject_pixels_to_plane",
     "unproject_pixels_to_sphere",
@@ -163,6 +164,12 @@ def _undistort(model: np.ndarray, u: float, v: float) -> tuple[float, float]:
 def pixel_ray(model: np.ndarray, u: float, v: float) -> tuple[float, float, float]:
     """Unit direction, in the eye frame, of the ray from the camera's centre through pixel ``(u, v)``."""
     x, y = _undistort(model, u, v)
+    return _ray_in_eye(model, x, y)
+
+
+@njit(cache=True)
+def _ray_in_eye(model: np.ndarray, x: float, y: float) -> tuple[float, float, float]:
+    """Unit direction, in the eye frame, of the ray through normalized undistorted ``(x, y)``."""
     norm = np.sqrt(x * x + y * y + 1.0)
     x, y, z = x / norm, y / norm, 1.0 / norm
     return (
@@ -179,7 +186,14 @@ def sphere_point(model: np.ndarray, u: float, v: float, radius: float) -> tuple[
     The sphere of ``radius`` is centred at ``(0, 0, radius)``; the ray's far
     intersection is the bowl seen from above, and only ``z <= radius`` exists.
     """
-    dx, dy, dz = pixel_ray(model, u, v)
+    x, y = _undistort(model, u, v)
+    return _bowl_point(model, x, y, radius)
+
+
+@njit(cache=True)
+def _bowl_point(model: np.ndarray, x: float, y: float, radius: float) -> tuple[float, float, float]:
+    """:func:`sphere_point` of the ray through normalized undistorted ``(x, y)``."""
+    dx, dy, dz = _ray_in_eye(model, x, y)
     ox, oy, oz = model[_CENTRE], model[_CENTRE + 1], model[_CENTRE + 2] - radius
     half_b = ox * dx + oy * dy + oz * dz
     disc = half_b * half_b - (ox * ox + oy * oy + oz * oz - radius * radius)
@@ -490,6 +504,157 @@ def perturbed_model(model: np.ndarray, change: np.ndarray) -> np.ndarray:
         distorted = distorted or out[_DIST + i] != 0.0
     out[_DISTORTED] = 1.0 if distorted else 0.0
     return out
+
+
+@njit(cache=True)
+def sphere_point_rates(model: np.ndarray, change: np.ndarray, pixels: np.ndarray, radius: float) -> np.ndarray:
+    """How the points :func:`sphere_points` finds through ``perturbed_model(model, change)`` move: their
+    derivatives with respect to the eye's radius and to each of ``change``'s values, differentiated through the
+    model (the undistortion's by its implicit function).
+
+    Parameters
+    ----------
+    model : ndarray, shape (MODEL_SIZE,)
+    change : ndarray, shape (CHANGE_SIZE,)
+        The camera's change (:func:`perturbed_model`'s units).
+    pixels : ndarray, shape (N, 2)
+    radius : float
+        The eye's radius, mm.
+
+    Returns
+    -------
+    ndarray, shape (N, 3, 1 + CHANGE_SIZE)
+        ``d point / d radius`` (mm/mm), then ``d point / d change[k]``; zero for points off the bowl.
+    """
+    moved = perturbed_model(model, change)
+    rotation = moved[_R : _R + 9].reshape(3, 3)
+    # R' = exp([w]x) R with w about the camera's axes: each component of w turns the rays about this eye-frame axis.
+    spin_axes = rotation.T @ np.ascontiguousarray(_rotation_rates(change[:3]))
+    rates = np.zeros((len(pixels), 3, 1 + CHANGE_SIZE))
+    moves = np.empty((2, 1 + CHANGE_SIZE))  # how the normalized point (x, y) moves, for the camera's own values
+    for n in range(len(pixels)):
+        u, v = pixels[n, 0], pixels[n, 1]
+        x, y = _undistort(moved, u, v)
+        px, py, pz = _bowl_point(moved, x, y, radius)
+        if not np.isfinite(px + py + pz):
+            continue
+        ray = _ray_in_eye(moved, x, y)
+        normal = (px, py, pz - radius)  # the sphere's outward normal times its radius
+        along_normal = normal[0] * ray[0] + normal[1] * ray[1] + normal[2] * ray[2]
+        distance = (
+            (px - moved[_CENTRE]) * ray[0] + (py - moved[_CENTRE + 1]) * ray[1] + (pz - moved[_CENTRE + 2]) * ray[2]
+        )
+        for i in range(3):
+            rates[n, i, 0] = ray[i] * (radius + normal[2]) / along_normal  # the sphere grows about (0, 0, radius)
+            for k in range(3):  # the camera's centre moves along the eye's axis k
+                rates[n, i, 4 + k] = (1.0 if i == k else 0.0) - ray[i] * normal[k] / along_normal
+        for k in range(3):
+            axis = spin_axes[:, k]
+            _write_turn(
+                rates,
+                n,
+                1 + k,
+                ray[1] * axis[2] - ray[2] * axis[1],
+                ray[2] * axis[0] - ray[0] * axis[2],
+                ray[0] * axis[1] - ray[1] * axis[0],
+                ray,
+                normal,
+                along_normal,
+                distance,
+            )
+        # The normalized point as the pixel's distorted one moves (through the tilt's homography, then the
+        # distortion's inverse: its Jacobian's inverse), and as the distortion's coefficients change.
+        xd, yd = (u - moved[_CX]) / moved[_FX], (v - moved[_CY]) / moved[_FY]
+        t00, t01, t10, t11 = _homography_jacobian(moved, _TILT_INVERSE, xd, yd)
+        _, _, dxx, dxy, dyx, dyy = _distort(moved, x, y)
+        determinant = dxx * dyy - dxy * dyx
+        i00, i01, i10, i11 = dyy / determinant, -dxy / determinant, -dyx / determinant, dxx / determinant
+        a00, a01 = i00 * t00 + i01 * t10, i00 * t01 + i01 * t11
+        a10, a11 = i10 * t00 + i11 * t10, i10 * t01 + i11 * t11
+        focal = -1.0 / (1.0 + change[6])  # fx' = fx (1 + s), fy likewise
+        moves[0, 7], moves[1, 7] = focal * (a00 * xd + a01 * yd), focal * (a10 * xd + a11 * yd)
+        moves[0, 8], moves[1, 8] = -a00 / moved[_FX], -a10 / moved[_FX]
+        moves[0, 9], moves[1, 9] = -a01 / moved[_FY], -a11 / moved[_FY]
+        r2 = x * x + y * y
+        radial = r2 / (1.0 + r2 * (moved[_DIST + 5] + r2 * (moved[_DIST + 6] + r2 * moved[_DIST + 7])))
+        # d(distorted point) / d(k1, k2, p1, p2, k3)
+        for k, (ex, ey) in enumerate(
+            (
+                (x * radial, y * radial),
+                (x * radial * r2, y * radial * r2),
+                (2.0 * x * y, r2 + 2.0 * y * y),
+                (r2 + 2.0 * x * x, 2.0 * x * y),
+                (x * radial * r2 * r2, y * radial * r2 * r2),
+            )
+        ):
+            moves[0, 10 + k], moves[1, 10 + k] = -(i00 * ex + i01 * ey), -(i10 * ex + i11 * ey)
+        norm = np.sqrt(x * x + y * y + 1.0)
+        for k in range(7, 1 + CHANGE_SIZE):
+            mx, my = moves[0, k], moves[1, k]
+            along = (x * mx + y * my) / (norm * norm * norm)  # d[(x, y, 1) / norm] in the camera's frame
+            cx, cy, cz = mx / norm - x * along, my / norm - y * along, -along
+            _write_turn(
+                rates,
+                n,
+                k,
+                rotation[0, 0] * cx + rotation[1, 0] * cy + rotation[2, 0] * cz,
+                rotation[0, 1] * cx + rotation[1, 1] * cy + rotation[2, 1] * cz,
+                rotation[0, 2] * cx + rotation[1, 2] * cy + rotation[2, 2] * cz,
+                ray,
+                normal,
+                along_normal,
+                distance,
+            )
+    return rates
+
+
+@njit(cache=True)
+def _write_turn(
+    rates: np.ndarray,
+    n: int,
+    k: int,
+    tx: float,
+    ty: float,
+    tz: float,
+    ray: tuple[float, float, float],
+    normal: tuple[float, float, float],
+    along_normal: float,
+    distance: float,
+) -> None:
+    """Write into ``rates[n, :, k]`` how the bowl's point moves as its ray (from a fixed centre, ``distance`` to
+    the point) turns at the rate ``(tx, ty, tz)``: along the sphere, whose ``normal`` it meets at ``along_normal``."""
+    slide = distance * (normal[0] * tx + normal[1] * ty + normal[2] * tz) / along_normal
+    rates[n, 0, k] = distance * tx - ray[0] * slide
+    rates[n, 1, k] = distance * ty - ray[1] * slide
+    rates[n, 2, k] = distance * tz - ray[2] * slide
+
+
+@njit(cache=True)
+def _rotation_rates(rotation_vector: np.ndarray) -> np.ndarray:
+    """The left Jacobian of the rotation vector ``w`` (3,), (3, 3): ``d exp([w]x) / d w_k = [J e_k]x exp([w]x)``."""
+    angle = np.sqrt(np.sum(rotation_vector * rotation_vector))
+    if angle < 1e-4:
+        first, second = 0.5 - angle * angle / 24.0, 1.0 / 6.0 - angle * angle / 120.0
+    else:
+        first, second = (1.0 - np.cos(angle)) / angle**2, (angle - np.sin(angle)) / angle**3
+    wx, wy, wz = rotation_vector[0], rotation_vector[1], rotation_vector[2]
+    skew = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
+    return np.eye(3) + first * skew + second * (skew @ skew)
+
+
+@njit(cache=True)
+def _homography_jacobian(matrix: np.ndarray, offset: int, x: float, y: float) -> tuple[float, float, float, float]:
+    """The Jacobian of :func:`_homography` at ``(x, y)``, row-major: ``(dX/dx, dX/dy, dY/dx, dY/dy)``."""
+    hx = matrix[offset] * x + matrix[offset + 1] * y + matrix[offset + 2]
+    hy = matrix[offset + 3] * x + matrix[offset + 4] * y + matrix[offset + 5]
+    hz = matrix[offset + 6] * x + matrix[offset + 7] * y + matrix[offset + 8]
+    px, py = hx / hz, hy / hz
+    return (
+        (matrix[offset] - px * matrix[offset + 6]) / hz,
+        (matrix[offset + 1] - px * matrix[offset + 7]) / hz,
+        (matrix[offset + 3] - py * matrix[offset + 6]) / hz,
+        (matrix[offset + 4] - py * matrix[offset + 7]) / hz,
+    )
 
 
 def camera_of_model(camera: Camera, model: np.ndarray) -> Camera:

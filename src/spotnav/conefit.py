@@ -39,8 +39,15 @@ from numba.extending import overload
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix, vstack
 
-from spotnav.camera import CHANGE_SIZE, camera_model, camera_of_model, perturbed_model, sphere_points
-from spotnav.config import GEOMETRY_PARAMETERS, Camera, Setup
+from spotnav.camera import (
+    CHANGE_SIZE,
+    camera_model,
+    camera_of_model,
+    perturbed_model,
+    sphere_point_rates,
+    sphere_points,
+)
+from spotnav.config import GEOMETRY_PARAMETERS, Setup
 from spotnav.geometry import _beam_axes, axis_rotations, edge_angle_of_blend, normalize
 
 __all__ = [
@@ -126,20 +133,8 @@ def edge_angle(setup: Setup) -> float:
     return edge_angle_of_blend(instrument.beam_half_angle, DEFAULT_BLEND)
 
 
-def _shared_scales(
-    camera: Camera,
-    *,
-    edge_deg: float,
-    light_mm: float,
-    radius_mm: float,
-    rotation_deg: float,
-    position_mm: float,
-    focal_percent: float,
-    principal_px: float,
-    distortion_px: float,
-    insertion_mm: float,
-) -> np.ndarray:
-    """Amounts of each kind of change as values of the shared parameters, engine units, shape (SHARED_SIZE,).
+def prior_sigmas(setup: Setup) -> np.ndarray:
+    """The ``[uncertainty]`` section as 1-sigma values of the shared parameters, engine units, shape (SHARED_SIZE,).
 
     A distortion's displacement at the middle of the image's edge (``r``, in
     normalized coordinates) becomes a coefficient: ``px / (f r^3)`` for ``k1``;
@@ -148,17 +143,19 @@ def _shared_scales(
     :data:`_TANGENTIAL_SHARE`): ``r^5`` for ``k2``, ``r^7`` for ``k3``,
     ``r^2`` for ``p1`` and ``p2``.
     """
+    uncertainty, camera = setup.uncertainty, setup.camera
     focal = camera.focal_px
     edge = 0.5 * max(camera.width_px, camera.height_px) / focal
-    distortion = distortion_px / focal
+    distortion = uncertainty.distortion_px / focal
+    principal_px = uncertainty.principal_point_percent / 100.0 * camera.width_px
     values = np.array(
         [
-            edge_deg,
-            light_mm,
-            radius_mm,
-            *[rotation_deg] * 3,
-            *[position_mm] * 3,
-            focal_percent,
+            uncertainty.edge_half_angle_deg,
+            uncertainty.light_radius_mm,
+            uncertainty.eye_radius_mm,
+            *[uncertainty.camera_rotation_deg] * 3,
+            *[uncertainty.camera_position_mm] * 3,
+            uncertainty.focal_length_percent,
             principal_px,
             principal_px,
             distortion / edge**3,
@@ -166,51 +163,13 @@ def _shared_scales(
             _TANGENTIAL_SHARE * distortion / edge**2,
             _TANGENTIAL_SHARE * distortion / edge**2,
             _K3_SHARE * distortion / edge**7,
-            *[insertion_mm] * 3,
+            *[uncertainty.insertion_point_mm] * 3,
         ]
     )
     return values * _TO_ENGINE
 
 
-def prior_sigmas(setup: Setup) -> np.ndarray:
-    """The ``[uncertainty]`` section as 1-sigma values of the shared parameters, engine units, shape (SHARED_SIZE,)."""
-    uncertainty, camera = setup.uncertainty, setup.camera
-    return _shared_scales(
-        camera,
-        edge_deg=uncertainty.edge_half_angle_deg,
-        light_mm=uncertainty.light_radius_mm,
-        radius_mm=uncertainty.eye_radius_mm,
-        rotation_deg=uncertainty.camera_rotation_deg,
-        position_mm=uncertainty.camera_position_mm,
-        focal_percent=uncertainty.focal_length_percent,
-        principal_px=uncertainty.principal_point_percent / 100.0 * camera.width_px,
-        distortion_px=uncertainty.distortion_px,
-        insertion_mm=uncertainty.insertion_point_mm,
-    )
-
-
 @lru_cache(maxsize=32)
-def _difference_steps(camera: Camera) -> np.ndarray:
-    """Forward-difference steps of the shared parameters, engine units: a hundred-thousandth of a small change.
-
-    Computed once per camera: the array is read-only."""
-    small = _shared_scales(
-        camera,
-        edge_deg=0.1,
-        light_mm=0.01,
-        radius_mm=0.1,
-        rotation_deg=0.1,
-        position_mm=0.1,
-        focal_percent=0.1,
-        principal_px=1.0,
-        distortion_px=1.0,
-        insertion_mm=0.1,
-    )
-    steps = 1e-5 * small
-    steps.setflags(write=False)
-    return steps
-
-
 def geometry_values(setup: Setup) -> np.ndarray:
     """The setup's geometry in the units of :data:`GEOMETRY_PARAMETERS`, shape (SHARED_SIZE,).
 
@@ -398,8 +357,6 @@ class ConeProblem:
     prior : ndarray, shape (SHARED_SIZE, SHARED_SIZE)
         The geometry's covariance (:func:`geometry_covariance`): what the fixed
         shared parameters add to the fit's covariance.
-    steps : ndarray, shape (SHARED_SIZE,)
-        Forward-difference steps of the shared parameters, engine units.
     """
 
     model: np.ndarray
@@ -414,7 +371,6 @@ class ConeProblem:
     free_shared: tuple[int, ...]
     free_frame: tuple[int, ...]
     prior: np.ndarray
-    steps: np.ndarray
     _arrays: tuple = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -441,7 +397,6 @@ class ConeProblem:
             self.points.beam,
             cached,
             camera_free,
-            self.steps,
         )
         object.__setattr__(self, "frames", frames)
         object.__setattr__(self, "_arrays", arrays)
@@ -583,7 +538,7 @@ def cone_problem(
     free_frame = [0, 1, 2] if free_tips else []
     free_frame += [3, 4] if axis == "free" else []
     free_frame += [5] if instrument.beam_count > 1 else []
-    model, base, prior, steps = _setup_arrays(setup, one_frame)
+    model, base, prior = _setup_arrays(setup, one_frame)
     return ConeProblem(
         model=model,
         base=base,
@@ -597,21 +552,19 @@ def cone_problem(
         free_shared=tuple(int(i) for i in free_shared),
         free_frame=tuple(free_frame),
         prior=prior,
-        steps=steps,
     )
 
 
 @lru_cache(maxsize=32)
-def _setup_arrays(setup: Setup, one_frame: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _setup_arrays(setup: Setup, one_frame: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What a cone problem takes from ``setup`` (once per setup: every tracked frame asks): the camera model
     (:func:`spotnav.camera.camera_model`'s cached array), the base (edge angle, light radius, eye radius, insertion
-    point; read-only), the geometry's covariance and the difference steps (both read-only); callers must not
-    modify any of them."""
+    point; read-only) and the geometry's covariance (read-only); callers must not modify any of them."""
     instrument = setup.instrument
     base = np.array([edge_angle(setup), instrument.light_radius_mm, setup.eye.radius_mm, *instrument.insertion_in_eye])
     base.setflags(write=False)
     prior = geometry_covariance(setup, one_frame=one_frame)
-    return camera_model(setup.camera), base, prior, _difference_steps(setup.camera)
+    return camera_model(setup.camera), base, prior
 
 
 # --- the compiled model ---------------------------------------------------------------------------------------
@@ -706,24 +659,45 @@ def _residuals(x: np.ndarray, arrays: tuple) -> np.ndarray:
 
 @njit(cache=True)
 def _shared_columns(x: np.ndarray, arrays: tuple, ids: np.ndarray) -> np.ndarray:
-    """Forward-difference derivatives (N, len(ids)) of the residuals with respect to shared parameters ``ids``."""
+    """Each point's derivatives (N, len(ids)) with respect to the shared parameters ``ids``.
+
+    Differentiated through the residual of :func:`_frame_residuals` and the points on the sphere
+    (:func:`spotnav.camera.sphere_point_rates`) in one pass over the points; only the beam axes' derivatives with
+    respect to the insertion point (per frame, not per point) are central differences.
+    """
     shared, frames = _unpack(x, arrays[4], arrays[5], arrays[6], arrays[7])
+    base, starts, beam_of = arrays[1], arrays[11], arrays[12]
     points = _points_at(shared, arrays)
-    residuals = _all_residuals(points, frames, shared, arrays)
-    columns = np.empty((len(points), len(ids)))
-    for j in range(len(ids)):
-        i = ids[j]
-        moved = shared.copy()
-        step = arrays[15][i]
-        moved[i] += step
-        if _RADIUS <= i < _CAMERA_END:
-            model = perturbed_model(arrays[0], moved[_CAMERA:_CAMERA_END])
-            moved_points = sphere_points(model, arrays[10], arrays[1][_RADIUS] + moved[_RADIUS])
-        else:
-            moved_points = points
-        changed = _all_residuals(moved_points, frames, moved, arrays)
-        for n in range(len(points)):
-            columns[n, j] = (changed[n] - residuals[n]) / step
+    light = base[1] + shared[_LIGHT]
+    columns = np.zeros((len(points), len(ids)))
+    point_rates = np.zeros((0, 3, 1 + CHANGE_SIZE))
+    if np.any((ids >= _RADIUS) & (ids < _CAMERA_END)):
+        radius = base[_RADIUS] + shared[_RADIUS]
+        point_rates = sphere_point_rates(arrays[0], shared[_CAMERA:_CAMERA_END], arrays[10], radius)
+    beam_rates = np.zeros((len(ids), arrays[2], 3))  # d(beam axis) / d(parameter)
+    for f in range(frames.shape[0]):
+        beams = _frame_beams(frames[f], f, shared, arrays)
+        for j in range(len(ids)):
+            if ids[j] >= _INSERTION:
+                beam_rates[j] = _beam_rate(frames[f], f, shared, arrays, ids[j], True)
+        for n in range(starts[f], starts[f + 1]):
+            b = beam_of[n]
+            offset = (points[n, 0] - frames[f, 0], points[n, 1] - frames[f, 1], points[n, 2] - frames[f, 2])
+            if not np.isfinite(offset[0] + offset[1] + offset[2]):
+                continue  # a gross residual, held
+            gradient, axial, light_rate = _point_rates(offset, beams[b], light)
+            for j in range(len(ids)):
+                i = ids[j]
+                if i == _EDGE:
+                    columns[n, j] = -1.0
+                elif i == _LIGHT:
+                    columns[n, j] = light_rate
+                elif i < _CAMERA_END:
+                    rate = point_rates[n, :, i - _RADIUS]
+                    columns[n, j] = gradient[0] * rate[0] + gradient[1] * rate[1] + gradient[2] * rate[2]
+                else:
+                    rate = beam_rates[j, b]
+                    columns[n, j] = axial * (offset[0] * rate[0] + offset[1] * rate[1] + offset[2] * rate[2])
     return columns
 
 
@@ -749,11 +723,7 @@ def _frame_columns(x: np.ndarray, arrays: tuple, per_frame: int) -> tuple[np.nda
             if frame_index[f, k] < 0:
                 continue
             free[j] = k
-            step = 1e-6 * max(abs(frames[f, k]), 1.0)
-            up, down = frames[f].copy(), frames[f].copy()
-            up[k] += step
-            down[k] -= step
-            beam_rates[j] = (_frame_beams(up, f, shared, arrays) - _frame_beams(down, f, shared, arrays)) / (2 * step)
+            beam_rates[j] = _beam_rate(frames[f], f, shared, arrays, k, False)
             j += 1
         for n in range(starts[f], starts[f + 1]):
             b = beam_of[n]
@@ -762,21 +732,54 @@ def _frame_columns(x: np.ndarray, arrays: tuple, per_frame: int) -> tuple[np.nda
             offset = (points[n, 0] - frames[f, 0], points[n, 1] - frames[f, 1], points[n, 2] - frames[f, 2])
             if not np.isfinite(offset[0] + offset[1] + offset[2]):
                 continue  # a gross residual, held
-            along = offset[0] * beams[b, 0] + offset[1] * beams[b, 1] + offset[2] * beams[b, 2]
-            across = np.sqrt(max(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2 - along * along, 0.0))
-            height = across - light
-            scale = 1.0 / (height * height + along * along)
+            gradient, axial, _ = _point_rates(offset, beams[b], light)
             for j in range(per_frame):
                 k, rate = free[j], beam_rates[j, b]
-                # residual = atan2(across - light, along) - edge, with offset = point - tip
-                rate_along = offset[0] * rate[0] + offset[1] * rate[1] + offset[2] * rate[2]
-                rate_square = 0.0
-                if k < 3:
-                    rate_along -= beams[b, k]
-                    rate_square = -2.0 * offset[k]
-                rate_across = (0.5 * rate_square - along * rate_along) / across if across > 0.0 else 0.0
-                values[n, j] = (along * rate_across - height * rate_along) * scale
+                values[n, j] = axial * (offset[0] * rate[0] + offset[1] * rate[1] + offset[2] * rate[2])
+                if k < 3:  # the tip moves the other way from the point
+                    values[n, j] -= gradient[k]
     return values, columns
+
+
+@njit(cache=True)
+def _point_rates(
+    offset: tuple[float, float, float], beam: np.ndarray, light: float
+) -> tuple[tuple[float, float, float], float, float]:
+    """The rates of a point's residual ``atan2(across - light, along) - edge``, ``offset`` = point - tip (3,) and
+    ``beam`` its beam's axis (3,): its gradient with respect to the point (the tip's is its negative), its rate per
+    unit of ``along`` at a fixed distance from the tip (a turn of the beam moves ``along`` by the offset times the
+    axis's rate), and its rate with respect to the light's radius."""
+    along = offset[0] * beam[0] + offset[1] * beam[1] + offset[2] * beam[2]
+    across = np.sqrt(max(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2 - along * along, 0.0))
+    height = across - light
+    scale = 1.0 / (height * height + along * along)
+    lean = along / across if across > 0.0 else 0.0
+    axial = -(along * lean + height) * scale
+    radial = lean * scale  # per unit of half the squared distance from the tip
+    gradient = (
+        radial * offset[0] + axial * beam[0],
+        radial * offset[1] + axial * beam[1],
+        radial * offset[2] + axial * beam[2],
+    )
+    return gradient, axial, -along * scale
+
+
+@njit(cache=True)
+def _beam_rate(frame: np.ndarray, f: int, shared: np.ndarray, arrays: tuple, k: int, of_shared: bool) -> np.ndarray:
+    """Central-difference derivative (B, 3) of frame ``f``'s beam axes with respect to its parameter ``k`` of
+    ``frame`` (6,), or with ``of_shared`` to the shared parameter ``k``."""
+    values = shared if of_shared else frame
+    # The insertion point turns the axis over ten or more mm: a wider step, whose rounding (eps / step) stays a
+    # millionth of the along-axis change even where a point's offset nearly cancels the rate it is multiplied by.
+    step = (1e-4 if of_shared else 1e-6) * max(abs(values[k]), 1.0)
+    up, down = values.copy(), values.copy()
+    up[k] += step
+    down[k] -= step
+    if of_shared:
+        rising, falling = _frame_beams(frame, f, up, arrays), _frame_beams(frame, f, down, arrays)
+    else:
+        rising, falling = _frame_beams(up, f, shared, arrays), _frame_beams(down, f, shared, arrays)
+    return (rising - falling) / (2 * step)
 
 
 # --- the fit ---------------------------------------------------------------------------------------------------
