@@ -48,12 +48,14 @@ def normalize(vectors: np.ndarray) -> np.ndarray:
     return vectors / norms
 
 
+@njit(cache=True)
 def rotation_about_z(angle: float) -> np.ndarray:
     """Right-handed rotation matrix about +z by ``angle`` radians, shape (3, 3)."""
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+@njit(cache=True)
 def rotation_about_y(angle: float) -> np.ndarray:
     """Right-handed rotation matrix about +y by ``angle`` radians, shape (3, 3)."""
     c, s = np.cos(angle), np.sin(angle)

@@ -141,6 +141,7 @@ def _fit_ellipse(points: np.ndarray) -> tuple[bool, np.ndarray, float, float, np
     return True, offset + scale * centre, scale * semi[0], scale * semi[1], np.ascontiguousarray(axes[:, 0])
 
 
+@njit(cache=True)
 def triangle_from_ellipse(semi_major: float, semi_minor: float, half_angle: float) -> tuple[float, float, float]:
     """The thesis's triangle: cone tilt and apex offsets from an ellipse.
 
@@ -221,34 +222,51 @@ def apex_candidates(
         Section 5.5's factor: scales the triangle (``s1`` and ``s2``) about the
         ellipse's centre, as a uniform growth of the spot would.
     """
-    points_in_eye = np.asarray(points_in_eye, dtype=float)
-    centroid = points_in_eye.mean(axis=0)
+    points_in_eye = np.ascontiguousarray(points_in_eye, dtype=float)
+    if points_in_eye.ndim != 2 or points_in_eye.shape[1] != 3 or len(points_in_eye) < 5:
+        raise ValueError(f"need at least 5 points of shape (N, 3), got {points_in_eye.shape}")
+    if not np.all(np.isfinite(points_in_eye)):
+        raise ValueError("the points must be finite")
     normal = normalize(np.asarray(surface_normal, dtype=float))
-    azimuth = np.arctan2(centroid[1], centroid[0])
-    to_x_axis = rotation_about_z(-azimuth)
-    normal_on_x = to_x_axis @ normal
-    slope = np.arctan2(-normal_on_x[0], normal_on_x[2])
-    # Rotate about z so the centre lies on +x, then about y so the normal is +z.
-    to_plane = rotation_about_y(slope) @ to_x_axis
-    in_plane = (points_in_eye - centroid) @ to_plane.T
-    ellipse = fit_ellipse(in_plane[:, :2])
-    alpha, s1, s2 = triangle_from_ellipse(ellipse.semi_major, ellipse.semi_minor, half_angle)
-    major = np.array([*ellipse.major_direction, 0.0])
-    up = np.array([0.0, 0.0, 1.0])
-    signs = np.array([1.0, -1.0])[:, None]
-    apexes_in_plane = np.array([*ellipse.center, 0.0]) + height_correction * (signs * s1 * major + s2 * up)
-    # The axis leans from the apex's foot toward the ellipse's centre.
-    axes_in_plane = -signs * np.sin(alpha) * major - np.cos(alpha) * up
-    return ConeCandidates(
-        apexes=apexes_in_plane @ to_plane + centroid,
-        cone_axes=normalize(axes_in_plane @ to_plane),
-        ellipse=ellipse,
-        alpha=alpha,
-        s1=s1,
-        s2=s2,
-        plane_origin_in_eye=centroid,
-        plane_normal_in_eye=to_plane.T @ up,
+    fitted, apexes, cone_axes, ellipse, triangle, planes = _apex_candidates(
+        points_in_eye, normal, float(half_angle), float(height_correction)
     )
+    if not fitted:
+        raise ValueError("no ellipse fits these points")
+    centre, semi_major, semi_minor, major_direction = ellipse
+    return ConeCandidates(
+        apexes, cone_axes, Ellipse(centre, semi_major, semi_minor, major_direction), *triangle, planes[0], planes[1]
+    )
+
+
+@njit(cache=True)
+def _apex_candidates(
+    points_in_eye: np.ndarray, normal: np.ndarray, half_angle: float, height_correction: float
+) -> tuple[bool, np.ndarray, np.ndarray, tuple, tuple[float, float, float], tuple[np.ndarray, np.ndarray]]:
+    """:func:`apex_candidates` of points (N, 3) and a unit ``normal`` (3,), compiled: whether an ellipse fits, the
+    apexes (2, 3), the cone axes (2, 3), the ellipse (centre, semi-axes, major direction), the triangle (alpha, s1,
+    s2) and the plane (origin, normal)."""
+    centroid = np.array([np.mean(points_in_eye[:, 0]), np.mean(points_in_eye[:, 1]), np.mean(points_in_eye[:, 2])])
+    to_x_axis = rotation_about_z(-np.arctan2(centroid[1], centroid[0]))
+    normal_on_x = to_x_axis @ normal
+    # Rotate about z so the centre lies on +x, then about y so the normal is +z.
+    to_plane = rotation_about_y(np.arctan2(-normal_on_x[0], normal_on_x[2])) @ to_x_axis
+    in_plane = (points_in_eye - centroid) @ to_plane.T
+    fitted, centre, semi_major, semi_minor, major_direction = _fit_ellipse(np.ascontiguousarray(in_plane[:, :2]))
+    up = np.array([0.0, 0.0, 1.0])
+    ellipse = (centre, semi_major, semi_minor, major_direction)
+    if not fitted:
+        return False, np.zeros((2, 3)), np.zeros((2, 3)), ellipse, (np.nan, np.nan, np.nan), (centroid, up)
+    alpha, s1, s2 = triangle_from_ellipse(semi_major, semi_minor, half_angle)
+    major = np.array([major_direction[0], major_direction[1], 0.0])
+    apexes, cone_axes = np.empty((2, 3)), np.empty((2, 3))
+    for k, sign in enumerate((1.0, -1.0)):
+        apex_in_plane = np.array([centre[0], centre[1], 0.0]) + height_correction * (sign * s1 * major + s2 * up)
+        # The axis leans from the apex's foot toward the ellipse's centre.
+        axis = (-sign * np.sin(alpha) * major - np.cos(alpha) * up) @ to_plane
+        apexes[k] = apex_in_plane @ to_plane + centroid
+        cone_axes[k] = axis / np.sqrt(np.sum(axis * axis))
+    return True, apexes, cone_axes, ellipse, (alpha, s1, s2), (centroid, to_plane.T @ up)
 
 
 def choose_by_insertion(candidates: ConeCandidates, insertion_in_eye: np.ndarray) -> tuple[int, float]:
