@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import csv
+import gc
 import json
 import os
 import re
@@ -23,6 +24,7 @@ from spotnav.config import EXAMPLE_SETUP, THESIS_EXPOSURE_STOPS, Render, Setup, 
 from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.files import iter_frames
 from spotnav.geometry import edge_angle_of_blend
+from spotnav.track import TrackedFrame, Tracker
 
 
 def write_scene(path: Path, size_px: int = 5000, blend: float = 0.0) -> Path:
@@ -445,6 +447,24 @@ def test_track_limits_and_capture_timestamps(
     assert [row["status"] for row in _complete_rows(poses)] == ["ok"] * 5
     assert main(["track", "--scene", str(scene), str(video), "--out", str(poses), "--fps", "30"]) == 2
     assert "camera settings need a live camera" in capsys.readouterr().err
+
+
+def test_track_runs_its_loop_with_the_heap_frozen(
+    tmp_path: Path, long_video: tuple[Path, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A full garbage collection walks every object alive; the tracking loop leaves those alive before it to themselves
+    # (spotnav.track.frozen_heap) and gives them back after.
+    scene, video = long_video
+    frozen, update = [], Tracker.update
+
+    def counting_update(self: Tracker, image: np.ndarray) -> TrackedFrame:
+        frozen.append(gc.get_freeze_count())
+        return update(self, image)
+
+    monkeypatch.setattr(Tracker, "update", counting_update)
+    argv = ["track", "--scene", str(scene), str(video), "--out", str(tmp_path / "poses.csv"), "--max-frames", "3"]
+    assert main(argv) == 0
+    assert len(frozen) == 3 and min(frozen) > 100_000 and gc.get_freeze_count() == 0
 
 
 def test_frames_of_the_wrong_size_warn_then_stop(

@@ -1,8 +1,10 @@
 from __future__ import annotations
 
+import gc
 import json
 import subprocess
 import sys
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -20,7 +22,7 @@ from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.geometry import InstrumentPose, cone_sphere_curve
 from spotnav.precise import localize_precise
 from spotnav.render import Renderer
-from spotnav.track import Tracker, _track_once, track_frame
+from spotnav.track import Tracker, _track_once, frozen_heap, track_frame
 
 SIZE_PX = 1024
 
@@ -269,3 +271,23 @@ def test_prepare_kernels_runs_the_whole_frame_method_to_a_pose(beams: int, monke
     monkeypatch.setattr(track, "localize_precise", recorded)
     track.prepare_kernels(with_true_edge(thesis_world(1024, beams)))
     assert statuses == ["ok"]
+
+
+def test_a_frozen_heap_spares_a_full_collection_every_object_alive_before_it() -> None:
+    # Inside, the objects alive on entry are frozen (the new ones are the collector's); a full collection then takes
+    # a fraction of its time outside (with spotnav loaded, some 200 000 objects: 49 ms against 0.2). On exit, by an
+    # exception too, they are the collector's again.
+    start = time.perf_counter()
+    gc.collect()
+    outside = time.perf_counter() - start
+    with frozen_heap():
+        frozen = gc.get_freeze_count()
+        kept = [[index] for index in range(1000)]
+        assert gc.get_freeze_count() == frozen > 100_000
+        start = time.perf_counter()
+        gc.collect()
+        assert time.perf_counter() - start < outside / 10
+    assert gc.get_freeze_count() == 0 and len(kept) == 1000
+    with pytest.raises(RuntimeError, match="inside"), frozen_heap():
+        raise RuntimeError("inside")
+    assert gc.get_freeze_count() == 0

@@ -70,7 +70,7 @@ from spotnav.localize import DEFAULT_METHOD, METHODS, localize, localize_detaile
 from spotnav.overlay import crop_box, draw_overlay, fitted_spots
 from spotnav.progress import progress
 from spotnav.render import Renderer
-from spotnav.track import TrackedFrame, Tracker, prepare_kernels
+from spotnav.track import TrackedFrame, Tracker, frozen_heap, prepare_kernels
 
 __all__ = ["main"]
 
@@ -272,7 +272,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
             server = None
             try:
                 server = _igtl_server(args, signals)
-                with PosesWriter(args.out, TRACK_COLUMNS) as out, _overlay_writer(args) as overlay:
+                with PosesWriter(args.out, TRACK_COLUMNS) as out, _overlay_writer(args) as overlay, frozen_heap():
                     run = _track_frames(args, tracker, frames, server, signals, out, overlay)
             finally:
                 if server is not None:

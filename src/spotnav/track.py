@@ -18,6 +18,9 @@ then on the whole image.
 
 from __future__ import annotations
 
+import gc
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -35,7 +38,7 @@ from spotnav.precise import localize_precise, localize_precise_with_edges, pose_
 from spotnav.reconstruct import fit_ellipse
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 
-__all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "prepare_kernels", "track_frame"]
+__all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "frozen_heap", "prepare_kernels", "track_frame"]
 
 TRACK_MODES = ("tracked", "reacquired", "acquired", "lost")
 _CURVE_POINTS = 90
@@ -305,6 +308,23 @@ def prepare_kernels(setup: Setup) -> None:
     outlines = [np.round(edge[np.all(np.isfinite(edge), axis=1)]).astype(np.int32) for edge in edges]
     cv2.fillPoly(frame, [outline for outline in outlines if len(outline) > 2], (200, 200, 200))
     localize_precise(frame, setup)
+
+
+@contextmanager
+def frozen_heap() -> Iterator[None]:
+    """Python's cyclic garbage collector leaves every object alive on entry alone inside (``gc.freeze``), and has
+    them back on exit (``gc.unfreeze``): wrap a real-time loop in it (not nested).
+
+    With spotnav's modules loaded some 200 000 objects live, and a full collection walks them all (49 ms here). It
+    comes when the objects kept since the last one reach a quarter of them: a loop that keeps a row per frame met a
+    71 ms frame after 12 000 frames at 1024 px. Frozen, a full collection walks only what the loop kept (0.2 ms for
+    20 000 objects), and the slowest of those 12 000 frames took 5.9 ms.
+    """
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 @dataclass

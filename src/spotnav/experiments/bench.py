@@ -20,7 +20,7 @@ from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.localize import localize
 from spotnav.progress import progress
 from spotnav.render import Renderer
-from spotnav.track import Tracker
+from spotnav.track import Tracker, frozen_heap
 
 __all__ = ["STAGES", "BenchRow", "StressResult", "bench_markdown", "run_bench", "run_stress", "stress_markdown"]
 
@@ -118,43 +118,44 @@ def run_bench(
             f"frames must be >= 2, full_every >= 1 and memory_mb >= 0, got {frames}, {full_every} and {memory_mb}"
         )
     rows = []
-    for size in sizes:
-        setup = thesis_world(size, beams)
-        localizer = with_true_edge(setup)  # the simulation knows its geometry
-        renderer, tracker = Renderer(setup), Tracker(localizer)
-        renderer.render(poses_through_insertion(helix_tips(2), setup.instrument.insertion_in_eye)[0])  # warm caches
-        times: dict[str, list[float]] = {stage: [] for stage in STAGES}
-        poses = poses_through_insertion(helix_tips(HELIX_FRAMES)[:frames], setup.instrument.insertion_in_eye)
-        kept: list[np.ndarray] = []
-        for index, pose in enumerate(progress(poses, desc=f"bench {size} px", unit="frame")):
-            start = time.perf_counter()
-            image = renderer.render(pose, seed=index)
-            times["render"].append(_ms_since(start))
-            _time_tracking(tracker, image, times[STAGES[3]])
-            if (len(kept) + 1) * image.nbytes <= memory_mb * 2**20:
-                kept.append(image)
-            elif index % full_every == 0:
-                _time_full_frame(localizer, image, times)
-        for image in kept[::full_every]:
-            _time_full_frame(localizer, image, times)
-        tracker = Tracker(localizer)
-        for image in kept:
-            _time_tracking(tracker, image, times[STAGES[4]])
-        tracker, due = Tracker(localizer), time.perf_counter()
-        for image in kept:
-            due = max(due, time.perf_counter()) + CAMERA_PERIOD_S
-            time.sleep(max(due - time.perf_counter(), 0.0))
-            _time_tracking(tracker, image, times[STAGES[5]])
-        tracker = Tracker(localizer)
-        for index, image in enumerate(kept):
-            if index % LOSS_EVERY == LOSS_EVERY // 2:
-                tracker.update(np.zeros_like(image))
+    with frozen_heap():  # as a real-time loop runs (spotnav track)
+        for size in sizes:
+            setup = thesis_world(size, beams)
+            localizer = with_true_edge(setup)  # the simulation knows its geometry
+            renderer, tracker = Renderer(setup), Tracker(localizer)
+            renderer.render(poses_through_insertion(helix_tips(2), setup.instrument.insertion_in_eye)[0])  # warm caches
+            times: dict[str, list[float]] = {stage: [] for stage in STAGES}
+            poses = poses_through_insertion(helix_tips(HELIX_FRAMES)[:frames], setup.instrument.insertion_in_eye)
+            kept: list[np.ndarray] = []
+            for index, pose in enumerate(progress(poses, desc=f"bench {size} px", unit="frame")):
                 start = time.perf_counter()
-                if tracker.update(image).mode in _FOUND_AGAIN:
-                    times[STAGES[6]].append(_ms_since(start))
-            else:
-                tracker.update(image)
-        rows += [BenchRow.of_times(size, stage, values) for stage, values in times.items() if values]
+                image = renderer.render(pose, seed=index)
+                times["render"].append(_ms_since(start))
+                _time_tracking(tracker, image, times[STAGES[3]])
+                if (len(kept) + 1) * image.nbytes <= memory_mb * 2**20:
+                    kept.append(image)
+                elif index % full_every == 0:
+                    _time_full_frame(localizer, image, times)
+            for image in kept[::full_every]:
+                _time_full_frame(localizer, image, times)
+            tracker = Tracker(localizer)
+            for image in kept:
+                _time_tracking(tracker, image, times[STAGES[4]])
+            tracker, due = Tracker(localizer), time.perf_counter()
+            for image in kept:
+                due = max(due, time.perf_counter()) + CAMERA_PERIOD_S
+                time.sleep(max(due - time.perf_counter(), 0.0))
+                _time_tracking(tracker, image, times[STAGES[5]])
+            tracker = Tracker(localizer)
+            for index, image in enumerate(kept):
+                if index % LOSS_EVERY == LOSS_EVERY // 2:
+                    tracker.update(np.zeros_like(image))
+                    start = time.perf_counter()
+                    if tracker.update(image).mode in _FOUND_AGAIN:
+                        times[STAGES[6]].append(_ms_since(start))
+                else:
+                    tracker.update(image)
+            rows += [BenchRow.of_times(size, stage, values) for stage, values in times.items() if values]
     return rows
 
 
@@ -247,23 +248,24 @@ def run_stress(size: int, frames: int = 300, hide_every: int = 8, beams: int = 1
     renderer.render(poses[0])  # warm caches
     times, modes, reacquisitions, errors, hidden, ghosts, nearby = [], [], [], [], 0, 0, 0
     was_lost = False
-    for index, pose in enumerate(progress(poses, desc=f"stress {size} px", unit="frame")):
-        image = renderer.render(pose, seed=index)
-        dark = index % hide_every == hide_every - 1
-        if dark:
-            image, hidden = np.zeros_like(image), hidden + 1
-        start = time.perf_counter()
-        tracked = tracker.update(image)
-        times.append(_ms_since(start))
-        modes.append(tracked.mode)
-        if was_lost and tracked.mode in _FOUND_AGAIN:
-            reacquisitions.append(times[-1])
-            nearby += tracked.mode == "reacquired"
-        was_lost = tracked.mode == "lost"
-        if tracked.estimate.ok and dark:
-            ghosts += 1
-        elif tracked.estimate.ok:
-            errors.append(float(np.linalg.norm(tracked.estimate.tip_in_eye - pose.tip_in_eye)))
+    with frozen_heap():  # as a real-time loop runs (spotnav track)
+        for index, pose in enumerate(progress(poses, desc=f"stress {size} px", unit="frame")):
+            image = renderer.render(pose, seed=index)
+            dark = index % hide_every == hide_every - 1
+            if dark:
+                image, hidden = np.zeros_like(image), hidden + 1
+            start = time.perf_counter()
+            tracked = tracker.update(image)
+            times.append(_ms_since(start))
+            modes.append(tracked.mode)
+            if was_lost and tracked.mode in _FOUND_AGAIN:
+                reacquisitions.append(times[-1])
+                nearby += tracked.mode == "reacquired"
+            was_lost = tracked.mode == "lost"
+            if tracked.estimate.ok and dark:
+                ghosts += 1
+            elif tracked.estimate.ok:
+                errors.append(float(np.linalg.norm(tracked.estimate.tip_in_eye - pose.tip_in_eye)))
     values = np.asarray(errors) if errors else np.array([np.nan])
     slowest = 1 + int(np.argmax(times[1:]))
     return StressResult(
