@@ -78,18 +78,37 @@ def blur_shift_px(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: fl
     band = _soft_band_px(setup, radius_px, edge_angle) * (1.0 + _BAND_SLACK)
     if not np.isfinite(edge.plateau + edge.background) or not edge.plateau > edge.background:
         return 0.0
-    levels, response = (edge.plateau, edge.background), setup.camera.pixel_response
     width = edge.width_px - _WIDTH_TOLERANCE_PX
     unblurred = _unblurred_edge(round(band, 2))
     if not width > unblurred[0]:
         return 0.0
-    low, high = 0.0, max(width, 1.0)
-    if _seen_edge(levels, band, high, response)[0] < width:
-        return float("inf")
+    light, values = _response_curve(setup.camera.pixel_response)
+    return _blurred_shift(edge.plateau, edge.background, band, width, unblurred[1], light, values)
+
+
+@njit(cache=True)
+def _blurred_shift(
+    plateau: float,
+    background: float,
+    band_px: float,
+    width_px: float,
+    unblurred_px: float,
+    light_grid: np.ndarray,
+    value_grid: np.ndarray,
+) -> float:
+    """:func:`blur_shift_px`'s search, compiled: the encoded frame's blur that widens the model edge
+    (:func:`_seen_edge_kernel`) to ``width_px`` (bisected), and how far it moves the midpoint from
+    ``unblurred_px``; inf when no blur up to the width does."""
+    low, high = 0.0, max(width_px, 1.0)
+    if _seen_edge_kernel(plateau, background, band_px, high, light_grid, value_grid)[0] < width_px:
+        return np.inf
     for _ in range(_BISECTIONS):
         middle = 0.5 * (low + high)
-        low, high = (middle, high) if _seen_edge(levels, band, middle, response)[0] < width else (low, middle)
-    return abs(_seen_edge(levels, band, high, response)[1] - unblurred[1])
+        if _seen_edge_kernel(plateau, background, band_px, middle, light_grid, value_grid)[0] < width_px:
+            low = middle
+        else:
+            high = middle
+    return abs(_seen_edge_kernel(plateau, background, band_px, high, light_grid, value_grid)[1] - unblurred_px)
 
 
 @lru_cache(maxsize=4096)

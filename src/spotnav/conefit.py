@@ -48,7 +48,7 @@ from spotnav.camera import (
     sphere_points,
 )
 from spotnav.config import GEOMETRY_PARAMETERS, Setup
-from spotnav.geometry import _beam_axes, axis_rotations, edge_angle_of_blend, normalize
+from spotnav.geometry import _axis_rotations, _beam_axes, edge_angle_of_blend, normalize
 
 __all__ = [
     "AXIS_MODES",
@@ -534,7 +534,7 @@ def cone_problem(
         raise ValueError(f"tips_in_eye and axes must have one row per frame, got {count} and {len(axes)}")
     rolls = np.zeros(count) if rolls is None else np.asarray(rolls, dtype=float).reshape(count)
     frames = np.empty((count, _FRAME_SIZE))
-    frames[:, :3], frames[:, 3:5], frames[:, 5] = tips, axis_rotations(axes), rolls
+    frames[:, :3], frames[:, 3:5], frames[:, 5] = tips, _axis_rotations(axes), rolls  # axes normalized above
     free_frame = [0, 1, 2] if free_tips else []
     free_frame += [3, 4] if axis == "free" else []
     free_frame += [5] if instrument.beam_count > 1 else []
