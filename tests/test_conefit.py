@@ -24,6 +24,7 @@ from spotnav.conefit import (
     edge_angle,
     fit_cones,
     geometry_covariance,
+    geometry_values,
     prior_sigmas,
     robust_sigma,
     scatter_covariance,
@@ -352,3 +353,12 @@ def test_setup_with_geometry_is_the_perturbed_camera() -> None:
     assert setup.instrument.edge_half_angle_deg == pytest.approx(np.degrees(edge_angle(EXACT)) + 0.1)
     np.testing.assert_allclose(setup.instrument.insertion_point_mm, [0.1, 5.9, 20.2])
     assert setup_with_geometry(EXACT, np.zeros(SHARED_SIZE)).camera == EXACT.camera  # unchanged stays ideal
+
+
+def test_geometry_values_are_a_fresh_array_each_call() -> None:
+    # Calibration writes into the values it is given: another call for an equal setup must not see that.
+    values = geometry_values(EXACT)
+    values[3] = 99.0
+    again = geometry_values(replace(EXACT))
+    assert again is not values and again[3] == 0.0
+    np.testing.assert_array_equal(again[:3], values[:3])

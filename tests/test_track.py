@@ -292,3 +292,10 @@ def test_a_frozen_heap_spares_a_full_collection_every_object_alive_before_it() -
     with pytest.raises(RuntimeError, match="inside"), frozen_heap():
         raise RuntimeError("inside")
     assert gc.get_freeze_count() == 0
+    # Nested, or inside the caller's own gc.freeze: what was frozen before stays frozen.
+    with frozen_heap():
+        outer = gc.get_freeze_count()
+        with frozen_heap():
+            pass
+        assert gc.get_freeze_count() >= outer > 0
+    assert gc.get_freeze_count() == 0

@@ -524,7 +524,8 @@ def sphere_point_rates(model: np.ndarray, change: np.ndarray, pixels: np.ndarray
     Returns
     -------
     ndarray, shape (N, 3, 1 + CHANGE_SIZE)
-        ``d point / d radius`` (mm/mm), then ``d point / d change[k]``; zero for points off the bowl.
+        ``d point / d radius`` (mm/mm), then ``d point / d change[k]``; zero for points off the bowl (and for a
+        ray that grazes it, or where the lens model folds).
     """
     moved = perturbed_model(model, change)
     rotation = moved[_R : _R + 9].reshape(3, 3)
@@ -541,6 +542,10 @@ def sphere_point_rates(model: np.ndarray, change: np.ndarray, pixels: np.ndarray
         ray = _ray_in_eye(moved, x, y)
         normal = (px, py, pz - radius)  # the sphere's outward normal times its radius
         along_normal = normal[0] * ray[0] + normal[1] * ray[1] + normal[2] * ray[2]
+        _, _, dxx, dxy, dyx, dyy = _distort(moved, x, y)
+        determinant = dxx * dyy - dxy * dyx
+        if along_normal == 0.0 or determinant == 0.0:  # a ray that grazes the bowl, a lens that folds: held
+            continue
         distance = (
             (px - moved[_CENTRE]) * ray[0] + (py - moved[_CENTRE + 1]) * ray[1] + (pz - moved[_CENTRE + 2]) * ray[2]
         )
@@ -566,8 +571,6 @@ def sphere_point_rates(model: np.ndarray, change: np.ndarray, pixels: np.ndarray
         # distortion's inverse: its Jacobian's inverse), and as the distortion's coefficients change.
         xd, yd = (u - moved[_CX]) / moved[_FX], (v - moved[_CY]) / moved[_FY]
         t00, t01, t10, t11 = _homography_jacobian(moved, _TILT_INVERSE, xd, yd)
-        _, _, dxx, dxy, dyx, dyy = _distort(moved, x, y)
-        determinant = dxx * dyy - dxy * dyx
         i00, i01, i10, i11 = dyy / determinant, -dxy / determinant, -dyx / determinant, dxx / determinant
         a00, a01 = i00 * t00 + i01 * t10, i00 * t01 + i01 * t11
         a10, a11 = i10 * t00 + i11 * t10, i10 * t01 + i11 * t11

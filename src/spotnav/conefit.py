@@ -169,7 +169,6 @@ def prior_sigmas(setup: Setup) -> np.ndarray:
     return values * _TO_ENGINE
 
 
-@lru_cache(maxsize=32)
 def geometry_values(setup: Setup) -> np.ndarray:
     """The setup's geometry in the units of :data:`GEOMETRY_PARAMETERS`, shape (SHARED_SIZE,).
 
