@@ -234,7 +234,7 @@ import spotnav.track as t
 kernels = [t._predicted_rays, d._edge_on_rays, d._rays_through_curve,
            c._fit_recipe, c._at_box, c._frame_uncertainty,
            k._seen_edge_kernel, k._blurred_shift, k._fit_spread, g._cone_sphere_points, m._behind_segment,
-           d._histogram, d.otsu_threshold,
+           d._histograms, d.otsu_threshold,
            c._instrument_axis, r._fit_ellipse, g._axis_rotations]
 modules = (d, c, k, g, m, r, t)
 every = [f for mod in modules for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]

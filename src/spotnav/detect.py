@@ -203,7 +203,8 @@ def detect_spots_otsu(
         grid = _broad_background(gray, max(background_px // decimate, 1))
         gray = cv2.subtract(gray, cv2.resize(grid, (gray.shape[1], gray.shape[0]), interpolation=cv2.INTER_LINEAR))
     blurred = cv2.GaussianBlur(cv2.medianBlur(gray, blur_px), (blur_px, blur_px), 0)
-    threshold = otsu_threshold(_histogram(blurred, 1))
+    histogram, sampled = _histograms(blurred)
+    threshold = otsu_threshold(histogram)
     _, binary = cv2.threshold(blurred, threshold, 255, cv2.THRESH_BINARY)
     contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     contours = [c.reshape(-1, 2) for c in contours if len(c) > _MIN_CONTOUR_POINTS]
@@ -214,12 +215,11 @@ def detect_spots_otsu(
     left, top, box_width, box_height = cv2.boundingRect(contours[largest])
     mask = np.zeros((box_height, box_width), dtype=np.uint8)
     cv2.drawContours(mask, contours, largest, 255, thickness=cv2.FILLED, offset=(-left, -top))
-    # The background's level and spread from every other pixel of every other row: a quarter of the work.
-    histogram = _histogram(blurred, 2)
-    histogram[threshold + 1 :] = 0
-    median = _histogram_median(histogram)
+    # The background's level and spread from every other pixel of every other row.
+    sampled[threshold + 1 :] = 0
+    median = _histogram_median(sampled)
     levels = np.arange(256)
-    deviations = np.bincount(np.abs(levels - median), weights=histogram, minlength=256)
+    deviations = np.bincount(np.abs(levels - median), weights=sampled, minlength=256)
     spread = 1.4826 * _histogram_median(deviations)
     contrast = float(cv2.mean(blurred[top : top + box_height, left : left + box_width], mask)[0] - median)
     min_area = max(20.0, 1e-5 * gray.size * decimate**2)
@@ -401,26 +401,32 @@ def _reaches_inner_side(outline: np.ndarray, box: list[int], shape: tuple[int, i
 
 
 @njit(cache=True)
-def _histogram(gray: np.ndarray, stride: int) -> np.ndarray:
-    """How many of every ``stride``-th pixel of every ``stride``-th row of ``gray`` (H, W), uint8, have each level.
+def _histograms(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How many pixels of ``gray`` (H, W), uint8, have each level (256,), and how many of every other pixel of
+    every other row (256,), in one pass.
 
-    Returns the counts (256,). Four interleaved counts: neighbouring pixels of one level would otherwise wait on
-    each other's count.
+    Four interleaved counts: neighbouring pixels of one level would otherwise wait on each other's count.
     """
-    counts = np.zeros((4, 256), dtype=np.int64)
-    for v in range(0, gray.shape[0], stride):
-        row = gray[v]
-        u = 0
-        while u + 3 * stride < gray.shape[1]:
+    counts, sampled = np.zeros((4, 256), dtype=np.int64), np.zeros((2, 256), dtype=np.int64)
+    width = gray.shape[1]
+    for v in range(gray.shape[0]):
+        row, u = gray[v], 0
+        while u + 3 < width:
+            first, second, third, fourth = row[u], row[u + 1], row[u + 2], row[u + 3]
+            counts[0, first] += 1
+            counts[1, second] += 1
+            counts[2, third] += 1
+            counts[3, fourth] += 1
+            if v % 2 == 0:
+                sampled[0, first] += 1
+                sampled[1, third] += 1
+            u += 4
+        while u < width:
             counts[0, row[u]] += 1
-            counts[1, row[u + stride]] += 1
-            counts[2, row[u + 2 * stride]] += 1
-            counts[3, row[u + 3 * stride]] += 1
-            u += 4 * stride
-        while u < gray.shape[1]:
-            counts[0, row[u]] += 1
-            u += stride
-    return counts.sum(axis=0)
+            if v % 2 == 0 and u % 2 == 0:
+                sampled[0, row[u]] += 1
+            u += 1
+    return counts.sum(axis=0), sampled.sum(axis=0)
 
 
 _FLOAT32_EPSILON = float(np.finfo(np.float32).eps)
@@ -756,6 +762,7 @@ class SpotEdge:
 _STEP_PX = 0.5
 _COARSE_LEVEL = 0.2
 _PROFILE_RAYS = 64  # the median profile is taken over about this many rays
+_NOISE_RAYS = 32  # the noise from the steps along about this many rays (a few thousand steps)
 _COARSE_SAMPLES = 64
 _COARSE_RAY_STRIDE = 2
 _EDGE_MEDIAN_RAYS = 5  # coarse rays, about 9 rays
@@ -1272,7 +1279,7 @@ def _read_edges(
     lo, hi = max(int(middle - width), 0), min(int(middle + width) + 1, count - 1)
     mean_plateau = _fit_line(mean_smooth, middle - 2.5 * width, middle - 1.0 * width)
     mean_background = _fit_line(mean_smooth, middle + 1.0 * width, middle + 2.5 * width)
-    quiet = _every_nth(finite, 4)
+    quiet = _every_nth(finite, max(rays // _NOISE_RAYS, 1))
     steps_between = np.empty(len(quiet) * (count - 1))
     for j in range(len(quiet)):
         for s in range(count - 1):

@@ -405,13 +405,13 @@ def _fit_precise(
     if through_insertion and not verdict.ok:
         return verdict, constrained  # refused: no cross-check to carry
     # The cross-check continues from the constrained fit and finds its own inliers: those of the constrained fit
-    # leave out the arc a miscalibrated axis misses, which would hide it. Three beams fix the free axis:
-    # Gauss-Newton steps from there reach it (within 0.005 deg); one beam's is loose (0.25 deg short), and
-    # precise-free answers with it. Its points are the constrained fit's own.
+    # leave out the arc a miscalibrated axis misses, which would hide it. Its points are the constrained fit's own.
+    # Gauss-Newton's few steps from there: three beams' free axis within 0.005 deg of the converged fit; one beam's,
+    # loose (its sigma some 0.3 deg), 0.04 deg from it on average and at most 1.2 of its sigmas (60 helix frames),
+    # as far from the truth. precise-free answers with the free fit: Levenberg-Marquardt settles it.
     tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
     problem = cone_problem(setup, constrained.problem.points, tip[None], axis[None], np.array([roll]), axis="free")
-    steps = through_insertion and setup.instrument.beam_count == 3
-    free = fit_cones(problem, solver="gauss-newton" if steps else "levenberg-marquardt")
+    free = fit_cones(problem, solver="gauss-newton" if through_insertion else "levenberg-marquardt")
     if through_insertion:
         return _check_insertion(replace(verdict, other_axis=free.axis()), constrained, free, setup), constrained
     return _fit_free(prepared, setup, constrained, free)
