@@ -52,6 +52,14 @@ def test_one_disc_gives_one_round_contour() -> None:
     assert detection.contrast > 100
 
 
+@pytest.mark.parametrize("decimate", [1, 4])
+@pytest.mark.parametrize("center", [(20, 200), (380, 200), (200, 20), (200, 380), (30, 30)])
+def test_a_spot_on_any_edge_of_the_frame_touches_its_border(decimate: int, center: tuple[int, int]) -> None:
+    assert detect_spots_otsu(disc_image([center]), decimate=decimate).spots[0].touches_border
+    inside = (center[0] + (180 - center[0]) // 2, center[1] + (180 - center[1]) // 2)
+    assert not detect_spots_otsu(disc_image([inside]), decimate=decimate).spots[0].touches_border
+
+
 @pytest.mark.parametrize("decimate", [2, 4])
 def test_a_shrunk_detection_outlines_the_disc_in_the_frame_s_pixels(decimate: int) -> None:
     full = detect_spots_otsu(disc_image([(200, 180)])).spots[0]

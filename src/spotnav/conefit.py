@@ -1128,7 +1128,8 @@ def _levenberg_marquardt(
     Marquardt's damping scaled by the normal matrix's diagonal (SciPy's
     ``x_scale="jac"``), steps projected onto the box, reweighted for the
     soft-L1 loss when ``scale`` > 0; it stops when a step lowers the cost, or
-    moves ``x``, by less than ``tolerance`` of it. The problem's frame
+    moves ``x``, by less than ``tolerance`` of it, or raises the cost by less
+    than that (the cost has settled to its rounding). The problem's frame
     parameters only (no free shared ones).
     """
     size = len(x)
@@ -1149,6 +1150,8 @@ def _levenberg_marquardt(
             if trial_cost <= cost:
                 moved = True
                 break
+            if trial_cost - cost <= tolerance * cost:
+                break  # settled: no damping gains more than the tolerance
             damping *= 4.0
         if not moved:
             break

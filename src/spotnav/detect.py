@@ -236,11 +236,7 @@ def detect_spots_otsu(
         Spot(
             contour_px=(contours[i] + 0.5) * decimate - 0.5,  # a shrunk pixel's centre in the frame's pixels
             area_px=float(areas[i]),
-            touches_border=bool(
-                np.any(contours[i] == 0)
-                or np.any(contours[i][:, 0] == shape[1] - 1)
-                or np.any(contours[i][:, 1] == shape[0] - 1)
-            ),
+            touches_border=_reaches_frame_edge(contours[i], shape),
         )
         for i in order
         if areas[i] >= min_area_fraction * areas[order[0]]
@@ -388,15 +384,22 @@ def _widened(box: list[int], by: tuple[int, int], shape: tuple[int, int]) -> lis
     return [max(left - by[0], 0), max(top - by[1], 0), min(right + by[0], shape[1]), min(bottom + by[1], shape[0])]
 
 
+def _reaches_frame_edge(outline: np.ndarray, shape: tuple[int, int]) -> bool:
+    """Whether ``outline`` (N, 2) touches an edge of a frame of ``shape`` (height, width)."""
+    first_u, first_v, width, height = cv2.boundingRect(outline)
+    return first_u == 0 or first_v == 0 or first_u + width == shape[1] or first_v + height == shape[0]
+
+
 def _reaches_inner_side(outline: np.ndarray, box: list[int], shape: tuple[int, int]) -> bool:
     """Whether ``outline`` (N, 2) touches a side of ``box`` (left, top, right, bottom) that is not the frame's edge
     (the frame ``shape`` is (height, width)), all in the same shrunk pixels."""
     left, top, right, bottom = box
-    return bool(
-        (left > 0 and np.any(outline[:, 0] == left))
-        or (top > 0 and np.any(outline[:, 1] == top))
-        or (right < shape[1] and np.any(outline[:, 0] == right - 1))
-        or (bottom < shape[0] and np.any(outline[:, 1] == bottom - 1))
+    first_u, first_v, width, height = cv2.boundingRect(outline)
+    return (
+        (left > 0 and first_u == left)
+        or (top > 0 and first_v == top)
+        or (right < shape[1] and first_u + width == right)
+        or (bottom < shape[0] and first_v + height == bottom)
     )
 
 
@@ -481,17 +484,23 @@ def _near_hull(points_px: np.ndarray, tolerance_px: float) -> np.ndarray:
 @njit(cache=True)
 def _near_sides(points_px: np.ndarray, hull: np.ndarray, tolerance_px: float) -> np.ndarray:
     """Which of ``points_px`` (N, 2), inside the convex polygon ``hull`` (H, 2), lie within ``tolerance_px`` of a
-    side's line: the distance to the boundary of a point inside is the least to a side's line."""
+    side's line: the distance to the boundary of a point inside is the least to a side's line.
+
+    Each point's search starts at the side the point before it was near: along a contour, that is usually its own.
+    """
     count = len(hull)
+    sides, lengths = np.empty((count, 2)), np.empty(count)
+    for h in range(count):
+        sides[h, 0], sides[h, 1] = hull[(h + 1) % count, 0] - hull[h, 0], hull[(h + 1) % count, 1] - hull[h, 1]
+        lengths[h] = max(np.hypot(sides[h, 0], sides[h, 1]), 1e-9)
     near = np.zeros(len(points_px), dtype=np.bool_)
+    last = 0
     for n in range(len(points_px)):
-        for h in range(count):
-            side_u = hull[(h + 1) % count, 0] - hull[h, 0]
-            side_v = hull[(h + 1) % count, 1] - hull[h, 1]
-            length = max(np.hypot(side_u, side_v), 1e-9)
+        for k in range(count):
+            h = (last + k) % count
             offset_u, offset_v = points_px[n, 0] - hull[h, 0], points_px[n, 1] - hull[h, 1]
-            if abs(side_u * offset_v - side_v * offset_u) / length <= tolerance_px:
-                near[n] = True
+            if abs(sides[h, 0] * offset_v - sides[h, 1] * offset_u) / lengths[h] <= tolerance_px:
+                near[n], last = True, h
                 break
     return near
 
