@@ -18,6 +18,7 @@ from spotnav.detect import (
     _linear_crop,
     _median,
     _near_hull,
+    _shrunk_gray,
     _smooth,
     detect_edge_along_rays,
     detect_edge_subpixel,
@@ -261,6 +262,27 @@ def test_otsu_threshold_of_rendered_frames_is_opencv_s() -> None:
         gray = to_gray8(renderer.render(InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)))
         expected, _ = cv2.threshold(gray, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         assert otsu_threshold(_histograms(gray)[0]) == int(expected)
+
+
+@settings(max_examples=60)
+@given(
+    seed=st.integers(0, 2**31),
+    decimate=st.sampled_from([4, 8, 16]),
+    channels=st.sampled_from([0, 3, 4]),
+    bits=st.sampled_from([8, 16]),
+    size=st.tuples(st.integers(16, 90), st.integers(16, 90)),
+)
+def test_one_row_of_each_cell_is_opencv_s_resize_of_those_rows(
+    seed: int, decimate: int, channels: int, bits: int, size: tuple[int, int]
+) -> None:
+    dtype = np.uint8 if bits == 8 else np.uint16
+    shape = size if channels == 0 else (*size, channels)
+    image = np.random.default_rng(seed).integers(0, 2**bits, size=shape).astype(dtype)
+    height, width = size[0] // decimate, size[1] // decimate
+    rows = image[: height * decimate, : width * decimate][decimate // 2 - 1 :: decimate]
+    for response in ("srgb", "linear"):
+        expected = to_gray8(cv2.resize(rows, (width, height), interpolation=cv2.INTER_LINEAR), response)
+        np.testing.assert_array_equal(_shrunk_gray(image, decimate, response, one_row=True), expected)
 
 
 @given(values=st.lists(st.integers(-5, 5) | st.floats(-1e6, 1e6), min_size=1, max_size=90))

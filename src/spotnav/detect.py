@@ -300,11 +300,44 @@ def _shrunk_gray(image: np.ndarray, decimate: int, response: str | float, *, one
             raise ValueError(f"decimate {decimate} leaves no pixel of a {image.shape[1]}x{image.shape[0]} image")
         # Shrunk before the grey conversion (less to convert): every pixel of a cell at 2, and no full pass over a
         # 5000 px frame at 4.
-        whole = image[: height * decimate, : width * decimate]
         if one_row:
-            whole = whole[decimate // 2 - 1 :: decimate]
-        image = cv2.resize(whole, (width, height), interpolation=cv2.INTER_LINEAR)
+            channels = image if image.ndim == 3 else image[:, :, None]
+            cells = _one_row_means(channels, decimate, image.dtype == np.uint16, (0,) * channels.shape[2])
+            image = cells if image.ndim == 3 else cells[:, :, 0]
+        else:
+            whole = image[: height * decimate, : width * decimate]
+            image = cv2.resize(whole, (width, height), interpolation=cv2.INTER_LINEAR)
     return to_gray8(image, response)
+
+
+_BLOCK_CELLS = 8  # rows of cells read side by side
+
+
+@njit(cache=True)
+def _one_row_means(image: np.ndarray, decimate: int, half_even: bool, channels: tuple) -> np.ndarray:
+    """The mean (H // decimate, W // decimate, C) of the 2 middle pixels of the upper middle row of each
+    ``decimate``-wide cell of ``image`` (H, W, C), rounded half up (or with ``half_even`` half to even): OpenCV's
+    bilinear ``resize`` of those rows to the cells' centres, which rounds 8 bits so and 16 bits to even.
+
+    OpenCV reads the rows one after the other, each a fresh start in memory that the next waits on;
+    ``_BLOCK_CELLS`` rows are read side by side here (0.31 -> 0.27 ms at 2048 px, just after another method read the
+    frame). ``channels`` is a tuple of C zeros: its length is the compiler's to unroll.
+    """
+    height, width = image.shape[0] // decimate, image.shape[1] // decimate
+    cells = np.empty((height, width, len(channels)), dtype=image.dtype)
+    first = decimate // 2 - 1
+    for block in range(0, height, _BLOCK_CELLS):
+        for j in range(width):
+            u = j * decimate + first
+            for i in range(block, min(block + _BLOCK_CELLS, height)):
+                v = i * decimate + first
+                for c in range(len(channels)):
+                    total = np.int64(image[v, u, c]) + np.int64(image[v, u + 1, c])
+                    mean = (total + 1) >> 1
+                    if half_even and total & 3 == 1:
+                        mean -= 1  # halfway to an odd value: down to the even one
+                    cells[i, j, c] = mean
+    return cells
 
 
 def _areas(contours: Sequence[np.ndarray], decimate: int) -> np.ndarray:
