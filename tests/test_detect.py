@@ -18,6 +18,7 @@ from spotnav.detect import (
     _linear_crop,
     _median,
     _near_hull,
+    _one_row_means,
     _shrunk_gray,
     _smooth,
     detect_edge_along_rays,
@@ -54,11 +55,14 @@ def test_one_disc_gives_one_round_contour() -> None:
 
 
 @pytest.mark.parametrize("decimate", [1, 4])
-@pytest.mark.parametrize("center", [(20, 200), (380, 200), (200, 20), (200, 380), (30, 30)])
+@pytest.mark.parametrize("center", [(20, 200), (280, 200), (150, 20), (150, 380), (30, 30)])
 def test_a_spot_on_any_edge_of_the_frame_touches_its_border(decimate: int, center: tuple[int, int]) -> None:
-    assert detect_spots_otsu(disc_image([center]), decimate=decimate).spots[0].touches_border
-    inside = (center[0] + (180 - center[0]) // 2, center[1] + (180 - center[1]) // 2)
-    assert not detect_spots_otsu(disc_image([inside]), decimate=decimate).spots[0].touches_border
+    def frame(center: tuple[int, int]) -> np.ndarray:  # 300 px wide, 400 high
+        return np.ascontiguousarray(disc_image([center])[:, :300])
+
+    assert detect_spots_otsu(frame(center), decimate=decimate).spots[0].touches_border
+    inside = (center[0] + (150 - center[0]) // 2, center[1] + (200 - center[1]) // 2)
+    assert not detect_spots_otsu(frame(inside), decimate=decimate).spots[0].touches_border
 
 
 @pytest.mark.parametrize("decimate", [2, 4])
@@ -264,25 +268,35 @@ def test_otsu_threshold_of_rendered_frames_is_opencv_s() -> None:
         assert otsu_threshold(_histograms(gray)[0]) == int(expected)
 
 
-@settings(max_examples=60)
+@settings(max_examples=80)
 @given(
     seed=st.integers(0, 2**31),
-    decimate=st.sampled_from([4, 8, 16]),
-    channels=st.sampled_from([0, 3, 4]),
+    decimate=st.sampled_from([3, 4, 5, 8, 16, 32]),
+    channels=st.sampled_from([0, 1, 3, 4]),
     bits=st.sampled_from([8, 16]),
-    size=st.tuples(st.integers(16, 90), st.integers(16, 90)),
+    size=st.tuples(st.integers(40, 90), st.integers(40, 90)),  # a cell of 32 after the crop
+    view=st.sampled_from(["whole", "reversed channels", "cropped"]),
 )
 def test_one_row_of_each_cell_is_opencv_s_resize_of_those_rows(
-    seed: int, decimate: int, channels: int, bits: int, size: tuple[int, int]
+    seed: int, decimate: int, channels: int, bits: int, size: tuple[int, int], view: str
 ) -> None:
     dtype = np.uint8 if bits == 8 else np.uint16
     shape = size if channels == 0 else (*size, channels)
     image = np.random.default_rng(seed).integers(0, 2**bits, size=shape).astype(dtype)
-    height, width = size[0] // decimate, size[1] // decimate
-    rows = image[: height * decimate, : width * decimate][decimate // 2 - 1 :: decimate]
+    if view == "reversed channels" and channels > 1:
+        image = image[..., ::-1]
+    elif view == "cropped":
+        image = image[1:, 3:]
+    height, width = image.shape[0] // decimate, image.shape[1] // decimate
+    rows = np.ascontiguousarray(image[: height * decimate, : width * decimate][decimate // 2 - 1 :: decimate])
+    expected = cv2.resize(rows, (width, height), interpolation=cv2.INTER_LINEAR)
+    if expected.ndim == 2:
+        expected = expected[:, :, None]
+    cells = _one_row_means(image.reshape(*image.shape[:2], -1), decimate, bits == 16, (0,) * expected.shape[2])
+    np.testing.assert_array_equal(cells, expected)  # every bit, before the grey conversion
     for response in ("srgb", "linear"):
-        expected = to_gray8(cv2.resize(rows, (width, height), interpolation=cv2.INTER_LINEAR), response)
-        np.testing.assert_array_equal(_shrunk_gray(image, decimate, response, one_row=True), expected)
+        grey = to_gray8(expected[:, :, 0] if channels <= 1 else expected, response)
+        np.testing.assert_array_equal(_shrunk_gray(image, decimate, response, one_row=True), grey)
 
 
 @given(values=st.lists(st.integers(-5, 5) | st.floats(-1e6, 1e6), min_size=1, max_size=90))

@@ -1128,8 +1128,9 @@ def _levenberg_marquardt(
     Marquardt's damping scaled by the normal matrix's diagonal (SciPy's
     ``x_scale="jac"``), steps projected onto the box, reweighted for the
     soft-L1 loss when ``scale`` > 0; it stops when a step lowers the cost, or
-    moves ``x``, by less than ``tolerance`` of it, or raises the cost by less
-    than that (the cost has settled to its rounding). The problem's frame
+    moves ``x``, by less than ``tolerance`` of it, or raises the cost by no
+    more than that while the model expected no more gain either (MINPACK's
+    ``ftol``; damping it further would gain still less). The problem's frame
     parameters only (no free shared ones).
     """
     size = len(x)
@@ -1150,8 +1151,10 @@ def _levenberg_marquardt(
             if trial_cost <= cost:
                 moved = True
                 break
-            if trial_cost - cost <= tolerance * cost:
-                break  # settled: no damping gains more than the tolerance
+            step = x - trial
+            predicted = step @ gradient - 0.5 * step @ normal @ step  # the gain the quadratic model expected
+            if trial_cost - cost <= tolerance * cost and predicted <= tolerance * cost:
+                break  # settled, as MINPACK's ftol: the cost rose by at most the tolerance, and more damping gains less
             damping *= 4.0
         if not moved:
             break
