@@ -310,7 +310,7 @@ def _shrunk_gray(image: np.ndarray, decimate: int, response: str | float, *, one
     return to_gray8(image, response)
 
 
-_BLOCK_CELLS = 8  # rows of cells read side by side
+_BLOCK_ROWS = 8  # rows read side by side: their first touches of memory overlap instead of waiting in turn
 
 
 @njit(cache=True)
@@ -321,15 +321,15 @@ def _one_row_means(image: np.ndarray, decimate: int, half_even: bool, channels: 
     OpenCV rounds 8 and 16 bits).
 
     OpenCV reads the rows one after the other, each a fresh start in memory that the next waits on;
-    ``_BLOCK_CELLS`` rows are read side by side here (0.31 -> 0.27 ms at 2048 px, just after another method read the
+    ``_BLOCK_ROWS`` rows are read side by side here (0.31 -> 0.27 ms at 2048 px, just after another method read the
     frame). ``channels`` is a tuple of C zeros: its length is the compiler's to unroll.
     """
     height, width = image.shape[0] // decimate, image.shape[1] // decimate
     cells = np.empty((height, width, len(channels)), dtype=image.dtype)
     row, left, right = decimate // 2 - 1, (decimate - 1) // 2, decimate // 2
-    for block in range(0, height, _BLOCK_CELLS):
+    for block in range(0, height, _BLOCK_ROWS):
         for j in range(width):
-            for i in range(block, min(block + _BLOCK_CELLS, height)):
+            for i in range(block, min(block + _BLOCK_ROWS, height)):
                 v = i * decimate + row
                 for c in range(len(channels)):
                     total = np.int64(image[v, j * decimate + left, c]) + np.int64(image[v, j * decimate + right, c])
@@ -1423,7 +1423,6 @@ def _aligned_radii(
     return aligned
 
 
-_BLOCK_ROWS = 8
 _CHANNEL_GRID = 128  # the brightest channel is judged on about this many pixels a side (every other, up to 256 px)
 
 
@@ -1461,7 +1460,6 @@ def _brightest_channel(crop: np.ndarray, full_scale: int) -> tuple[int, bool]:
     height, width, channels = crop.shape[0], crop.shape[1], min(crop.shape[2], 3)
     step = max(2, min(height, width) // _CHANNEL_GRID)
     brightest, clipped = np.zeros(channels, dtype=np.int64), np.zeros(channels, dtype=np.int64)
-    # _BLOCK_ROWS rows read side by side: their first touches of memory overlap instead of waiting in turn.
     for first in range(0, height, step * _BLOCK_ROWS):
         for u in range(0, width, step):
             for v in range(first, min(first + step * _BLOCK_ROWS, height), step):
