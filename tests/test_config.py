@@ -1,7 +1,9 @@
 from __future__ import annotations
 
 import math
+import pickle
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -104,6 +106,20 @@ def test_setup_is_immutable() -> None:
     setup = Setup()
     with pytest.raises(AttributeError):
         setup.eye.radius_mm = 3.0  # type: ignore[misc]
+
+
+def test_a_setup_hashes_as_its_values_and_pickles_without_its_kept_hash() -> None:
+    # The hash is kept after its first use (the per-setup caches ask on every frame); equal setups built apart
+    # hash alike, and a pickle (a worker process, whose strings hash otherwise) carries no hash to go stale.
+    setup = setup_from_toml('[camera]\nresponse = "linear"\n[eye]\nradius_mm = 12.0\n')
+    again = setup_from_toml('[camera]\nresponse = "linear"\n[eye]\nradius_mm = 12.0\n')
+    assert hash(setup) == hash(again) and hash(setup.camera) == hash(again.camera)
+    assert hash(setup) != hash(replace(setup, eye=replace(setup.eye, radius_mm=12.5)))
+    assert {setup: 1}[again] == 1
+    copy = pickle.loads(pickle.dumps(setup))
+    assert "_hash" in setup.__dict__ and "_hash" in setup.camera.__dict__
+    assert "_hash" not in copy.__dict__ and "_hash" not in copy.camera.__dict__
+    assert copy == setup and hash(copy) == hash(setup)
 
 
 def test_contains_point() -> None:

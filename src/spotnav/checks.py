@@ -191,9 +191,16 @@ def _seen_edge_kernel(
 
 
 def _soft_band_px(setup: Setup, radius_px: float, edge_angle: float) -> float:
-    """The widest soft band the beam may have, pixels.
+    """The widest soft band the beam may have, pixels: :func:`_soft_band_share` of the spot's radius."""
+    return _soft_band_share(setup, edge_angle) * radius_px
 
-    ``2 (beta - edge)`` of the spot's radius, with the edge as far inside as
+
+@lru_cache(maxsize=32)
+def _soft_band_share(setup: Setup, edge_angle: float) -> float:
+    """The widest soft band the beam may have, as a share of the spot's radius (once per setup: every tracked frame
+    asks).
+
+    ``2 (beta - edge) / beta``, with the edge as far inside as
     its uncertainty allows (``_EDGE_REACH`` sigma: a beam known to 0.3 deg may
     be that much softer), and at least the default edge model's (a
     calibrated edge may lie beyond beta).
@@ -202,7 +209,7 @@ def _soft_band_px(setup: Setup, radius_px: float, edge_angle: float) -> float:
     (edge,) = PARAMETER_GROUPS["edge-angle"]
     inner = edge_angle - _EDGE_REACH * np.sqrt(geometry_covariance(setup)[edge, edge])
     soft = max(beta - inner, beta - edge_angle_of_blend(beta, DEFAULT_BLEND))
-    return 2.0 * soft / beta * radius_px
+    return 2.0 * soft / beta
 
 
 def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float) -> tuple[str, str] | float:

@@ -55,6 +55,20 @@ def _read_only(array: np.ndarray) -> np.ndarray:
     return array
 
 
+def _hash_once(self: Any) -> int:
+    """A frozen dataclass's hash, of its fields, computed on first use and kept: the per-setup (and per-camera)
+    caches ask for it on every frame, and hashing walks every value of the setup anew."""
+    kept = self.__dict__.get("_hash")
+    if kept is None:
+        kept = self.__dict__["_hash"] = hash(tuple(getattr(self, f.name) for f in fields(self)))
+    return kept
+
+
+def _state_without_hash(self: Any) -> dict[str, Any]:
+    """A frozen dataclass's pickled state, without the kept hash: a string's hash differs between processes."""
+    return {name: value for name, value in self.__dict__.items() if name != "_hash"}
+
+
 def _number(key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise SetupError(f"{key} must be a number, got {value!r}")
@@ -179,6 +193,9 @@ class Camera:
     rotation: tuple[tuple[float, float, float], ...] | None = None
     translation_mm: tuple[float, float, float] | None = None
     response: str | float | None = None
+
+    __hash__ = _hash_once
+    __getstate__ = _state_without_hash
 
     def __post_init__(self) -> None:
         for name in ("width_px", "height_px"):
@@ -833,6 +850,9 @@ class Setup:
             )
         if (camera.rotation_to_camera @ -centre)[2] <= 0:
             raise SetupError("camera.rotation turns the camera away from the eye (the pole is behind it)")
+
+    __hash__ = _hash_once
+    __getstate__ = _state_without_hash
 
     @property
     def true_radius_mm(self) -> float:

@@ -127,21 +127,34 @@ def detect_spots(image: np.ndarray, setup: Setup, find_radius_px: float = _FIND_
     -------
     SpotDetection
     """
-    decimate, find = detection_decimation(setup), detection_decimation(setup, find_radius_px)
-    blur_px = _blur_px(decimate)
+    decimate, find, background_px, gap_px = _detection_scales(setup, find_radius_px)
     detection = detect_spots_otsu(
         image,
         blur_px=_blur_px(find),
         min_contrast_sigma=_PRECISE_CONTRAST_SIGMA,
         response=setup.camera.pixel_response,
         min_area_fraction=_FRAGMENT_AREA_FRACTION,
-        background_px=int(_BACKGROUND_SPOTS * np.sqrt(largest_spot_area_px(setup) / np.pi)),
+        background_px=background_px,
         decimate=find,
-        refine=(decimate, blur_px),
+        refine=(decimate, _blur_px(decimate)),
     )
+    return group_fragments(detection, image.shape[:2], gap_px, smallest_spot_area_px(setup))
+
+
+@lru_cache(maxsize=32)
+def _detection_scales(setup: Setup, find_radius_px: float) -> tuple[int, int, int, float]:
+    """:func:`detect_spots`' scales, computed once per setup: the decimations the outlines are drawn at and the
+    spots found at, the background's disc (pixels) and the widest gap between a spot's fragments (pixels: a
+    vessel's, widened by the outlines' blur)."""
+    decimate = detection_decimation(setup)
     camera = setup.camera
     vessel_px = _VESSEL_MM * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3)))
-    return group_fragments(detection, image.shape[:2], vessel_px + blur_px * decimate, smallest_spot_area_px(setup))
+    return (
+        decimate,
+        detection_decimation(setup, find_radius_px),
+        int(_BACKGROUND_SPOTS * np.sqrt(largest_spot_area_px(setup) / np.pi)),
+        vessel_px + _blur_px(decimate) * decimate,
+    )
 
 
 def _blur_px(decimate: int) -> int:
@@ -162,6 +175,7 @@ def largest_spot_area_px(setup: Setup) -> float:
     return smallest_spot_area_px(setup) * (_MAX_TIP_HEIGHT_MM / _MIN_TIP_HEIGHT_MM) ** 2
 
 
+@lru_cache(maxsize=32)
 def smallest_spot_area_px(setup: Setup) -> float:
     """Area of the smallest spot a beam makes with the tip ``_MIN_TIP_HEIGHT_MM`` above the retina, pixels.
 
