@@ -19,6 +19,7 @@ from spotnav.detect import (
     _median,
     _near_hull,
     _one_row_means,
+    _opening,
     _shrunk_gray,
     _smooth,
     detect_edge_along_rays,
@@ -297,6 +298,22 @@ def test_one_row_of_each_cell_is_opencv_s_resize_of_those_rows(
     for response in ("srgb", "linear"):
         grey = to_gray8(expected[:, :, 0] if channels <= 1 else expected, response)
         np.testing.assert_array_equal(_shrunk_gray(image, decimate, response, one_row=True), grey)
+
+
+@settings(max_examples=200)
+@given(
+    seed=st.integers(0, 2**31),
+    size=st.tuples(st.integers(1, 90), st.integers(1, 90)),
+    disc_px=st.integers(0, 25).map(lambda half: 2 * half + 1),
+    smooth=st.booleans(),
+)
+def test_the_padded_opening_is_opencv_s(seed: int, size: tuple[int, int], disc_px: int, smooth: bool) -> None:
+    # Every bit, widths on both sides of the padded multiple, discs wider than the image: the pad takes no part.
+    image = np.random.default_rng(seed).integers(0, 256, size=size, dtype=np.uint8)
+    if smooth:
+        image = cv2.GaussianBlur(image, (0, 0), 2.0)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (disc_px, disc_px))
+    np.testing.assert_array_equal(_opening(image, disc), cv2.morphologyEx(image, cv2.MORPH_OPEN, disc))
 
 
 @given(values=st.lists(st.integers(-5, 5) | st.floats(-1e6, 1e6), min_size=1, max_size=90))

@@ -501,9 +501,23 @@ def _broad_background(gray: np.ndarray, width_px: int) -> np.ndarray:
     whole = gray[: coarse[1] * scale, : coarse[0] * scale]  # whole cells: OpenCV's fast path
     small = cv2.resize(whole, coarse, interpolation=cv2.INTER_AREA)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * (width_px // (2 * scale)) + 1,) * 2)
-    opened = cv2.morphologyEx(small, cv2.MORPH_OPEN, disc).astype(np.float32)
+    opened = _opening(small, disc).astype(np.float32)
     # Blurred in floats: OpenCV's exact 8-bit blur takes five times as long with a kernel this wide.
     return cv2.GaussianBlur(opened, (0, 0), width_px / (4.0 * scale)).round().astype(np.uint8)
+
+
+_ROW_ALIGN_PX = 16  # OpenCV's morphology runs 2.5 times as fast on 8-bit rows a multiple of this long (51 px: 79 us)
+
+
+def _opening(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """``cv2.morphologyEx(image, cv2.MORPH_OPEN, kernel)`` of an 8-bit ``image`` (H, W), the same bits, on rows padded
+    to a multiple of ``_ROW_ALIGN_PX``: the pad takes no part (full scale in the erosion, zero in the dilation), as
+    pixels beyond the image take none in OpenCV's."""
+    width = image.shape[1]
+    padded = cv2.copyMakeBorder(image, 0, 0, 0, -width % _ROW_ALIGN_PX, cv2.BORDER_CONSTANT, value=255)
+    eroded = cv2.erode(padded, kernel)
+    eroded[:, width:] = 0
+    return cv2.dilate(eroded, kernel)[:, :width]
 
 
 def _near_hull(points_px: np.ndarray, tolerance_px: float) -> np.ndarray:
