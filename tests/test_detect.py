@@ -293,11 +293,27 @@ def test_one_row_of_each_cell_is_opencv_s_resize_of_those_rows(
     expected = cv2.resize(rows, (width, height), interpolation=cv2.INTER_LINEAR)
     if expected.ndim == 2:
         expected = expected[:, :, None]
-    cells = _one_row_means(image.reshape(*image.shape[:2], -1), decimate, bits == 16, (0,) * expected.shape[2])
+    cells = np.empty_like(expected)
+    _one_row_means(image.reshape(*image.shape[:2], -1), decimate, bits == 16, (0,) * expected.shape[2], cells, False)
     np.testing.assert_array_equal(cells, expected)  # every bit, before the grey conversion
-    for response in ("srgb", "linear"):
+    for response in ("srgb", "linear"):  # the first made grey in the same pass, the second after it
         grey = to_gray8(expected[:, :, 0] if channels <= 1 else expected, response)
         np.testing.assert_array_equal(_shrunk_gray(image, decimate, response, one_row=True), grey)
+
+
+def test_the_one_row_grey_is_opencv_s_on_its_ties_and_every_16_bit_level() -> None:
+    # Random frames seldom meet a tie of the 15-bit weights (one colour in 32768) or of the 16 to 8 bit rounding:
+    # every colour whose weighted sum is halfway, beside random ones, and every 16-bit level (cells of 4 x 4 pixels).
+    levels = np.arange(256)
+    r, g, b = (v.ravel() for v in np.meshgrid(levels, levels, levels, indexing="ij"))
+    halfway = (9798 * r + 19235 * g + 3735 * b) % 32768 == 16384
+    colours = np.stack([r, g, b], axis=1)[halfway | (np.arange(len(r)) % 4099 == 0)].astype(np.uint8)
+    assert halfway.sum() > 100
+    frame = np.repeat(np.repeat(colours[None], 4, axis=0), 4, axis=1)
+    expected = cv2.cvtColor(colours[None], cv2.COLOR_RGB2GRAY)
+    np.testing.assert_array_equal(_shrunk_gray(frame, 4, "srgb", one_row=True), expected)
+    wide = np.repeat(np.repeat(np.arange(65536, dtype=np.uint16)[None], 4, axis=0), 4, axis=1)
+    np.testing.assert_array_equal(_shrunk_gray(wide, 4, "srgb", one_row=True), to_gray8(wide[:1, ::4]))
 
 
 @settings(max_examples=200)
