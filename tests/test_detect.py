@@ -12,6 +12,7 @@ from spotnav.config import Setup
 from spotnav.detect import (
     _SMOOTHING,
     SpotDetection,
+    _background_level,
     _brightest_channel,
     _decoding,
     _histograms,
@@ -314,6 +315,27 @@ def test_the_one_row_grey_is_opencv_s_on_its_ties_and_every_16_bit_level() -> No
     np.testing.assert_array_equal(_shrunk_gray(frame, 4, "srgb", one_row=True), expected)
     wide = np.repeat(np.repeat(np.arange(65536, dtype=np.uint16)[None], 4, axis=0), 4, axis=1)
     np.testing.assert_array_equal(_shrunk_gray(wide, 4, "srgb", one_row=True), to_gray8(wide[:1, ::4]))
+
+
+@given(
+    counts=st.lists(st.integers(0, 5000) | st.just(0), min_size=256, max_size=256),
+    threshold=st.integers(0, 255),
+)
+def test_the_background_level_is_the_median_and_mad_of_the_levels_up_to_the_threshold(
+    counts: list[int], threshold: int
+) -> None:
+    # Against the levels themselves (np.median's lower middle on a tie of two): the histogram's median is the level
+    # where half the count is reached, its spread 1.4826 times the median absolute deviation.
+    histogram = np.array(counts, dtype=np.int64)
+    levels = np.repeat(np.arange(256), np.where(np.arange(256) <= threshold, histogram, 0))
+    median, spread = _background_level(histogram, threshold)
+    if len(levels) == 0:
+        assert (median, spread) == (0, 0.0)
+        return
+    lower_median = int(np.sort(levels)[(len(levels) - 1) // 2])
+    assert median == lower_median
+    deviations = np.sort(np.abs(levels - lower_median))
+    assert spread == 1.4826 * int(deviations[(len(deviations) - 1) // 2])
 
 
 @settings(max_examples=200)

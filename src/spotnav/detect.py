@@ -134,10 +134,29 @@ def to_gray8(image: np.ndarray, response: str | float = "srgb") -> np.ndarray:
     raise ValueError(f"image must be grey, RGB or RGBA, got shape {image.shape}")
 
 
+@njit(cache=True)
+def _background_level(histogram: np.ndarray, threshold: int) -> tuple[int, float]:
+    """The background's level and robust spread from a histogram (256,) of grey levels: the median and 1.4826 times
+    the median absolute deviation of the levels up to ``threshold``."""
+    below = histogram.copy()
+    below[threshold + 1 :] = 0
+    median = _histogram_median(below)
+    deviations = np.zeros(256, dtype=np.int64)
+    for level in range(256):
+        deviations[abs(level - median)] += below[level]
+    return median, 1.4826 * _histogram_median(deviations)
+
+
+@njit(cache=True)
 def _histogram_median(histogram: np.ndarray) -> int:
-    """Median level of a histogram of integer levels (the lower one on a tie)."""
-    cumulative = np.cumsum(histogram)
-    return int(np.searchsorted(cumulative, 0.5 * cumulative[-1]))
+    """Median level of a histogram (256,) of integer counts: the first whose count reaches half of all (the lower one
+    on a tie)."""
+    total, cumulative = np.sum(histogram), 0
+    for level in range(len(histogram)):
+        cumulative += histogram[level]
+        if 2 * cumulative >= total:
+            return level
+    return len(histogram) - 1
 
 
 def detect_spots_otsu(
@@ -215,12 +234,7 @@ def detect_spots_otsu(
     left, top, box_width, box_height = cv2.boundingRect(contours[largest])
     mask = np.zeros((box_height, box_width), dtype=np.uint8)
     cv2.drawContours(mask, contours, largest, 255, thickness=cv2.FILLED, offset=(-left, -top))
-    # The background's level and spread from every other pixel of every other row.
-    sampled[threshold + 1 :] = 0
-    median = _histogram_median(sampled)
-    levels = np.arange(256)
-    deviations = np.bincount(np.abs(levels - median), weights=sampled, minlength=256)
-    spread = 1.4826 * _histogram_median(deviations)
+    median, spread = _background_level(sampled, threshold)  # every other pixel of every other row
     contrast = float(cv2.mean(blurred[top : top + box_height, left : left + box_width], mask)[0] - median)
     min_area = max(20.0, 1e-5 * gray.size * decimate**2)
     if areas[largest] < min_area or contrast < max(_MIN_CONTRAST_DN, min_contrast_sigma * spread):
