@@ -212,3 +212,26 @@ def test_assign_beams_finds_each_beam(axis: np.ndarray, roll: float, first: int,
     assert result is not None
     beams, fitted_roll = result
     np.testing.assert_allclose(beam_axes(axis, 3, tilt, fitted_roll)[beams], true_axes[order], atol=1e-9)
+
+
+@given(
+    seed=st.integers(0, 2**31),
+    shape=st.sampled_from([(3,), (1, 3), (2, 3), (40, 3), (2, 5, 3)]),
+    scale=st.sampled_from([1e-150, 1e-3, 1.0, 1e3, 1e150]),
+)
+def test_normalize_gives_numpy_s_unit_vectors_bit_for_bit(seed: int, shape: tuple[int, ...], scale: float) -> None:
+    # The compiled rows sum the squares in NumPy's order: the same bits as the array expression, in every shape.
+    vectors = np.random.default_rng(seed).normal(size=shape) * scale
+    expected = vectors / np.sqrt(np.sum(vectors * vectors, axis=-1, keepdims=True))
+    np.testing.assert_array_equal(normalize(vectors), expected)
+    assert normalize(vectors.tolist()).shape == shape
+
+
+@pytest.mark.parametrize(
+    "vectors", [np.zeros(3), [np.nan, 0.0, 1.0], [np.inf, 0.0, 0.0], [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], [1e-200] * 3]
+)
+def test_normalize_refuses_a_zero_or_non_finite_vector(vectors: object) -> None:
+    with pytest.raises(ValueError, match="zero or non-finite"):
+        normalize(vectors)
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., 3\)"):
+        normalize(np.ones((2, 2)))

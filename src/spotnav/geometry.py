@@ -42,10 +42,26 @@ def normalize(vectors: np.ndarray) -> np.ndarray:
         If any vector has zero or non-finite length.
     """
     vectors = np.asarray(vectors, dtype=float)
-    norms = np.sqrt(np.sum(vectors * vectors, axis=-1, keepdims=True))
-    if not (norms.size == 0 or (norms.min() > 0.0 and norms.max() < np.inf)):  # NaN fails the first test
+    if vectors.shape[-1:] != (3,):
+        raise ValueError(f"vectors must have shape (..., 3), got {vectors.shape}")
+    units, finite = _unit_rows(np.ascontiguousarray(vectors).reshape(-1, 3))
+    if not finite:
         raise ValueError("cannot normalize a zero or non-finite vector")
-    return vectors / norms
+    return units.reshape(vectors.shape)
+
+
+@njit(cache=True, error_model="numpy")
+def _unit_rows(rows: np.ndarray) -> tuple[np.ndarray, bool]:
+    """:func:`normalize` of rows (N, 3), compiled (NumPy's sum of the squares, in its order: the same bits), and
+    whether every row had a finite, nonzero length."""
+    units = np.empty_like(rows)
+    finite = True
+    for n in range(len(rows)):
+        norm = np.sqrt(rows[n, 0] * rows[n, 0] + rows[n, 1] * rows[n, 1] + rows[n, 2] * rows[n, 2])
+        finite = finite and 0.0 < norm < np.inf  # NaN fails both
+        for k in range(3):
+            units[n, k] = rows[n, k] / norm
+    return units, finite
 
 
 @njit(cache=True)
