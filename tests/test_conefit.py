@@ -73,6 +73,21 @@ def _one_frame(setup: Setup, edges: list[np.ndarray], tip: np.ndarray, direction
     return cone_problem(setup, points, tip[None], direction[None], np.array([roll]), **options)
 
 
+def test_edge_points_number_their_spots_over_the_frames_and_refuse_frames_out_of_order() -> None:
+    spots = [[np.ones((3, 2)), np.full((2, 2), 2.0)], [], [np.full((4, 2), 3.0)]]
+    points = EdgePoints.of_frames(spots, [[0, 2], [], [1]], [[0.1, 0.2], [], [0.3]])
+    np.testing.assert_array_equal(points.frame, [0, 0, 0, 0, 0, 2, 2, 2, 2])
+    np.testing.assert_array_equal(points.beam, [0, 0, 0, 2, 2, 1, 1, 1, 1])
+    np.testing.assert_array_equal(points.spot, [0, 0, 0, 1, 1, 2, 2, 2, 2])
+    np.testing.assert_array_equal(points.pixels[:, 0], [1, 1, 1, 2, 2, 3, 3, 3, 3])
+    np.testing.assert_array_equal(points.spot_sigma, [0.1, 0.2, 0.3])
+    assert len(EdgePoints.of_frames([[]], [[]]).pixels) == 0
+    with pytest.raises(ValueError, match="frame order"):
+        EdgePoints(np.ones((3, 2)), [0, 1, 0], [0, 0, 0], [0, 1, 2])
+    with pytest.raises(ValueError, match="at least 3"):
+        EdgePoints(np.ones((3, 2)), [0, 0, 1], [0, 0, 0], [0, 1, 2], spot_sigma=[0.1, 0.2])
+
+
 @settings(max_examples=20)
 @given(
     x=st.floats(-2.5, 2.5),

@@ -272,10 +272,10 @@ class EdgePoints:
             if values.shape != (count,):
                 raise ValueError(f"{name} must have shape ({count},), got {values.shape}")
             object.__setattr__(self, name, values)
-        if count and np.any(self.frame[1:] < self.frame[:-1]):
+        ordered, spots = _frame_order(self.frame, self.spot)
+        if not ordered:
             raise ValueError("edge points must be in frame order")
         object.__setattr__(self, "pixels", pixels)
-        spots = int(self.spot.max()) + 1 if count else 0
         sigma = np.zeros(spots) if self.spot_sigma is None else np.asarray(self.spot_sigma, dtype=float)
         if sigma.ndim != 1 or len(sigma) < spots:
             raise ValueError(f"spot_sigma must have shape (at least {spots},), got {sigma.shape}")
@@ -289,20 +289,44 @@ class EdgePoints:
         spot_sigma: Sequence[Sequence[float]] | None = None,
     ) -> EdgePoints:
         """Points from each frame's spots' edges (``spots_px[f][k]``, shape (N_k, 2)), their beams and own sigmas."""
-        pixels, frame, beam = [np.zeros((0, 2))], [], []
+        pixels, spots = [np.zeros((0, 2))], []
         for f, (edges, frame_beams) in enumerate(zip(spots_px, beams, strict=True)):
             for edge, b in zip(edges, frame_beams, strict=True):
                 pixels.append(np.asarray(edge, dtype=float).reshape(-1, 2))
-                frame.append(f)
-                beam.append(b)
-        lengths = [len(p) for p in pixels[1:]]
+                spots.append((len(pixels[-1]), f, b))
         sigma = None if spot_sigma is None else np.concatenate([np.asarray(s, dtype=float) for s in spot_sigma])
-        labels = (np.repeat(np.asarray(v, dtype=np.int64), lengths) for v in (frame, beam, range(len(lengths))))
+        labels = _spot_rows(np.array(spots, dtype=np.int64).reshape(-1, 3))
         return cls(np.concatenate(pixels), *labels, spot_sigma=sigma)
 
     def subset(self, keep: np.ndarray) -> EdgePoints:
         """The points where ``keep`` (N,) is true, in order (the spots keep their numbers)."""
         return EdgePoints(self.pixels[keep], self.frame[keep], self.beam[keep], self.spot[keep], self.spot_sigma)
+
+
+@njit(cache=True)
+def _spot_rows(spots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's frame, beam and spot (N,) from each spot's (point count, frame, beam) (K, 3), the spots numbered
+    in order."""
+    total = 0
+    for k in range(len(spots)):
+        total += spots[k, 0]
+    frame, beam, spot = np.empty(total, np.int64), np.empty(total, np.int64), np.empty(total, np.int64)
+    n = 0
+    for k in range(len(spots)):
+        for _ in range(spots[k, 0]):
+            frame[n], beam[n], spot[n] = spots[k, 1], spots[k, 2], k
+            n += 1
+    return frame, beam, spot
+
+
+@njit(cache=True)
+def _frame_order(frame: np.ndarray, spot: np.ndarray) -> tuple[bool, int]:
+    """Whether the points' frames (N,) never decrease, and how many spots their numbers (N,) reach (max + 1)."""
+    ordered, spots = True, 0
+    for n in range(len(frame)):
+        ordered = ordered and (n == 0 or frame[n] >= frame[n - 1])
+        spots = max(spots, spot[n] + 1)
+    return ordered, spots
 
 
 @lru_cache(maxsize=64)
