@@ -19,6 +19,7 @@ from spotnav.conefit import (
     SOLVERS,
     EdgePoints,
     _fit_recipe,
+    _frame_starts,
     cone_problem,
     correlation_inflation,
     edge_angle,
@@ -86,6 +87,12 @@ def test_edge_points_number_their_spots_over_the_frames_and_refuse_frames_out_of
         EdgePoints(np.ones((3, 2)), [0, 1, 0], [0, 0, 0], [0, 1, 2])
     with pytest.raises(ValueError, match="at least 3"):
         EdgePoints(np.ones((3, 2)), [0, 0, 1], [0, 0, 0], [0, 1, 2], spot_sigma=[0.1, 0.2])
+
+
+@given(frames=st.lists(st.integers(0, 6), max_size=40), count=st.integers(1, 6))
+def test_the_frames_start_where_numpy_s_search_puts_them(frames: list[int], count: int) -> None:
+    frame = np.sort(np.array(frames, dtype=np.int64))
+    np.testing.assert_array_equal(_frame_starts(frame, count), np.searchsorted(frame, np.arange(count + 1)))
 
 
 @settings(max_examples=20)

@@ -329,6 +329,19 @@ def _frame_order(frame: np.ndarray, spot: np.ndarray) -> tuple[bool, int]:
     return ordered, spots
 
 
+@njit(cache=True)
+def _frame_starts(frame: np.ndarray, count: int) -> np.ndarray:
+    """Where each of ``count`` frames' points start in the points' frames (N,), in frame order, and where the last
+    ends (count + 1,): ``np.searchsorted(frame, range(count + 1))``."""
+    starts = np.empty(count + 1, np.int64)
+    n = 0
+    for f in range(count + 1):
+        while n < len(frame) and frame[n] < f:
+            n += 1
+        starts[f] = n
+    return starts
+
+
 @lru_cache(maxsize=64)
 def _parameter_index(
     free_shared: tuple[int, ...], free_frame: tuple[int, ...], count: int
@@ -400,7 +413,7 @@ class ConeProblem:
         frames = np.ascontiguousarray(self.frames, dtype=float).reshape(-1, _FRAME_SIZE)
         count = len(frames)
         shared_index, frame_index = _parameter_index(self.free_shared, self.free_frame, count)
-        starts = np.searchsorted(self.points.frame, np.arange(count + 1))
+        starts = _frame_starts(self.points.frame, count)
         camera_free = any(_RADIUS <= i < _CAMERA_END for i in self.free_shared)
         model = perturbed_model(self.model, self.shared[_CAMERA:_CAMERA_END])
         cached = sphere_points(model, self.points.pixels, self.base[_RADIUS] + self.shared[_RADIUS])
@@ -556,8 +569,7 @@ def cone_problem(
     if len(axes) != count:
         raise ValueError(f"tips_in_eye and axes must have one row per frame, got {count} and {len(axes)}")
     rolls = np.zeros(count) if rolls is None else np.asarray(rolls, dtype=float).reshape(count)
-    frames = np.empty((count, _FRAME_SIZE))
-    frames[:, :3], frames[:, 3:5], frames[:, 5] = tips, _axis_rotations(axes), rolls  # axes normalized above
+    frames = _start_frames(np.ascontiguousarray(tips), axes, rolls)
     free_frame = [0, 1, 2] if free_tips else []
     free_frame += [3, 4] if axis == "free" else []
     free_frame += [5] if instrument.beam_count > 1 else []
@@ -576,6 +588,18 @@ def cone_problem(
         free_frame=tuple(free_frame),
         prior=prior,
     )
+
+
+@njit(cache=True)
+def _start_frames(tips: np.ndarray, axes: np.ndarray, rolls: np.ndarray) -> np.ndarray:
+    """Each frame's start (F, 6) from its tip (F, 3), unit axis (F, 3) and roll (F,): the tip, the axis's rotations
+    about y and z (:func:`spotnav.geometry.axis_rotations`), the roll."""
+    rotations = _axis_rotations(axes)
+    frames = np.empty((len(tips), _FRAME_SIZE))
+    for f in range(len(tips)):
+        frames[f, 0], frames[f, 1], frames[f, 2] = tips[f, 0], tips[f, 1], tips[f, 2]
+        frames[f, 3], frames[f, 4], frames[f, 5] = rotations[f, 0], rotations[f, 1], rolls[f]
+    return frames
 
 
 @lru_cache(maxsize=32)
