@@ -20,6 +20,8 @@ from spotnav.conefit import (
     EdgePoints,
     _fit_recipe,
     _frame_starts,
+    _free_trace,
+    _tip_box,
     cone_problem,
     correlation_inflation,
     edge_angle,
@@ -87,6 +89,31 @@ def test_edge_points_number_their_spots_over_the_frames_and_refuse_frames_out_of
         EdgePoints(np.ones((3, 2)), [0, 1, 0], [0, 0, 0], [0, 1, 2])
     with pytest.raises(ValueError, match="at least 3"):
         EdgePoints(np.ones((3, 2)), [0, 0, 1], [0, 0, 0], [0, 1, 2], spot_sigma=[0.1, 0.2])
+
+
+@given(
+    seed=st.integers(0, 2**31),
+    slots=st.lists(st.integers(0, 7), min_size=3, max_size=3, unique=True),
+    fixed=st.lists(st.booleans(), min_size=3, max_size=3),
+    reach=st.floats(0.1, 5.0),
+)
+def test_the_tip_box_and_trace_are_numpy_s(seed: int, slots: list[int], fixed: list[bool], reach: float) -> None:
+    # The box bounds each free tip coordinate by its start +- reach and nothing else; the trace sums the free tip
+    # variances in NumPy's order (the same bits as the fancy-indexed sum). A fixed coordinate's index is -1.
+    rng = np.random.default_rng(seed)
+    index = [-1 if known else slot for slot, known in zip(slots, fixed, strict=True)]
+    frame_index = np.array([[*index, -1, -1, -1], [8, 9, 10, 11, -1, -1]], dtype=np.int64)
+    start = rng.normal(size=12)
+    low, high, tips = _tip_box(start, frame_index, reach)
+    expected = frame_index[:, :3][frame_index[:, :3] >= 0]
+    np.testing.assert_array_equal(tips, expected)
+    bounded = np.isin(np.arange(12), expected)
+    np.testing.assert_array_equal(low[expected], start[expected] - reach)
+    np.testing.assert_array_equal(high[expected], start[expected] + reach)
+    assert np.all(np.isinf(low[~bounded])) and np.all(np.isinf(high[~bounded]))
+    covariance = rng.normal(size=(12, 12)) * 10.0 ** rng.integers(-6, 6, size=(12, 12))
+    tip = np.array(index)
+    assert _free_trace(covariance, tip) == covariance[tip[tip >= 0], tip[tip >= 0]].sum()
 
 
 @given(frames=st.lists(st.integers(0, 6), max_size=40), count=st.integers(1, 6))

@@ -1014,9 +1014,8 @@ class ConeSolution:
 
     def tip_sigma_mm(self, frame: int = 0, *, geometry: bool = True) -> float:
         """1-sigma tip uncertainty per axis: the root of a third of the covariance's trace, mm."""
-        index = self._tip_index(frame)
         covariance = self.covariance if geometry else self.data_covariance
-        return float(np.sqrt(covariance[index[index >= 0], index[index >= 0]].sum() / 3))
+        return float(np.sqrt(_free_trace(covariance, self._tip_index(frame)) / 3))
 
     def tip_terms(self, frame: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """``frame``'s tip covariance from its edge points alone (3, 3), mm^2, and the geometry's gain on its tip
@@ -1072,6 +1071,16 @@ class ConeSolution:
         gain = self.geometry_gain[index]
         prior = self.problem.prior[np.ix_(self.geometry_ids, self.geometry_ids)]
         return np.sum(gain * (gain @ prior), axis=0)
+
+
+@njit(cache=True)
+def _free_trace(covariance: np.ndarray, index: np.ndarray) -> float:
+    """The sum of ``covariance``'s (P, P) diagonal at the free ones of ``index`` (K,) (those not -1), in order."""
+    total = 0.0
+    for i in index:
+        if i >= 0:
+            total += covariance[i, i]
+    return total
 
 
 def _solve(
@@ -1254,11 +1263,7 @@ def fit_cones(
     if solver != "trust-region" and (priors is not None or problem.free_shared):
         raise ValueError(f"solver {solver!r} fits the frames' own parameters without priors: use trust-region")
     start = problem.start
-    low, high = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
-    tip_index = problem._arrays[7][:, :3]
-    tip_index = tip_index[tip_index >= 0]
-    low[tip_index], high[tip_index] = start[tip_index] - max_tip_move_mm, start[tip_index] + max_tip_move_mm
-    box = (low, high, tip_index)
+    box = _tip_box(start, problem._arrays[7], float(max_tip_move_mm))
     per_frame, code, arrays = len(problem.free_frame), SOLVERS.index(solver), problem._arrays
     done = False
     if solver != "trust-region":
@@ -1266,6 +1271,19 @@ def fit_cones(
     if not done:  # the same recipe run by Python, whose solve steps may call SciPy
         x, residuals, inliers, _ = _fit_recipe.py_func(start, arrays, per_frame, box, code, (problem, priors))
     return _solution(problem, x, residuals, inliers, contour_sigma, priors, settled=not _at_box(x, box))
+
+
+@njit(cache=True)
+def _tip_box(start: np.ndarray, frame_index: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The box of a fit from ``start`` (P,): the bounds (P,) that keep each free tip coordinate within ``reach`` of
+    its start (the other parameters unbounded), and the tips' indices in ``x`` (frame by frame; ``frame_index``
+    (F, 6) as :func:`_parameter_index` gives it)."""
+    low, high = np.full(len(start), -np.inf), np.full(len(start), np.inf)
+    tips = [i for i in frame_index[:, :3].ravel() if i >= 0]
+    tip_index = np.array(tips, dtype=np.int64) if tips else np.empty(0, np.int64)
+    for i in tip_index:
+        low[i], high[i] = start[i] - reach, start[i] + reach
+    return low, high, tip_index
 
 
 @njit(cache=True)

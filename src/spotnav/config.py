@@ -869,8 +869,8 @@ class Setup:
         margin_mm : float
             Required clearance from the retina.
         """
-        gap = float(np.linalg.norm(np.asarray(point_in_eye, float) - self.eye.center_in_eye))
-        return gap < self.eye.radius_mm - margin_mm
+        offset = np.asarray(point_in_eye, float) - self.eye.center_in_eye  # its length as np.linalg.norm's, unchecked
+        return float(np.sqrt(offset.dot(offset))) < self.eye.radius_mm - margin_mm
 
 
 _SECTIONS: dict[str, type] = {
