@@ -1492,8 +1492,7 @@ def _solution(
     settled: bool,
 ) -> ConeSolution:
     """The fit at ``x``, its covariance computed on first use (see :class:`ConeSolution`) from these very values:
-    ``x``, ``residuals`` and ``inliers`` are made read-only, ``priors`` copied."""
-    x, residuals, inliers = (np.array(values) for values in (x, residuals, inliers))
+    ``x``, ``residuals`` and ``inliers``, the recipe's own new arrays, are made read-only, ``priors`` copied."""
     priors = None if priors is None else np.array(priors, dtype=float)
     for values in (x, residuals, inliers, priors):
         if values is not None:

@@ -898,7 +898,7 @@ def detect_edge_subpixel(
         raise ValueError(f"max_rays must be at least 64, got {max_rays}")
     contour = spot.contour_px.astype(float)
     perimeter = float(cv2.arcLength(spot.contour_px.astype(np.float32).reshape(-1, 1, 2), True))
-    rays = int(np.clip(perimeter / _RAY_SPACING_PX, 64, max_rays))
+    rays = int(min(max(perimeter / _RAY_SPACING_PX, 64), max_rays))
     centre, ray_angles, radii = rays_through_curve(contour, rays)
     return detect_edge_along_rays(image, centre, ray_angles, radii, response=response)
 
