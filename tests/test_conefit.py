@@ -149,6 +149,9 @@ def test_the_fit_recovers_the_pose_from_exact_curves(
     np.testing.assert_allclose(fit.tip(), pose.tip_in_eye, atol=1e-6)
     np.testing.assert_allclose(fit.axis(), pose.axis, atol=1e-6)
     assert fit.inliers.all()
+    # The solution's arrays are its own and read-only: the kept insertion point, the recipe's answer.
+    np.testing.assert_array_equal(fit.insertion_in_eye, setup.instrument.insertion_in_eye)
+    assert not any(a.flags.writeable for a in (fit.insertion_in_eye, fit.x, fit.residuals, fit.inliers))
     assert fit.tip_sigma_mm(geometry=False) < 1e-6
 
 

@@ -981,10 +981,12 @@ class ConeSolution:
         """Fitted tip of ``frame``, shape (3,), mm."""
         return self.frames[frame, :3].copy()
 
-    @property
+    @cached_property
     def insertion_in_eye(self) -> np.ndarray:
-        """The fitted (or fixed) insertion point, shape (3,), mm."""
-        return self.problem.base[3:6] + self.shared[_INSERTION:]
+        """The fitted (or fixed) insertion point, shape (3,), mm (read-only)."""
+        point = self.problem.base[3:6] + self.shared[_INSERTION:]
+        point.setflags(write=False)
+        return point
 
     def axis(self, frame: int = 0) -> np.ndarray:
         """Fitted instrument axis of ``frame``, unit, shape (3,)."""

@@ -44,7 +44,8 @@ def hidden_by_shaft(
     instrument = setup.instrument
     if instrument.shaft_diameter_mm == 0:
         return [np.zeros(len(edge), dtype=bool) for edge in edges_px]
-    end = tip_in_eye - axis * float(np.linalg.norm(instrument.insertion_in_eye - tip_in_eye))
+    offset = instrument.insertion_in_eye - tip_in_eye  # its length as np.linalg.norm's, without its checks
+    end = tip_in_eye - axis * float(np.sqrt(offset.dot(offset)))
     radius = instrument.shaft_diameter_mm / 2.0 + margin_mm
     return [pixels_behind_segment(setup.camera, edge, tip_in_eye, end, radius) for edge in edges_px]
 
