@@ -230,7 +230,7 @@ def detect_spots_otsu(
     if not contours:
         return SpotDetection((), float(threshold), 0.0)
     areas = _areas(contours, decimate)
-    largest = int(np.argmax(areas))
+    largest = int(areas.argmax())
     left, top, box_width, box_height = cv2.boundingRect(contours[largest])
     mask = np.zeros((box_height, box_width), dtype=np.uint8)
     cv2.drawContours(mask, contours, largest, 255, thickness=cv2.FILLED, offset=(-left, -top))

@@ -72,7 +72,7 @@ def fit_ellipse(points: np.ndarray) -> Ellipse:
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 2 or len(points) < 5:
         raise ValueError(f"need at least 5 points of shape (N, 2), got {points.shape}")
-    if not np.all(np.isfinite(points)):
+    if not np.isfinite(points).all():
         raise ValueError("the points must be finite")
     fitted, centre, semi_major, semi_minor, major_direction = _fit_ellipse(np.ascontiguousarray(points))
     if not fitted:
@@ -225,7 +225,7 @@ def apex_candidates(
     points_in_eye = np.ascontiguousarray(points_in_eye, dtype=float)
     if points_in_eye.ndim != 2 or points_in_eye.shape[1] != 3 or len(points_in_eye) < 5:
         raise ValueError(f"need at least 5 points of shape (N, 3), got {points_in_eye.shape}")
-    if not np.all(np.isfinite(points_in_eye)):
+    if not np.isfinite(points_in_eye).all():
         raise ValueError("the points must be finite")
     normal = normalize(np.asarray(surface_normal, dtype=float))
     fitted, apexes, cone_axes, ellipse, triangle, planes = _apex_candidates(
@@ -283,6 +283,6 @@ def choose_by_insertion(candidates: ConeCandidates, insertion_in_eye: np.ndarray
         Angle between that candidate's cone axis and its insertion line, radians.
     """
     lines = normalize(candidates.apexes - np.asarray(insertion_in_eye, dtype=float))
-    cosines = np.clip(np.sum(lines * candidates.cone_axes, axis=1), -1.0, 1.0)
-    index = int(np.argmax(cosines))
+    cosines = (lines * candidates.cone_axes).sum(axis=1).clip(-1.0, 1.0)
+    index = int(cosines.argmax())
     return index, float(np.arccos(cosines[index]))

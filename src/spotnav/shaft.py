@@ -66,5 +66,5 @@ def visible_edge_points(
             return PoseEstimate("occluded", spots=len(edges_px), detail=detail)
         shown = edge[~covered] if count else edge
         on_sphere = unproject_pixels_to_sphere(setup.camera, shown, setup.eye.radius_mm)
-        visible.append(shown[np.all(np.isfinite(on_sphere), axis=1)])
+        visible.append(shown[np.isfinite(on_sphere).all(axis=1)])
     return visible

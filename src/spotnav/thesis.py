@@ -80,7 +80,7 @@ def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCa
         normal = np.array([0.0, 0.0, 1.0])
     else:
         points = unproject_pixels_to_sphere(setup.camera, spot.contour_px, setup.eye.radius_mm)
-        if not np.all(np.isfinite(points)):
+        if not np.isfinite(points).all():
             return None
         normal = sphere_normal(points, setup.eye.center_in_eye)
     try:

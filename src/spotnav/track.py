@@ -188,7 +188,7 @@ def _read_predicted_edges(
         if len(edge.pixels) < _MIN_EDGE_RAY_FRACTION * edge.rays:
             found = f"an edge on only {100 * len(edge.pixels) / edge.rays:.0f} % of the rays near the predicted spot"
             return PoseEstimate("unreliable", detail=found)
-        verdict = judge_edge(edge, setup, float(np.mean(radii)), angle)
+        verdict = judge_edge(edge, setup, float(radii.mean()), angle)
         if isinstance(verdict, tuple):
             return PoseEstimate(verdict[0], detail=verdict[1])
         edges.append(edge.pixels)
