@@ -563,13 +563,13 @@ def cone_problem(
     if axis not in AXIS_MODES:
         raise ValueError(f"axis must be one of {', '.join(AXIS_MODES)}, got {axis!r}")
     instrument = setup.instrument
-    tips = np.asarray(tips_in_eye, dtype=float).reshape(-1, 3)
+    tips = np.ascontiguousarray(tips_in_eye, dtype=float).reshape(-1, 3)
     axes = normalize(np.asarray(axes, dtype=float).reshape(-1, 3))
     count = len(tips)
     if len(axes) != count:
         raise ValueError(f"tips_in_eye and axes must have one row per frame, got {count} and {len(axes)}")
     rolls = np.zeros(count) if rolls is None else np.asarray(rolls, dtype=float).reshape(count)
-    frames = _start_frames(np.ascontiguousarray(tips), axes, rolls)
+    frames = _start_frames(tips, axes, rolls)
     free_frame = [0, 1, 2] if free_tips else []
     free_frame += [3, 4] if axis == "free" else []
     free_frame += [5] if instrument.beam_count > 1 else []
