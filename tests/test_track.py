@@ -235,7 +235,8 @@ kernels = [t._predicted_rays, d._edge_on_rays, d._rays_through_curve,
            c._fit_recipe, c._at_box, c._frame_uncertainty,
            k._seen_edge_kernel, k._blurred_shift, k._fit_spread, g._cone_sphere_points, m._behind_segment,
            d._histograms, d.otsu_threshold,
-           c._instrument_axis, r._fit_ellipse, g._axis_rotations]
+           c._instrument_axis, r._fit_ellipse, c._start_frames, c._frame_starts, c._spot_rows, c._frame_order,
+           c._tip_box, c._free_trace, g._unit_rows, d._background_level, d._one_row_means]
 modules = (d, c, k, g, m, r, t)
 every = [f for mod in modules for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
