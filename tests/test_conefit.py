@@ -21,6 +21,7 @@ from spotnav.conefit import (
     _fit_recipe,
     _frame_starts,
     _free_trace,
+    _start_frames,
     _tip_box,
     cone_problem,
     correlation_inflation,
@@ -34,7 +35,15 @@ from spotnav.conefit import (
     setup_with_geometry,
 )
 from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Camera, Instrument, Setup, Uncertainty
-from spotnav.geometry import InstrumentPose, angles_between, beam_axes, cone_sphere_curve, edge_angle_of_blend
+from spotnav.geometry import (
+    InstrumentPose,
+    _axis_rotations,
+    angles_between,
+    beam_axes,
+    cone_sphere_curve,
+    edge_angle_of_blend,
+    normalize,
+)
 
 CENTER = np.array([0.0, 0.0, 12.5])
 EXACT = Setup(camera=Camera(width_px=1024, height_px=1024), uncertainty=Uncertainty.exact())
@@ -87,6 +96,8 @@ def test_edge_points_number_their_spots_over_the_frames_and_refuse_frames_out_of
     assert len(EdgePoints.of_frames([[]], [[]]).pixels) == 0
     with pytest.raises(ValueError, match="frame order"):
         EdgePoints(np.ones((3, 2)), [0, 1, 0], [0, 0, 0], [0, 1, 2])
+    with pytest.raises(ValueError, match="numbered from 0"):
+        EdgePoints(np.ones((3, 2)), [0, 0, 0], [0, 0, 0], [0, -1, 1])
     with pytest.raises(ValueError, match="at least 3"):
         EdgePoints(np.ones((3, 2)), [0, 0, 1], [0, 0, 0], [0, 1, 2], spot_sigma=[0.1, 0.2])
 
@@ -110,10 +121,19 @@ def test_the_tip_box_and_trace_are_numpy_s(seed: int, slots: list[int], fixed: l
     bounded = np.isin(np.arange(12), expected)
     np.testing.assert_array_equal(low[expected], start[expected] - reach)
     np.testing.assert_array_equal(high[expected], start[expected] + reach)
-    assert np.all(np.isinf(low[~bounded])) and np.all(np.isinf(high[~bounded]))
+    assert np.all(low[~bounded] == -np.inf) and np.all(high[~bounded] == np.inf)
     covariance = rng.normal(size=(12, 12)) * 10.0 ** rng.integers(-6, 6, size=(12, 12))
     tip = np.array(index)
     assert _free_trace(covariance, tip) == covariance[tip[tip >= 0], tip[tip >= 0]].sum()
+
+
+@given(seed=st.integers(0, 2**31), count=st.integers(1, 5))
+def test_the_start_frames_are_the_tips_the_axis_rotations_and_the_rolls(seed: int, count: int) -> None:
+    rng = np.random.default_rng(seed)
+    tips, axes, rolls = rng.normal(size=(count, 3)), normalize(rng.normal(size=(count, 3))), rng.normal(size=count)
+    expected = np.empty((count, 6))
+    expected[:, :3], expected[:, 3:5], expected[:, 5] = tips, _axis_rotations(axes), rolls  # the axes are unit
+    np.testing.assert_array_equal(_start_frames(tips, axes, rolls), expected)
 
 
 @given(frames=st.lists(st.integers(0, 6), max_size=40), count=st.integers(1, 6))

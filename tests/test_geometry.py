@@ -233,5 +233,9 @@ def test_normalize_gives_numpy_s_unit_vectors_bit_for_bit(seed: int, shape: tupl
 def test_normalize_refuses_a_zero_or_non_finite_vector(vectors: object) -> None:
     with pytest.raises(ValueError, match="zero or non-finite"):
         normalize(vectors)
+
+
+@pytest.mark.parametrize("shape", [(2,), (2, 2), (4, 4), (0,)])
+def test_normalize_refuses_vectors_that_are_not_3d(shape: tuple[int, ...]) -> None:
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 3\)"):
-        normalize(np.ones((2, 2)))
+        normalize(np.ones(shape))

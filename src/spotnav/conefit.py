@@ -274,7 +274,7 @@ class EdgePoints:
             object.__setattr__(self, name, values)
         ordered, spots = _frame_order(self.frame, self.spot)
         if not ordered:
-            raise ValueError("edge points must be in frame order")
+            raise ValueError("edge points must be in frame order, their spots numbered from 0")
         object.__setattr__(self, "pixels", pixels)
         sigma = np.zeros(spots) if self.spot_sigma is None else np.asarray(self.spot_sigma, dtype=float)
         if sigma.ndim != 1 or len(sigma) < spots:
@@ -321,10 +321,11 @@ def _spot_rows(spots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @njit(cache=True)
 def _frame_order(frame: np.ndarray, spot: np.ndarray) -> tuple[bool, int]:
-    """Whether the points' frames (N,) never decrease, and how many spots their numbers (N,) reach (max + 1)."""
+    """Whether the points' frames (N,) never decrease and their spot numbers (N,) are not negative, and how many
+    spots those numbers reach (max + 1)."""
     ordered, spots = True, 0
     for n in range(len(frame)):
-        ordered = ordered and (n == 0 or frame[n] >= frame[n - 1])
+        ordered = ordered and (n == 0 or frame[n] >= frame[n - 1]) and spot[n] >= 0
         spots = max(spots, spot[n] + 1)
     return ordered, spots
 
@@ -1500,6 +1501,8 @@ def _solution(
         if values is not None:
             values.setflags(write=False)
     shared, frames = problem.unpack(x)
+    shared.setflags(write=False)  # insertion_in_eye, kept, is computed from them
+    frames.setflags(write=False)
     uncertainty_of = partial(_uncertainty, problem, x, residuals, inliers, contour_sigma, priors)
     return ConeSolution(problem, x, shared, frames, residuals, inliers, uncertainty_of, settled)
 

@@ -44,6 +44,8 @@ _GROUP_RMS_FRACTION = 0.03  # ... to this fraction of its radius) are one spot
 _MAX_FRAGMENTS = 32  # the largest regions grouped: 12 vessels cut a spot into some 20
 _SUSPECTS = 3  # a group that does not fit tries leaving out this many of its worst-fitting regions
 _MIN_CONTRAST_DN = 6.0
+_GREY_WEIGHTS = (9798, 19235, 3735)  # OpenCV's 8-bit RGB to grey: 0.299, 0.587 and 0.114 in 15-bit fixed point
+_TO_EIGHT_BITS = np.float32(255.0 / 65535.0)  # 16 bits to 8, in single precision (as NumPy scales a float32 array)
 
 
 @dataclass(frozen=True)
@@ -122,7 +124,7 @@ def to_gray8(image: np.ndarray, response: str | float = "srgb") -> np.ndarray:
         light = np.minimum(linear_luminance(image, response), 1.0)
         return encoding_table("srgb", 8)[np.round(light * 65535.0).astype(np.uint16)]
     if image.dtype == np.uint16:
-        image = (image.astype(np.float32) * (255.0 / 65535.0) + 0.5).astype(np.uint8)
+        image = (image.astype(np.float32) * _TO_EIGHT_BITS + np.float32(0.5)).astype(np.uint8)
     elif image.dtype != np.uint8:
         raise ValueError(f"image must be 8-bit or 16-bit, got {image.dtype}")
     if image.ndim == 2:
@@ -319,7 +321,7 @@ def _shrunk_gray(image: np.ndarray, decimate: int, response: str | float, *, one
             count = channels.shape[2]
             grey = response == "srgb" and count in (1, 3, 4)  # to_gray8's own, in the same pass: no second one
             cells = np.empty((height, width, 1 if grey else count), dtype=np.uint8 if grey else image.dtype)
-            _one_row_means(channels, decimate, image.dtype == np.uint16, (0,) * count, cells, grey)
+            _one_row_means(channels, decimate, (0,) * count, cells, grey)
             if grey:
                 return cells[:, :, 0]
             image = cells[:, :, 0] if count == 1 else cells
@@ -332,20 +334,14 @@ def _shrunk_gray(image: np.ndarray, decimate: int, response: str | float, *, one
 _BLOCK_ROWS = 8  # rows read side by side: their first touches of memory overlap instead of waiting in turn
 
 
-_GREY_WEIGHTS = (9798, 19235, 3735)  # OpenCV's 8-bit RGB to grey: 0.299, 0.587 and 0.114 in 15-bit fixed point
-_TO_EIGHT_BITS = np.float32(255.0 / 65535.0)  # to_gray8's 16 to 8 bits, in single precision as NumPy computes it
-
-
 @njit(cache=True)
-def _one_row_means(
-    image: np.ndarray, decimate: int, half_even: bool, channels: tuple, cells: np.ndarray, grey: bool
-) -> None:
-    """The cells (H // decimate, W // decimate, C) of ``image`` (H, W, C) read in one row each, as OpenCV's bilinear
-    ``resize`` reads the rows ``decimate // 2 - 1 :: decimate`` at the cells' centres: the mean of the 2 middle
-    pixels (one, for an odd ``decimate``) of each cell's row, rounded half up, or with ``half_even`` half to even (as
-    OpenCV rounds 8 and 16 bits), written into ``cells`` (of ``image``'s type). With ``grey`` each cell is written
-    as :func:`to_gray8` makes an sRGB frame grey instead (16 bits to 8, then OpenCV's weights; one or three or four
-    channels), into ``cells`` (H', W', 1) of 8 bits: the same bits, in the same pass.
+def _one_row_means(image: np.ndarray, decimate: int, channels: tuple, cells: np.ndarray, grey: bool) -> None:
+    """The cells (H', W', C) of ``image`` (H, W, C), H' = H // decimate and W' = W // decimate, read in one row each,
+    as OpenCV's bilinear ``resize`` reads the rows ``decimate // 2 - 1 :: decimate`` at the cells' centres: the mean
+    of the 2 middle pixels (one, for an odd ``decimate``) of each cell's row, rounded half up for 8 bits and half to
+    even for 16 (as OpenCV rounds them), written into ``cells`` (H', W', C) of ``image``'s type. With ``grey`` each
+    cell is written as :func:`to_gray8` makes an sRGB frame grey instead (16 bits to 8, then OpenCV's weights; one
+    or three or four channels), into ``cells`` (H', W', 1) of 8 bits: the same bits, in the same pass.
 
     OpenCV reads the rows one after the other, each a fresh start in memory that the next waits on;
     ``_BLOCK_ROWS`` rows are read side by side here (0.31 -> 0.27 ms at 2048 px, just after another method read the
@@ -353,18 +349,18 @@ def _one_row_means(
     """
     height, width = image.shape[0] // decimate, image.shape[1] // decimate
     row, left, right = decimate // 2 - 1, (decimate - 1) // 2, decimate // 2
-    wide = image.itemsize == 2
+    wide = image.itemsize == 2  # 16 bits
     for block in range(0, height, _BLOCK_ROWS):
         for j in range(width):
             for i in range(block, min(block + _BLOCK_ROWS, height)):
                 v, u = i * decimate + row, j * decimate
                 if not grey:
                     for c in range(len(channels)):
-                        cells[i, j, c] = _pair_mean(image[v, u + left, c], image[v, u + right, c], half_even)
+                        cells[i, j, c] = _pair_mean(image[v, u + left, c], image[v, u + right, c], wide)
                     continue
                 weighted = 0
                 for c in range(min(len(channels), 3)):
-                    level = _pair_mean(image[v, u + left, c], image[v, u + right, c], half_even)
+                    level = _pair_mean(image[v, u + left, c], image[v, u + right, c], wide)
                     if wide:
                         level = np.int64(np.float32(level) * _TO_EIGHT_BITS + np.float32(0.5))
                     weighted += level if len(channels) == 1 else _GREY_WEIGHTS[c] * level

@@ -39,7 +39,7 @@ def normalize(vectors: np.ndarray) -> np.ndarray:
     Raises
     ------
     ValueError
-        If any vector has zero or non-finite length.
+        If the last axis is not of length 3, or any vector has zero or non-finite length.
     """
     vectors = np.asarray(vectors, dtype=float)
     if vectors.shape[-1:] != (3,):

@@ -177,7 +177,8 @@ def largest_spot_area_px(setup: Setup) -> float:
 
 @lru_cache(maxsize=32)
 def smallest_spot_area_px(setup: Setup) -> float:
-    """Area of the smallest spot a beam makes with the tip ``_MIN_TIP_HEIGHT_MM`` above the retina, pixels.
+    """Area of the smallest spot a beam makes with the tip ``_MIN_TIP_HEIGHT_MM`` above the retina, pixels
+    (computed once per setup).
 
     A bright region this large may be a spot: it is never dismissed as clutter.
     """
