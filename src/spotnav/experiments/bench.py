@@ -24,14 +24,17 @@ from spotnav.track import Tracker, frozen_heap
 
 __all__ = ["STAGES", "BenchRow", "StressResult", "bench_markdown", "run_bench", "run_stress", "stress_markdown"]
 
-CAMERA_PERIOD_S = 0.01  # a slower camera's frame period (100 frame/s): the tracker waits, and its caches cool
+# Cameras' frame periods: one at 1000 frame/s (a 1 kHz control loop) and a slower one at 100. Between frames the
+# tracker waits, and its caches cool: the longer, the more.
+CAMERA_PERIODS_S = (0.001, 0.01)
+_CAMERA_STAGES = tuple(f"tracking, a frame every {1000 * period:.0f} ms" for period in CAMERA_PERIODS_S)
 STAGES = (
     "render",
     "thesis, full frame",
     "acquisition (precise, full frame)",
     "tracking (region of interest)",
     "tracking, frames from memory",
-    f"tracking, a frame every {1000 * CAMERA_PERIOD_S:.0f} ms",
+    *_CAMERA_STAGES,
     "re-acquisition after a loss",
 )
 HELIX_FRAMES = 300  # the helix's motion per frame: that of a 300-frame helix
@@ -96,14 +99,15 @@ def run_bench(
     """Time each stage on consecutive frames of the helix, in this process.
 
     Every frame is rendered and tracked. Tracking is timed on the frames it
-    tracked (not the acquisitions), three times: right after each frame's
+    tracked (not the acquisitions), four times: right after each frame's
     rendering, which leaves the caches cold (as decoding a video does); over
     the same frames kept in memory (the first frames that fit in
     ``memory_mb``), back to back, as a camera at the tracker's own rate hands
-    them over; and over those frames again, each handed over
-    ``CAMERA_PERIOD_S`` after the one before (or after the tracker is done
-    with it, if later), as a slower camera would: the tracker waits, and
-    meets each frame with cooler caches.
+    them over; and over those frames again for each of
+    ``CAMERA_PERIODS_S``, each frame handed over that period after the one
+    before (or after the tracker is done with it, if later), as a camera of
+    that rate would: the tracker waits, and meets each frame with cooler
+    caches.
     Every ``full_every``-th frame is also localized on the whole image by the
     thesis's and the precise method, both in the same conditions: on its copy
     in memory (right after rendering, the first method to read a frame paid
@@ -141,18 +145,19 @@ def run_bench(
             tracker = Tracker(localizer)
             for image in kept:
                 _time_tracking(tracker, image, times[STAGES[4]])
-            tracker, due = Tracker(localizer), time.perf_counter()
-            for image in kept:
-                due = max(due, time.perf_counter()) + CAMERA_PERIOD_S
-                time.sleep(max(due - time.perf_counter(), 0.0))
-                _time_tracking(tracker, image, times[STAGES[5]])
+            for period, stage in zip(CAMERA_PERIODS_S, _CAMERA_STAGES, strict=True):
+                tracker, due = Tracker(localizer), time.perf_counter()
+                for image in kept:
+                    due = max(due, time.perf_counter()) + period
+                    time.sleep(max(due - time.perf_counter(), 0.0))
+                    _time_tracking(tracker, image, times[stage])
             tracker = Tracker(localizer)
             for index, image in enumerate(kept):
                 if index % LOSS_EVERY == LOSS_EVERY // 2:
                     tracker.update(np.zeros_like(image))
                     start = time.perf_counter()
                     if tracker.update(image).mode in _FOUND_AGAIN:
-                        times[STAGES[6]].append(_ms_since(start))
+                        times[STAGES[-1]].append(_ms_since(start))
                 else:
                     tracker.update(image)
             rows += [BenchRow.of_times(size, stage, values) for stage, values in times.items() if values]
