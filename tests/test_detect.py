@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from spotnav.camera import decoding_table, encoding_table, unproject_pixels_to_sphere
 from spotnav.config import Setup
 from spotnav.detect import (
+    _BRANCHLESS_SELECT_MAX,
     _SMOOTHING,
     SpotDetection,
     _background_level,
@@ -355,12 +356,21 @@ def test_the_padded_opening_is_opencv_s(seed: int, size: tuple[int, int], disc_p
     np.testing.assert_array_equal(_opening(image, disc), cv2.morphologyEx(image, cv2.MORPH_OPEN, disc))
 
 
-@given(values=st.lists(st.integers(-5, 5) | st.floats(-1e6, 1e6), min_size=1, max_size=90))
+@given(values=st.lists(st.integers(-5, 5) | st.floats(-1e6, 1e6), min_size=1, max_size=150))
 def test_the_compiled_median_is_numpy_s(values: list[float]) -> None:
+    # Both selections: without branches up to _BRANCHLESS_SELECT_MAX values, Hoare's past it; ties among them.
     array = np.array(values, dtype=float)
     assert _median(array, np.empty(len(array))) == np.median(array)
     scratch = array.copy()
     assert _median(scratch, scratch) == np.median(array)  # selected in place, as the edge reader's noise is
+
+
+@pytest.mark.parametrize("count", [_BRANCHLESS_SELECT_MAX, _BRANCHLESS_SELECT_MAX + 1, 2000])
+def test_a_median_among_many_equal_values_is_numpy_s(count: int) -> None:
+    # Steps between clipped samples: mostly zeros, on both sides of the selection's switch.
+    array = np.zeros(count)
+    array[::7] = np.arange(len(array[::7])) - 3.0
+    assert _median(array, np.empty(count)) == np.median(array)
 
 
 @settings(max_examples=30)

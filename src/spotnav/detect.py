@@ -1206,10 +1206,38 @@ def _median(values: np.ndarray, scratch: np.ndarray) -> float:
     return 0.5 * (lower + upper)
 
 
+# Up to this many values a selection partitions without branches on the values (Lomuto's scheme, each value moved
+# by a conditional move): on a frame's medians of 38 and 64 values (the edge reader's, varied rays) 0.13 -> 0.07 ms,
+# where Hoare's scheme mispredicts about one comparison in two. Past it, many equal values (steps between clipped
+# samples, all zero) would make that scheme's passes quadratic.
+_BRANCHLESS_SELECT_MAX = 64
+
+
 @njit(cache=True)
 def _select(values: np.ndarray, n: int, k: int) -> float:
-    """The ``k``-th smallest of ``values[:n]``, in place (Hoare's selection): then ``values[:k]`` are no larger."""
+    """The ``k``-th smallest of ``values[:n]``, in place: then ``values[:k]`` are no larger (Lomuto's selection
+    without branches up to ``_BRANCHLESS_SELECT_MAX`` values, else Hoare's)."""
     low, high = 0, n - 1
+    if n <= _BRANCHLESS_SELECT_MAX:
+        while low < high:
+            middle = (low + high) // 2
+            pivot = values[middle]
+            values[middle], values[high] = values[high], pivot
+            store = low
+            for i in range(low, high):
+                value, stored = values[i], values[store]
+                smaller = value < pivot
+                values[store] = value if smaller else stored
+                values[i] = stored if smaller else value
+                store += smaller
+            values[high], values[store] = values[store], pivot
+            if k == store:
+                return pivot
+            if k < store:
+                high = store - 1
+            else:
+                low = store + 1
+        return values[k]
     while low < high:
         pivot = values[(low + high) // 2]
         i, j = low, high
