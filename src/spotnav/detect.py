@@ -1491,7 +1491,7 @@ def _aligned_radii(
     for r in range(rays):
         for k in range(_EDGE_MEDIAN_RAYS):
             window[k] = shift[(r + k - half) % rays]
-        coarse_radii[r] = radii[coarse[r]] + np.median(window)
+        coarse_radii[r] = radii[coarse[r]] + _median(window, window)  # refilled for each ray
     aligned = np.empty(len(ray_angles))
     for j in range(len(ray_angles)):
         before, after = j // _COARSE_RAY_STRIDE, (j // _COARSE_RAY_STRIDE + 1) % rays
