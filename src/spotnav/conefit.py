@@ -735,7 +735,7 @@ def _shared_columns(x: np.ndarray, arrays: tuple, ids: np.ndarray) -> np.ndarray
             offset = (points[n, 0] - frames[f, 0], points[n, 1] - frames[f, 1], points[n, 2] - frames[f, 2])
             if not np.isfinite(offset[0] + offset[1] + offset[2]):
                 continue  # a gross residual, held
-            gradient, axial, light_rate = _point_rates(offset, beams[b], light)
+            gradient, axial, light_rate = _point_rates(offset, _row(beams, b), light)
             for j in range(len(ids)):
                 i = ids[j]
                 if i == _EDGE:
@@ -782,7 +782,7 @@ def _frame_columns(x: np.ndarray, arrays: tuple, per_frame: int) -> tuple[np.nda
             offset = (points[n, 0] - frames[f, 0], points[n, 1] - frames[f, 1], points[n, 2] - frames[f, 2])
             if not np.isfinite(offset[0] + offset[1] + offset[2]):
                 continue  # a gross residual, held
-            gradient, axial, _ = _point_rates(offset, beams[b], light)
+            gradient, axial, _ = _point_rates(offset, _row(beams, b), light)
             for j in range(per_frame):
                 k, rate = free[j], beam_rates[j, b]
                 values[n, j] = axial * (offset[0] * rate[0] + offset[1] * rate[1] + offset[2] * rate[2])
@@ -791,14 +791,21 @@ def _frame_columns(x: np.ndarray, arrays: tuple, per_frame: int) -> tuple[np.nda
     return values, columns
 
 
+@njit(cache=True, inline="always")
+def _row(matrix: np.ndarray, i: int) -> tuple[float, float, float]:
+    """Row ``i`` of ``matrix`` (M, 3) as three numbers: a per-point kernel handed them, not a view of the row, runs
+    a third faster (a Jacobian of 242 points: 6.5 -> 4.5 us)."""
+    return matrix[i, 0], matrix[i, 1], matrix[i, 2]
+
+
 @njit(cache=True)
 def _point_rates(
-    offset: tuple[float, float, float], beam: np.ndarray, light: float
+    offset: tuple[float, float, float], beam: tuple[float, float, float], light: float
 ) -> tuple[tuple[float, float, float], float, float]:
-    """The rates of a point's residual ``atan2(across - light, along) - edge``, ``offset`` = point - tip (3,) and
-    ``beam`` its beam's axis (3,): its gradient with respect to the point (the tip's is its negative), its rate per
-    unit of ``along`` at a fixed distance from the tip (a turn of the beam moves ``along`` by the offset times the
-    axis's rate), and its rate with respect to the light's radius."""
+    """The rates of a point's residual ``atan2(across - light, along) - edge``, ``offset`` = point - tip and
+    ``beam`` its beam's axis (three numbers each): its gradient with respect to the point (the tip's is its
+    negative), its rate per unit of ``along`` at a fixed distance from the tip (a turn of the beam moves ``along``
+    by the offset times the axis's rate), and its rate with respect to the light's radius."""
     along = offset[0] * beam[0] + offset[1] * beam[1] + offset[2] * beam[2]
     across = np.sqrt(max(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2 - along * along, 0.0))
     height = across - light
