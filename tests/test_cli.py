@@ -345,6 +345,16 @@ def test_bench_stress_hides_the_spot_and_counts_re_acquisitions(capsys: pytest.C
     assert main(["bench", "--stress", "--hide-every", "1"]) == 2
 
 
+def test_bench_profile_splits_each_stage_into_its_parts(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "--profile", "--sizes", "512", "--frames", "4"]) == 0
+    out = capsys.readouterr().out
+    assert "## 512 px, acquisition (precise, full frame):" in out
+    assert "## 512 px, tracking, frames from memory:" in out and "(3 frames)" in out  # the first one acquired
+    assert "| detect._edge_on_rays | compiled (Numba) |" in out  # both stages read the edges in one compiled call
+    assert "| cv2." in out  # the acquisition's detection runs OpenCV
+    assert "| detection |" in out and "| edges along the predicted rays |" in out
+
+
 def test_scene_from_an_opencv_calibration(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # One command turns OpenCV's calibration into a setup: its intrinsics, the nominal camera's pose.
     path = tmp_path / "camera.yaml"

@@ -28,6 +28,7 @@ from spotnav.experiments.chapter6 import (
     thesis_world,
 )
 from spotnav.experiments.paths import SQUARE_CORNERS_MM
+from spotnav.experiments.profiling import PARTS, PROFILED_STAGES, run_profile
 from spotnav.geometry import InstrumentPose
 from spotnav.render import Renderer
 
@@ -201,3 +202,25 @@ def test_geometry_study_smoke(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -
     assert all(float(r["error_mm"]) <= 3 * float(r["sigma_mm"]) for r in calibrated)
     assert np.mean(errors["after calibrate"]) < 0.2 * np.mean(errors["trusting the nominal geometry"])
     assert (tmp_path / "geometry.png").stat().st_size > 10000
+
+
+def test_profile_accounts_for_each_stage_time() -> None:
+    profiles = run_profile([512], frames=3, top=5)
+    assert [p.stage for p in profiles] == list(PROFILED_STAGES)
+    acquisition, tracking = profiles
+    assert (acquisition.frames, tracking.frames) == (3, 2)  # the tracker acquires the first frame
+    assert [step for step, _ in acquisition.steps_ms] == [
+        "detection",
+        "thesis start and sub-pixel edges",
+        "fit, shaft and checks",
+    ]
+    for p in profiles:
+        # The parts' own times add up to the profiled time, less the time outside any function call.
+        assert 0.5 * p.total_ms <= sum(p.parts_ms) <= p.total_ms
+        assert all(ms >= 0 for ms in p.parts_ms) and p.parts_ms[0] > 0  # compiled kernels ran
+        steps = [ms for _, ms in p.steps_ms]
+        assert all(ms > 0 for ms in steps) and sum(steps) <= p.total_ms  # every step ran, inside the stage's time
+        assert len(p.functions) == 5 and all(f.part in PARTS for f in p.functions)
+        assert [f.ms for f in p.functions] == sorted((f.ms for f in p.functions), reverse=True)
+    with pytest.raises(ValueError, match="frames must be >= 2"):
+        run_profile([256], frames=1)

@@ -40,6 +40,7 @@ from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.experiments.bench import bench_markdown, run_bench, run_stress, stress_markdown
 from spotnav.experiments.evaluate import evaluate_poses, evaluation_text, write_evaluation
 from spotnav.experiments.paths import helix_tips, resample_polyline, square_tips, tremor_offsets
+from spotnav.experiments.profiling import profile_markdown, run_profile
 from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
 from spotnav.experiments.sweep_report import write_sweep_report
 from spotnav.files import (
@@ -478,6 +479,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         raise UsageError(f"--full-every must be at least 1, got {args.full_every}")
     if not (np.isfinite(args.memory_mb) and args.memory_mb >= 0):
         raise UsageError(f"--memory-mb must be a number >= 0, got {args.memory_mb}")
+    if args.profile:
+        print(profile_markdown(run_profile(args.sizes, frames=args.frames, beams=args.beams)))
+        return 0
     if args.stress:
         if args.hide_every < 2:
             raise UsageError(f"--hide-every must be at least 2, got {args.hide_every}")
@@ -822,6 +826,12 @@ def _parser() -> argparse.ArgumentParser:
         "errors and silent failures",
     )
     bench.add_argument("--hide-every", type=int, default=8, help="with --stress, hide the spot every Nth frame")
+    bench.add_argument(
+        "--profile",
+        action="store_true",
+        help="where the time goes instead: the acquisition (right after the thesis method) and the tracked frames, "
+        "function by function, split into compiled kernels, OpenCV and Python",
+    )
     bench.set_defaults(run=_cmd_bench)
 
     cal = commands.add_parser("calibrate", help="fit the geometry that frames at known poses determine")
