@@ -601,6 +601,7 @@ def test_user_errors_found_in_review_are_one_line(tmp_path: Path, capsys: pytest
         (["calibrate", "--scene", str(scene), "--poses", str(video_truth), "--out", str(tmp_path / "c.toml")],
          "names a video's frames"),
         (["bench", "--sizes", "256", "--frames", "1"], "--frames must be at least 2"),
+        (["bench", "--profile", "--stress"], "--profile and --stress are two different runs"),
         (["render", "--scene", str(scene), "--tip", "0", "0", "4", "--seed", "-1", "--out", str(tmp_path / "f.png")],
          "--seed must be at least 0"),
         (["render", "--scene", str(scene), "--path", str(latin), "--out", str(tmp_path / "p")], "not a UTF-8 CSV"),

@@ -480,6 +480,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if not (np.isfinite(args.memory_mb) and args.memory_mb >= 0):
         raise UsageError(f"--memory-mb must be a number >= 0, got {args.memory_mb}")
     if args.profile:
+        if args.stress:
+            raise UsageError("--profile and --stress are two different runs: give one of them")
         print(profile_markdown(run_profile(args.sizes, frames=args.frames, beams=args.beams)))
         return 0
     if args.stress:

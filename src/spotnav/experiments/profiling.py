@@ -104,15 +104,18 @@ class StageProfile:
     functions: tuple[FunctionTime, ...]
 
 
+def _key(function: Callable[..., object]) -> tuple[str, int, str]:
+    """The profiler's key of a Python function: its file, first line and name."""
+    code = function.__code__
+    return code.co_filename, code.co_firstlineno, code.co_name
+
+
 def _compiled_kernels() -> set[tuple[str, int, str]]:
-    """The profiler's keys (file, first line, name) of spotnav's compiled kernels, in the modules loaded."""
+    """The profiler's keys of spotnav's compiled kernels, in the modules loaded."""
     kernels = set()
     for name, module in list(sys.modules.items()):
         if name == "spotnav" or name.startswith("spotnav."):
-            for value in vars(module).values():
-                if isinstance(value, CPUDispatcher):
-                    code = value.py_func.__code__
-                    kernels.add((code.co_filename, code.co_firstlineno, code.co_name))
+            kernels |= {_key(value.py_func) for value in vars(module).values() if isinstance(value, CPUDispatcher)}
     return kernels
 
 
@@ -144,8 +147,7 @@ def _stage_profile(
     parts, calls, functions = _function_times(stats, len(profiles), top)
     steps = []
     for step, function in _STEPS[stage]:
-        code = function.__code__
-        timing = stats.stats.get((code.co_filename, code.co_firstlineno, code.co_name))
+        timing = stats.stats.get(_key(function))
         steps.append((step, 0.0 if timing is None else 1000 * timing[3] / len(profiles)))
     return StageProfile(
         size, stage, len(profiles), float(np.mean(times_ms)), parts, tuple(steps), calls, tuple(functions)
