@@ -30,15 +30,16 @@ bench: $(TEST_STAMP)
 
 CYCLES_DEV ?= ../shared/cycles-dev
 CYCLES_GEOMETRY ?= ../shared/cycles-geometry
+CYCLES_PHOTOMETRY ?= ../shared/cycles-photometry
 VALIDATION := results/validation
 
-# A plain calibrate on each Cycles set's cal_* frames, then its test_* frames localized by the precise method
+# A plain calibrate on each Cycles set's cal_* frames (cycles-photometry: spots the camera clips), then its test_* frames localized by the precise method
 # (calibrated, and with the nominal setup: refused, not wrong) and the thesis's, and its seq_* helix tracked.
 validation: $(STAMP)
-	@for folder in $(CYCLES_DEV) $(CYCLES_GEOMETRY); do \
-	  test -d $$folder || { echo "no Cycles frames at $$folder (make validation CYCLES_DEV=... CYCLES_GEOMETRY=...)"; exit 2; }; \
+	@for folder in $(CYCLES_DEV) $(CYCLES_GEOMETRY) $(CYCLES_PHOTOMETRY); do \
+	  test -d $$folder || { echo "no Cycles frames at $$folder (make validation CYCLES_DEV=... CYCLES_GEOMETRY=... CYCLES_PHOTOMETRY=...)"; exit 2; }; \
 	done
-	@for folder in $(CYCLES_DEV) $(CYCLES_GEOMETRY); do for set in b1 b3; do \
+	@for folder in $(CYCLES_DEV) $(CYCLES_GEOMETRY) $(CYCLES_PHOTOMETRY); do for set in b1 b3; do \
 	  d=$$folder/$$set; o=$(VALIDATION)/$$(basename $$folder)/$$set; mkdir -p $$o; \
 	  $(BIN)/spotnav calibrate --scene $$d/setup.toml --poses $$d/known.csv --height-correction \
 	    --out $$o/calibrated.toml > $$o/calibrate.txt || exit 1; \

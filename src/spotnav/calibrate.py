@@ -69,6 +69,7 @@ from spotnav.detect import detect_edge_subpixel
 from spotnav.errors import InputError
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import assign_beams, normalize
+from spotnav.photometry import band_share
 from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges, pose_problem
 from spotnav.thesis import fit_height_correction
 
@@ -232,7 +233,10 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
         return f"{frame.name}: {detection.regions}{cut}, {instrument.beam_count} beams"
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
-    edges = [detect_edge_subpixel(frame.image, spot, response, max_rays=_RAYS).pixels for spot in spots]
+    share = band_share(setup)
+    edges = [
+        detect_edge_subpixel(frame.image, spot, response, max_rays=_RAYS, band_share=share).pixels for spot in spots
+    ]
     beams, roll = [0], 0.0
     if len(spots) > 1:
         centres = np.array(

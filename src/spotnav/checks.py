@@ -223,8 +223,11 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     blur whose unknown kind may have moved the edge by more than
     ``_MAX_BLUR_MM`` of tip height (:func:`blur_shift_px`), whatever the
     spot's size. A trusted edge's sigma is half the shift that blur may have
-    caused: a uniform shift of ``s`` pixels is an angle of about ``s`` over
-    the spot's radius times the edge angle.
+    caused and, where the plateau clips, the shift the fitted amplitude's
+    uncertainty leaves (:attr:`~spotnav.detect.SpotEdge.flank_shift_px`): a
+    uniform shift of ``s`` pixels is an angle of about ``s`` over the spot's
+    radius times the edge angle. A clipped plateau is refused only where the
+    photometric model did not read it.
     """
     if np.isfinite(edge.contrast_to_noise) and not edge.contrast_to_noise >= _MIN_CONTRAST_TO_NOISE:
         ratio = f"{edge.contrast_to_noise:.0f} times the noise, under {_MIN_CONTRAST_TO_NOISE:.0f}"
@@ -232,7 +235,7 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     if len(edge.pixels) < max(MIN_EDGE_POINTS, _MIN_EDGE_FRACTION * edge.rays):
         left_out = f", {edge.dark_rays} left out (vessels, the shaft, glints)" if edge.dark_rays else ""
         return "unreliable", f"too few edge points: {len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
-    if edge.clipped_fraction > _MAX_CLIPPED_FRACTION:
+    if edge.clipped_fraction > _MAX_CLIPPED_FRACTION and not np.isfinite(edge.log_amplitude):
         clipped = f"{100 * edge.clipped_fraction:.0f} %"
         return "unreliable", f"{clipped} of the spot inside its edge is at full scale in every channel"
     shift = blur_shift_px(edge, setup, radius_px, edge_angle)
@@ -242,7 +245,7 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
             f"the edge is {edge.width_px:.1f} px wide, blurred: where the blur acted leaves it {shift:.2f} px "
             f"({height_mm:.3f} mm of height) uncertain"
         )
-    return 0.5 * shift * edge_angle / radius_px
+    return float(np.hypot(0.5 * shift, edge.flank_shift_px)) * edge_angle / radius_px
 
 
 @lru_cache(maxsize=32)

@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from spotnav.camera import decoding_table, encoding_table
+from spotnav.photometry import fit_clipped_edges
 
 __all__ = [
     "EDGE_SMOOTHING_PX",
@@ -838,6 +839,13 @@ class SpotEdge:
     dark_rays : int
         Rays on the image left out: no light's edge on them, or one that a
         structure (a vessel, the shaft, a glint) shaped.
+    log_amplitude, blur_px : float
+        Where the plateau clips, the photometric model's amplitude (natural
+        log of the plateau's light, full scale 1) and blur (pixels)
+        (:func:`spotnav.photometry.fit_clipped_edges`); NaN elsewhere.
+    flank_shift_px : float
+        How far the clipped rays' edges may lie off together (1 sigma,
+        pixels): the amplitude's uncertainty; 0 where nothing clips.
     """
 
     pixels: np.ndarray
@@ -850,9 +858,14 @@ class SpotEdge:
     plateau: float = float("nan")
     background: float = float("nan")
     dark_rays: int = 0
+    log_amplitude: float = float("nan")
+    blur_px: float = float("nan")
+    flank_shift_px: float = 0.0
 
 
 _STEP_PX = 0.5
+_REFIT_CLIPPED = 0.02  # of the plateau's samples at full scale: the half level is gone, the photometric model reads
+_MIN_FLANK_SAMPLES = 1  # a clipped spot's ray needs this many samples on its unclipped flank
 _COARSE_LEVEL = 0.2
 _PROFILE_RAYS = 64  # the median profile is taken over about this many rays
 _NOISE_RAYS = 32  # the noise from the steps along about this many rays (a few thousand steps)
@@ -868,7 +881,7 @@ _NEAR_DARK_PX = 1.0  # ... and pixels along the edge from a dark structure's are
 
 
 def detect_edge_subpixel(
-    image: np.ndarray, spot: Spot, response: str | float = "srgb", *, max_rays: int = 2048
+    image: np.ndarray, spot: Spot, response: str | float = "srgb", *, max_rays: int = 2048, band_share: float = 0.0
 ) -> SpotEdge:
     """Locate a spot's edge to a fraction of a pixel, independently of the light's power.
 
@@ -896,7 +909,7 @@ def detect_edge_subpixel(
     perimeter = float(cv2.arcLength(spot.contour_px.astype(np.float32).reshape(-1, 1, 2), True))
     rays = int(min(max(perimeter / _RAY_SPACING_PX, 64), max_rays))
     centre, ray_angles, radii = rays_through_curve(contour, rays)
-    return detect_edge_along_rays(image, centre, ray_angles, radii, response=response)
+    return detect_edge_along_rays(image, centre, ray_angles, radii, response=response, band_share=band_share)
 
 
 def rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -953,6 +966,7 @@ def detect_edge_along_rays(
     *,
     align: bool = False,
     response: str | float = "srgb",
+    band_share: float = 0.0,
 ) -> SpotEdge:
     """Locate an edge to a fraction of a pixel on rays that cross it near ``radii``.
 
@@ -1014,11 +1028,23 @@ def detect_edge_along_rays(
         )
     lut, full_scale = _decoding(image, response)
     channels = image if image.ndim == 3 else image[:, :, None]
-    pixels, kept, width, saturated, ratio, clipped, plateau, background, left_out = _edge_on_rays(
-        channels, lut, full_scale, centre, angles, radii, align
+    (pixels, kept, width, saturated, ratio, clipped, plateau, background, left_out, amplitude, blur, shift) = (
+        _edge_on_rays(channels, lut, full_scale, centre, angles, radii, align, float(band_share))
     )
     return SpotEdge(
-        pixels, angles[kept], width * _STEP_PX, saturated, len(angles), ratio, clipped, plateau, background, left_out
+        pixels,
+        angles[kept],
+        width * _STEP_PX,
+        saturated,
+        len(angles),
+        ratio,
+        clipped,
+        plateau,
+        background,
+        left_out,
+        amplitude,
+        blur,
+        shift,
     )
 
 
@@ -1031,7 +1057,8 @@ def _edge_on_rays(
     angles: np.ndarray,
     radii: np.ndarray,
     align: bool,
-) -> tuple[np.ndarray, np.ndarray, float, bool, float, float, float, float, int]:
+    band_share: float,
+) -> tuple[np.ndarray, np.ndarray, float, bool, float, float, float, float, int, float, float, float]:
     """:func:`detect_edge_along_rays` on ``image`` (H, W, C), compiled: one call per spot.
 
     ``lut`` (codes,) is the light of each code and ``full_scale`` the first
@@ -1051,15 +1078,15 @@ def _edge_on_rays(
         steps = _window_steps(wide, 2.0 * wide / _COARSE_SAMPLES)
         radii = _aligned_radii(pixels, lut, offset, angles, radii, steps, wide - window)
         window = _window_px(radii, False)  # about the edge found
-    edge_radii, valid, width, ratio, clipped, plateau, background, left_out = _read_edges(
-        pixels, lut, offset, angles, radii, _window_steps(window, _STEP_PX), lut[full_scale]
+    edge_radii, valid, width, ratio, clipped, plateau, background, left_out, amplitude, blur, shift = _read_edges(
+        pixels, lut, offset, angles, radii, _window_steps(window, _STEP_PX), lut[full_scale], band_share
     )
     kept = np.flatnonzero(valid)
     points = np.empty((len(kept), 2))
     for i in range(len(kept)):
         points[i, 0] = centre[0] + edge_radii[kept[i]] * np.cos(angles[kept[i]])
         points[i, 1] = centre[1] + edge_radii[kept[i]] * np.sin(angles[kept[i]])
-    return points, kept, width, saturated, ratio, clipped, plateau, background, left_out
+    return points, kept, width, saturated, ratio, clipped, plateau, background, left_out, amplitude, blur, shift
 
 
 @njit(cache=True)
@@ -1354,7 +1381,8 @@ def _read_edges(
     radii: np.ndarray,
     steps: np.ndarray,
     full_scale: float,
-) -> tuple[np.ndarray, np.ndarray, float, float, float, float, float, int]:
+    band_share: float,
+) -> tuple[np.ndarray, np.ndarray, float, float, float, float, float, int, float, float, float]:
     """The fine pass of :func:`detect_edge_along_rays` on rays sampled at ``steps`` (S,) around ``radii`` (R,).
 
     Returns each ray's edge distance from the centre (R,), whether it is valid
@@ -1364,14 +1392,18 @@ def _read_edges(
     gave no edge: no fall through the halfway level, too little contrast, a
     structure that shaped it (a plateau off its line or a dip where it falls,
     by more than ``_DARK_DIP`` of the contrast and four noises), or next to a
-    ray under a dark structure.
+    ray under a dark structure. Where the plateau clips (over ``_REFIT_CLIPPED`` of it), each valid ray's edge is
+    the photometric model's instead (:func:`spotnav.photometry.fit_clipped_edges`, the soft band
+    ``band_share`` of the edge's distance); the spot's log amplitude over full scale and blur (pixels) are
+    returned, and how far all its edges may lie off together, pixels (1 sigma, from how well the flank pins
+    the amplitude; NaN, NaN and 0 where the plateau does not clip).
     """
     rays, count = len(ray_angles), len(steps)
     profiles, finite = _sample_rays(pixels, lut, offset, ray_angles, radii, steps)
     edge_radii = np.full(rays, np.nan)
     valid = np.zeros(rays, dtype=np.bool_)
     if not finite.any():
-        return edge_radii, valid, np.nan, np.nan, 0.0, np.nan, np.nan, 0
+        return edge_radii, valid, np.nan, np.nan, 0.0, np.nan, np.nan, 0, np.nan, np.nan, 0.0
     # The median profile, over about _PROFILE_RAYS lit rays, gives the edge's place and width in the window: rays
     # that vessels darken (the median of their inner half under _LIT of the brightest rays') would make it theirs,
     # and a glint on a ray hardly moves that median.
@@ -1407,6 +1439,7 @@ def _read_edges(
             steps_between[j * (count - 1) + s] = abs(profiles[quiet[j], s + 1] - profiles[quiet[j], s])
     noise = 1.4826 * _median(steps_between, steps_between) / np.sqrt(2.0)
     contrast = np.zeros(rays)
+    ray_backgrounds = np.zeros((rays, 2))  # each ray's background at its crossing and its slope per pixel
     # Only the samples the lines and the crossing read are smoothed.
     needed = (max(int(np.floor(middle - 2.5 * width)) - 1, 0), int(np.ceil(middle + 2.5 * width)) + 2)
     for r in range(rays):
@@ -1426,6 +1459,32 @@ def _read_edges(
         if valid[r] and (rough or _deepest_dip(smooth, int(middle - 2.5 * width), int(lo), hi, scratch) > allowed):
             valid[r] = False
         edge_radii[r] = radii[r] + steps[0] + where * (steps[1] - steps[0])
+        ray_backgrounds[r, 0] = background[0] + background[1] * where
+        ray_backgrounds[r, 1] = background[1] / (steps[1] - steps[0])
+    plateau_samples = range(max(int(middle - 2.5 * width), 0), min(max(int(middle - width), 1), count))
+    clipped_samples, samples = 0, 0
+    clipped_rays = np.zeros(rays, dtype=np.bool_)  # a ray whose plateau reaches full scale has no half level
+    for r in range(rays):
+        if finite[r]:
+            for s in plateau_samples:
+                clipped_rays[r] |= profiles[r, s] >= full_scale
+                clipped_samples += profiles[r, s] >= full_scale
+                samples += 1
+    clipped = clipped_samples / max(samples, 1)
+    log_amplitude, blur, shift_sigma = np.nan, np.nan, 0.0
+    if clipped > _REFIT_CLIPPED:
+        sample_radii = np.empty((rays, count))
+        for r in range(rays):
+            for s in range(count):
+                sample_radii[r, s] = radii[r] + steps[s]
+        fitted, flank, log_amplitude, blur, shift_sigma = fit_clipped_edges(
+            (pixels.shape[0], pixels.shape[1]), offset, ray_angles, sample_radii, profiles, edge_radii,
+            valid & clipped_rays, ray_backgrounds, full_scale, band_share, noise,
+        )  # fmt: skip
+        for r in range(rays):
+            if valid[r] and clipped_rays[r]:
+                edge_radii[r] = fitted[r]
+                valid[r] = flank[r] >= _MIN_FLANK_SAMPLES and np.isfinite(fitted[r])
     # Next to a ray on the image without a light's edge (a vessel or the shaft over it) the edge is the dark
     # structure's: the rays within _NEAR_DARK_WIDTHS edge widths and _NEAR_DARK_PX of it along the edge are left out.
     spacing = 2.0 * np.pi * np.mean(radii) / rays
@@ -1439,18 +1498,22 @@ def _read_edges(
                     break
     contrast_valid = contrast[_every_nth(valid, 1)]
     ratio = np.median(contrast_valid) / max(noise, 1e-6) if len(contrast_valid) else np.nan
-    plateau_samples = range(max(int(middle - 2.5 * width), 0), min(max(int(middle - width), 1), count))
-    clipped_samples, samples = 0, 0
-    for r in range(rays):
-        if finite[r]:
-            for s in plateau_samples:
-                clipped_samples += profiles[r, s] >= full_scale
-                samples += 1
-    clipped = clipped_samples / max(samples, 1)
     plateau_level = mean_plateau[0] + mean_plateau[1] * middle
     background_level = mean_background[0] + mean_background[1] * middle
     left_out = int(np.sum(finite & ~valid))
-    return edge_radii, valid, measured, ratio, clipped, plateau_level, background_level, left_out
+    return (
+        edge_radii,
+        valid,
+        measured,
+        ratio,
+        clipped,
+        plateau_level,
+        background_level,
+        left_out,
+        log_amplitude,
+        blur,
+        shift_sigma,
+    )
 
 
 @njit(cache=True)

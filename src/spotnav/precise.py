@@ -33,6 +33,7 @@ from spotnav.config import Setup
 from spotnav.detect import SpotDetection, detect_edge_subpixel, detect_spots_otsu, group_fragments, outer_boundary
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import angles_between, assign_beams, normalize
+from spotnav.photometry import band_share
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 from spotnav.thesis import ThesisSolution, solve_thesis
 
@@ -325,7 +326,10 @@ def prepare_edges(
         return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
     beams, roll = assignment
     response = setup.camera.pixel_response
-    spot_edges = [detect_edge_subpixel(image, spot, response, max_rays=max_rays) for spot in solution.spots]
+    share = band_share(setup)
+    spot_edges = [
+        detect_edge_subpixel(image, spot, response, max_rays=max_rays, band_share=share) for spot in solution.spots
+    ]
     radii_px = [np.sqrt(spot.area_px / np.pi) for spot in solution.spots]
     angle = edge_angle(setup)
     verdicts = [judge_edge(e, setup, r, angle) for e, r in zip(spot_edges, radii_px, strict=True)]

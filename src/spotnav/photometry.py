@@ -1,0 +1,437 @@
+"""The photometric edge: the beam's light across a spot's edge as the camera records it, fitted where it clips.
+
+A beam's light falls off across its edge by a known shape: Blender's (and
+spotnav's renderer's) smoothstep over the soft band ``2 (beta - edge)`` of
+the cone's angle, centred on the half-light angle that the cone fit reads
+(``instrument.edge_half_angle_deg``). The camera sees it blurred (the pixels'
+footprint, the lens, the light's own size), on the fundus's background, and
+clipped at full scale. Along a ray from the spot's centre, each pixel's light
+is modelled as
+
+``min(amplitude * S(x - e) + background(x), full_scale)``
+
+with ``x`` the pixel centre's distance from the spot's centre along the ray,
+``e`` the ray's edge (the half-light point), and ``S`` the band's smoothstep
+convolved with a Gaussian of the spot's blur (:func:`profile_light`, in closed
+form). The model's pixels are interpolated bilinearly at the ray's samples, as
+the frame's pixels are, and compared with them: clipped pixels are clipped in
+the model too, so no sample needs to be treated apart.
+
+Where the plateau clips, the half level between plateau and background is
+gone, but the unclipped flank's shape still pins the edge: the spot's
+amplitude (how far over full scale it is) and blur are fitted from the flank
+of all its clipped rays at once, each ray's edge from its own samples
+(:func:`fit_clipped_edges`). Rays whose plateau does not clip keep the half
+level (:func:`spotnav.detect.detect_edge_along_rays`), which the fundus's
+albedo under each ray does not move.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+from numba import njit
+
+from spotnav.conefit import edge_angle
+from spotnav.config import Setup
+
+__all__ = ["band_share", "fit_clipped_edges", "profile_light"]
+
+_SQRT2 = math.sqrt(2.0)
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+_STEP_LIMIT_PX = 1.0  # a ray's edge moves at most this far in one Gauss-Newton step
+_AMPLITUDE_STEP = 0.25  # natural log: the amplitudes tried are a third of a stop apart ...
+_AMPLITUDE_GRID = 36  # ... from the step's (a plateau just at full scale) to 8000 times it
+# The blurs tried (sigma, pixels): from under the pixels' own footprint (a box's 0.29) to a defocus.
+_BLURS_PX = np.array([0.12, 0.18, 0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0])
+_RAY_STEPS = 3  # Gauss-Newton steps of a ray's edge at each amplitude and blur
+_GRID_RAYS = 32  # about this many rays choose the amplitude and the blur
+_DERIVATIVE_PX = 1e-3
+# How far the flank's shape may mislead the amplitude (natural log) beyond its noise: the pixels' footprint, the
+# light's own size and the lens are modelled as one Gaussian, whose tail a box or a disc does not have. Measured on
+# the built-in renderer (1024 px, helix, +4.5 and +6 stops): the tips erred by up to 6 of the noise's sigmas alone,
+# and by up to 3.1 sigmas with 0.4 here.
+_FLANK_MODEL_SIGMA = 0.5
+
+
+@njit(cache=True)
+def _normal_cdf(z: float) -> float:
+    return 0.5 * math.erfc(-z / _SQRT2)
+
+
+@njit(cache=True)
+def _normal_pdf(z: float) -> float:
+    return _INV_SQRT_2PI * math.exp(-0.5 * z * z)
+
+
+@njit(cache=True)
+def profile_light(x: float, band_px: float, blur_px: float) -> float:
+    """The beam's light as a fraction of its plateau, ``x`` pixels outward of its half-light point.
+
+    The smoothstep ``3 t^2 - 2 t^3`` with ``t = 1/2 - x / band_px`` (clipped
+    to [0, 1]: Cycles' spot blend, narrow enough to be linear in the angle)
+    convolved with a Gaussian of ``blur_px``, in closed form (the Gaussian's
+    partial moments). A band narrower than a twentieth of the blur is a step.
+
+    Parameters
+    ----------
+    x : float
+        Pixels outward (toward the dark background) of the half-light point.
+    band_px : float
+        The soft band's full width, pixels (0: a sharp beam).
+    blur_px : float
+        The Gaussian's sigma, pixels.
+
+    Returns
+    -------
+    float
+        In [0, 1].
+    """
+    blur = max(blur_px, 1e-3)
+    half = 0.5 * band_px
+    if x > half + 9.0 * blur:
+        return 0.0
+    if x < -half - 9.0 * blur:
+        return 1.0
+    if band_px < 0.05 * blur:
+        return _normal_cdf(-x / blur)
+    k = blur / band_px
+    t0 = 0.5 - x / band_px
+    za = (-half - x) / blur
+    zb = (half - x) / blur
+    pa, pb = _normal_pdf(za), _normal_pdf(zb)
+    m0 = _normal_cdf(zb) - _normal_cdf(za)
+    m1 = pa - pb
+    m2 = m0 + za * pa - zb * pb
+    m3 = 2.0 * m1 + za * za * pa - zb * zb * pb
+    c0 = t0 * t0 * (3.0 - 2.0 * t0)
+    c1 = 6.0 * k * t0 * (t0 - 1.0)
+    c2 = 3.0 * k * k * (1.0 - 2.0 * t0)
+    c3 = 2.0 * k * k * k
+    return min(max(_normal_cdf(za) + c0 * m0 + c1 * m1 + c2 * m2 + c3 * m3, 0.0), 1.0)
+
+
+@njit(cache=True)
+def _sample_model(
+    offset: np.ndarray,
+    cos: float,
+    sin: float,
+    position: float,
+    width: int,
+    height: int,
+    edge: float,
+    amplitude: float,
+    band: float,
+    blur: float,
+    background: tuple[float, float, float],
+    full_scale: float,
+) -> tuple[float, float]:
+    """The model's bilinear sample at ``position`` pixels along a ray, and its rate by the ray's edge.
+
+    The four pixels the sample reads are modelled at their centres (their
+    distance along the ray), clipped at ``full_scale``, and interpolated as
+    :func:`spotnav.detect._sample_rays` interpolates the frame's.
+    ``background`` is ``(level, slope, where)``: its light ``where`` pixels
+    along the ray and its slope per pixel outward.
+    """
+    u = offset[0] + position * cos
+    v = offset[1] + position * sin
+    iu, iv = min(int(u), width - 2), min(int(v), height - 2)
+    fu, fv = u - iu, v - iv
+    value = rate_edge = 0.0
+    for corner in range(4):
+        du, dv = corner % 2, corner // 2
+        weight = (fu if du else 1.0 - fu) * (fv if dv else 1.0 - fv)
+        if weight == 0.0:
+            continue
+        x = (iu + du - offset[0]) * cos + (iv + dv - offset[1]) * sin
+        light = profile_light(x - edge, band, blur)
+        base = max(background[0] + background[1] * (x - background[2]), 0.0)
+        level = amplitude * light + base
+        if level >= full_scale:
+            value += weight * full_scale
+            continue
+        value += weight * level
+        ahead = profile_light(x - edge + _DERIVATIVE_PX, band, blur)
+        behind = profile_light(x - edge - _DERIVATIVE_PX, band, blur)
+        rate_edge += weight * amplitude * (behind - ahead) / (2.0 * _DERIVATIVE_PX)
+    return value, rate_edge
+
+
+@njit(cache=True)
+def _ray_cost(
+    pixels_shape: tuple[int, int],
+    offset: np.ndarray,
+    angle: float,
+    sample_radii: np.ndarray,
+    data: np.ndarray,
+    first: int,
+    last: int,
+    edge: float,
+    amplitude: float,
+    band: float,
+    blur: float,
+    background: tuple[float, float, float],
+    full_scale: float,
+) -> float:
+    """Sum of squared differences between a ray's samples ``first`` to ``last`` and the model's."""
+    height, width = pixels_shape
+    cos, sin = math.cos(angle), math.sin(angle)
+    total = 0.0
+    for k in range(first, last + 1):
+        model = _sample_model(
+            offset, cos, sin, sample_radii[k], width, height, edge, amplitude, band, blur, background, full_scale
+        )[0]
+        total += (min(data[k], full_scale) - model) ** 2
+    return total
+
+
+@njit(cache=True)
+def _inverse_profile(level: float, band: float, blur: float) -> float:
+    """Where :func:`profile_light` falls to ``level`` (in (0, 1)), pixels outward of the half-light point."""
+    low, high = -0.5 * band - 9.0 * blur, 0.5 * band + 9.0 * blur
+    for _ in range(40):
+        middle = 0.5 * (low + high)
+        if profile_light(middle, band, blur) > level:
+            low = middle
+        else:
+            high = middle
+    return 0.5 * (low + high)
+
+
+@njit(cache=True)
+def _ray_edge(
+    shape: tuple[int, int],
+    offset: np.ndarray,
+    angle: float,
+    sample_radii: np.ndarray,
+    data: np.ndarray,
+    first: int,
+    last: int,
+    edge: float,
+    amplitude: float,
+    band: float,
+    blur: float,
+    background: tuple[float, float, float],
+    full_scale: float,
+    steps: int,
+) -> tuple[float, float]:
+    """A ray's edge after ``steps`` Gauss-Newton steps from ``edge`` (the spot's amplitude and blur held), and its
+    cost there."""
+    height, width = shape
+    cos, sin = math.cos(angle), math.sin(angle)
+    for _ in range(steps):
+        normal = gradient = 0.0
+        for k in range(first, last + 1):
+            model, rate = _sample_model(
+                offset, cos, sin, sample_radii[k], width, height, edge, amplitude, band, blur, background, full_scale
+            )
+            normal += rate * rate
+            gradient += rate * (min(data[k], full_scale) - model)
+        if not normal > 0.0:
+            break
+        edge += min(max(gradient / normal, -_STEP_LIMIT_PX), _STEP_LIMIT_PX)
+    cost = _ray_cost(
+        shape, offset, angle, sample_radii, data, first, last, edge, amplitude, band, blur, background, full_scale
+    )
+    return edge, cost
+
+
+@njit(cache=True)
+def _profile_cost(
+    shape: tuple[int, int],
+    offset: np.ndarray,
+    angles: np.ndarray,
+    sample_radii: np.ndarray,
+    profiles: np.ndarray,
+    crossings: np.ndarray,
+    rays: np.ndarray,
+    firsts: np.ndarray,
+    lasts: np.ndarray,
+    bands: np.ndarray,
+    backgrounds: np.ndarray,
+    full_scale: float,
+    log_amplitude: float,
+    blur: float,
+    edges: np.ndarray,
+) -> float:
+    """The spot's cost at an amplitude and blur, each of ``rays``' edges fitted (written into ``edges``)."""
+    amplitude = math.exp(log_amplitude)
+    total = 0.0
+    for r in rays:
+        background = (backgrounds[r, 0], backgrounds[r, 1], crossings[r])
+        level = min(max(0.5 * (full_scale - backgrounds[r, 0]) / amplitude, 1e-9), 1.0 - 1e-9)
+        start = crossings[r] - _inverse_profile(level, bands[r], blur)
+        edges[r], cost = _ray_edge(
+            shape, offset, angles[r], sample_radii[r], profiles[r], firsts[r], lasts[r], start, amplitude, bands[r],
+            blur, background, full_scale, _RAY_STEPS,
+        )  # fmt: skip
+        total += cost
+    return total
+
+
+@njit(cache=True)
+def fit_clipped_edges(
+    shape: tuple[int, int],
+    offset: np.ndarray,
+    angles: np.ndarray,
+    sample_radii: np.ndarray,
+    profiles: np.ndarray,
+    crossings: np.ndarray,
+    usable: np.ndarray,
+    backgrounds: np.ndarray,
+    full_scale: float,
+    band_share: float,
+    noise: float,
+) -> tuple[np.ndarray, np.ndarray, float, float, float]:
+    """Each ray's edge (its half-light point) from the photometric model, where the spot's plateau clips.
+
+    The spot's amplitude and blur are one for all its rays: a clipped ray
+    alone cannot tell a brighter light from an edge further in (both move
+    where it reaches full scale), while the flank's shape over all the rays,
+    each crossing the pixels at another phase, does. They are searched on a
+    grid (amplitudes a third of a stop apart, blurs from the pixels' own
+    footprint to 2 px; every other amplitude at one blur first, then every
+    blur near the best), each ray's edge fitted at every node, and refined by a
+    parabola about the best node; each ray's edge is then fitted at the
+    optimum. How well the flank pins the amplitude (the parabola's curvature
+    against the residuals' variance, and ``_FLANK_MODEL_SIGMA`` for the blur's
+    shape) is how far every edge may shift together.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        The pixels' height and width (the crop the rays were sampled on).
+    offset : ndarray, shape (2,)
+        The rays' origin in the crop's pixels.
+    angles : ndarray, shape (R,)
+        Ray directions, radians.
+    sample_radii : ndarray, shape (R, S)
+        Each sample's distance from the origin along its ray, pixels.
+    profiles : ndarray, shape (R, S)
+        The samples, linear light (bilinear in the pixels; NaN off the crop).
+    crossings : ndarray, shape (R,)
+        Where each ray crosses the level halfway between its clipped plateau and its background, pixels from
+        the origin: the start.
+    usable : ndarray, shape (R,), bool
+        The rays to fit.
+    backgrounds : ndarray, shape (R, 2)
+        Each ray's background at its crossing and its slope per pixel outward, linear light.
+    full_scale : float
+        The light at which the camera clips.
+    band_share : float
+        The soft band's width as a share of the edge's distance from the origin.
+    noise : float
+        The samples' noise, linear light: flank samples lie this far from both ends.
+
+    Returns
+    -------
+    edges : ndarray, shape (R,)
+        Each ray's half-light point, pixels from the origin (NaN where not fitted).
+    flank : ndarray, shape (R,), int
+        How many of each ray's samples lie on the unclipped flank (over the background by 4 noises and under
+        full scale).
+    log_amplitude : float
+        The spot's amplitude, natural log of its plateau's light (full scale 1).
+    blur : float
+        The spot's blur, pixels.
+    shift_sigma : float
+        1-sigma of a shift of every edge together that the amplitude's uncertainty leaves, pixels.
+    """
+    rays, count = profiles.shape
+    edges = np.full(rays, np.nan)
+    flank = np.zeros(rays, dtype=np.int64)
+    chosen = np.flatnonzero(usable)
+    if len(chosen) == 0:
+        return edges, flank, np.nan, np.nan, np.nan
+    step = sample_radii[chosen[0], 1] - sample_radii[chosen[0], 0]
+    bands = np.zeros(rays)
+    firsts, lasts = np.zeros(rays, dtype=np.int64), np.zeros(rays, dtype=np.int64)
+    for r in chosen:
+        bands[r] = band_share * crossings[r]
+        # From inside the band (the clipped plateau: the model must clip there too) to past the flank's tail.
+        firsts[r] = max(int((crossings[r] - 1.5 * bands[r] - 2.0 - sample_radii[r, 0]) / step), 0)
+        lasts[r] = min(int((crossings[r] + bands[r] + 4.0 - sample_radii[r, 0]) / step) + 1, count - 1)
+        while firsts[r] < lasts[r] and np.isnan(profiles[r, firsts[r]]):
+            firsts[r] += 1
+        while lasts[r] > firsts[r] and np.isnan(profiles[r, lasts[r]]):
+            lasts[r] -= 1
+        for k in range(firsts[r], lasts[r] + 1):
+            if backgrounds[r, 0] + 4.0 * noise < profiles[r, k] < full_scale - max(noise, 1e-3):
+                flank[r] += 1
+    grid_rays = chosen[:: max(len(chosen) // _GRID_RAYS, 1)]
+    lowest = math.log(max(full_scale - np.median(backgrounds[chosen, 0]), 1e-6))
+    # Coarse to fine: every other amplitude at the middle blur, then every blur about the best of those.
+    costs = np.full((_AMPLITUDE_GRID, len(_BLURS_PX)), np.inf)
+    middle_blur = len(_BLURS_PX) // 2
+    for j in range(0, _AMPLITUDE_GRID, 2):
+        costs[j, middle_blur] = _profile_cost(
+            shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
+            backgrounds, full_scale, lowest + _AMPLITUDE_STEP * j, _BLURS_PX[middle_blur], edges,
+        )  # fmt: skip
+    coarse = int(np.argmin(costs[:, middle_blur]))
+    for j in range(max(coarse - 3, 0), min(coarse + 4, _AMPLITUDE_GRID)):
+        for b in range(len(_BLURS_PX)):
+            if np.isfinite(costs[j, b]):
+                continue
+            costs[j, b] = _profile_cost(
+                shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
+                backgrounds, full_scale, lowest + _AMPLITUDE_STEP * j, _BLURS_PX[b], edges,
+            )  # fmt: skip
+    best = np.argmin(costs)
+    j, b = best // len(_BLURS_PX), best % len(_BLURS_PX)
+    for neighbour in (j - 1, j + 1):  # at the fine search's edge, its neighbour too, for the parabola
+        if 0 <= neighbour < _AMPLITUDE_GRID and not np.isfinite(costs[neighbour, b]):
+            costs[neighbour, b] = _profile_cost(
+                shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
+                backgrounds, full_scale, lowest + _AMPLITUDE_STEP * neighbour, _BLURS_PX[b], edges,
+            )  # fmt: skip
+    # A parabola through the best node's neighbours in each direction (at the grid's ends, the node itself).
+    log_amplitude, curvature = lowest + _AMPLITUDE_STEP * j, 0.0
+    if 0 < j < _AMPLITUDE_GRID - 1:
+        low, middle, high = costs[j - 1, b], costs[j, b], costs[j + 1, b]
+        curvature = (low - 2.0 * middle + high) / _AMPLITUDE_STEP**2
+        if curvature > 0.0:
+            log_amplitude += min(max(0.5 * (low - high) / (low - 2.0 * middle + high), -0.5), 0.5) * _AMPLITUDE_STEP
+    blur = _BLURS_PX[b]
+    if 0 < b < len(_BLURS_PX) - 1:
+        low, middle, high = costs[j, b - 1], costs[j, b], costs[j, b + 1]
+        if low - 2.0 * middle + high > 0.0:  # the nodes are unevenly spaced: interpolate in the node's index
+            where = min(max(0.5 * (low - high) / (low - 2.0 * middle + high), -0.5), 0.5)
+            blur += where * (_BLURS_PX[b + 1] - blur if where > 0 else blur - _BLURS_PX[b - 1])
+    _profile_cost(
+        shape, offset, angles, sample_radii, profiles, crossings, chosen, firsts, lasts, bands, backgrounds,
+        full_scale, log_amplitude, blur, edges,
+    )  # fmt: skip
+    # The amplitude's variance from the profile cost's curvature and the residuals' variance; how far the edges
+    # move together per unit of log amplitude.
+    samples = 0
+    for r in grid_rays:
+        samples += lasts[r] - firsts[r] + 1
+    variance = max(costs[j, b] / max(samples - len(grid_rays) - 2, 1), noise * noise)
+    moved = edges.copy()
+    _profile_cost(
+        shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands, backgrounds,
+        full_scale, log_amplitude + _AMPLITUDE_STEP, blur, moved,
+    )  # fmt: skip
+    rate = 0.0
+    for r in grid_rays:
+        rate += (moved[r] - edges[r]) / _AMPLITUDE_STEP
+    rate /= len(grid_rays)
+    noise_variance = 2.0 * variance / curvature if curvature > 0.0 else _AMPLITUDE_STEP**2
+    shift_sigma = abs(rate) * math.sqrt(noise_variance + _FLANK_MODEL_SIGMA**2)
+    return edges, flank, log_amplitude, blur, shift_sigma
+
+
+@lru_cache(maxsize=32)
+def band_share(setup: Setup) -> float:
+    """The beam's soft band as a share of its edge's distance from the spot's centre: ``2 (beta - edge) / edge``.
+
+    The band is a smoothstep in the light's angle from ``beta`` in to ``2 edge - beta``, its half-light angle
+    the edge model's (:func:`spotnav.conefit.edge_angle`); 0 for a sharp beam (or an edge model at or beyond
+    ``beta``). Once per setup: every tracked frame asks.
+    """
+    edge = edge_angle(setup)
+    return max(2.0 * (setup.instrument.beam_half_angle - edge) / edge, 0.0)
