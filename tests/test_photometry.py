@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from spotnav import Renderer
 from spotnav.config import EXAMPLE_SETUP, Light, setup_from_toml
 from spotnav.experiments.chapter6 import path_poses, thesis_world, with_true_edge
-from spotnav.photometry import band_share, profile_light
+from spotnav.photometry import edge_light, profile_light
 from spotnav.precise import localize_precise_with_edges
 
 
@@ -42,10 +42,14 @@ def test_profile_is_symmetric_about_its_half_light_point(x: float, band: float, 
     assert profile_light(x, band, blur) >= profile_light(x + 0.1, band, blur) - 1e-12
 
 
-def test_band_share_of_the_example_beam() -> None:
+def test_edge_light_of_the_example_beam() -> None:
+    # The band runs from beta in to 2 edge - beta, the edge the half-light angle of blend 0.15; a point light's
+    # apex is the tip.
     setup = setup_from_toml(EXAMPLE_SETUP)
-    beta, edge = np.radians(9.0), np.arccos(np.cos(np.radians(9.0)) + 0.075 * (1.0 - np.cos(np.radians(9.0))))
-    assert band_share(setup) == pytest.approx(2.0 * (beta - edge) / edge, rel=1e-9)
+    beta = np.radians(9.0)
+    edge = np.arccos(np.cos(beta) + 0.075 * (1.0 - np.cos(beta)))
+    light = edge_light(setup, np.array([1.0, 2.0, 5.0]), np.array([0.0, 0.0, -1.0])).light
+    np.testing.assert_allclose(light, [1.0, 2.0, 5.0, 0.0, 0.0, -1.0, 2.0 * edge - beta, beta, 12.5], rtol=1e-12)
 
 
 @pytest.mark.parametrize(("stops", "blend", "tolerance_mm"), [(4.5, 0.15, 0.03), (6.0, 0.15, 0.05), (6.0, 0.0, 0.05)])

@@ -68,8 +68,8 @@ from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup, Uncert
 from spotnav.detect import detect_edge_subpixel
 from spotnav.errors import InputError
 from spotnav.estimate import PoseEstimate
-from spotnav.geometry import assign_beams, normalize
-from spotnav.photometry import band_share
+from spotnav.geometry import assign_beams, beam_axes, normalize
+from spotnav.photometry import edge_light
 from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges, pose_problem
 from spotnav.thesis import fit_height_correction
 
@@ -233,20 +233,27 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
         return f"{frame.name}: {detection.regions}{cut}, {instrument.beam_count} beams"
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
-    share = band_share(setup)
-    edges = [
-        detect_edge_subpixel(frame.image, spot, response, max_rays=_RAYS, band_share=share).pixels for spot in spots
-    ]
     beams, roll = [0], 0.0
     if len(spots) > 1:
         centres = np.array(
-            [unproject_pixels_to_sphere(setup.camera, e.mean(axis=0), setup.eye.radius_mm) for e in edges]
+            [
+                unproject_pixels_to_sphere(setup.camera, spot.contour_px.mean(axis=0), setup.eye.radius_mm)
+                for spot in spots
+            ]
         )
         # Around their centroid, not the tip: a camera that is not where the setup says moves them all alike.
         assignment = assign_beams(centres - centres.mean(axis=0), axis)
         if assignment is None:
             return f"{frame.name}: cannot tell which spot each beam made"
         beams, roll = assignment
+    # Each spot's edge is read knowing its beam: where the spot clips, the beam's soft band is the light's model.
+    axes = beam_axes(axis, instrument.beam_count, instrument.beam_tilt, roll)
+    edges = [
+        detect_edge_subpixel(
+            frame.image, spot, response, max_rays=_RAYS, light=edge_light(setup, tip, axes[beam])
+        ).pixels
+        for spot, beam in zip(spots, beams, strict=True)
+    ]
     return _FrameEdges(edges, beams, tip, axis, roll)
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from spotnav.camera import decoding_table, encoding_table
-from spotnav.photometry import fit_clipped_edges
+from spotnav.photometry import EdgeLight, fit_clipped_edges, ray_bands
 
 __all__ = [
     "EDGE_SMOOTHING_PX",
@@ -866,6 +866,7 @@ class SpotEdge:
 _STEP_PX = 0.5
 _REFIT_CLIPPED = 0.02  # of the plateau's samples at full scale: the half level is gone, the photometric model reads
 _MIN_FLANK_SAMPLES = 1  # a clipped spot's ray needs this many samples on its unclipped flank
+_NO_MODEL, _NO_LIGHT = np.zeros(0), np.zeros(0)  # no light to read a clipped spot with
 _COARSE_LEVEL = 0.2
 _PROFILE_RAYS = 64  # the median profile is taken over about this many rays
 _NOISE_RAYS = 32  # the noise from the steps along about this many rays (a few thousand steps)
@@ -881,7 +882,12 @@ _NEAR_DARK_PX = 1.0  # ... and pixels along the edge from a dark structure's are
 
 
 def detect_edge_subpixel(
-    image: np.ndarray, spot: Spot, response: str | float = "srgb", *, max_rays: int = 2048, band_share: float = 0.0
+    image: np.ndarray,
+    spot: Spot,
+    response: str | float = "srgb",
+    *,
+    max_rays: int = 2048,
+    light: EdgeLight | None = None,
 ) -> SpotEdge:
     """Locate a spot's edge to a fraction of a pixel, independently of the light's power.
 
@@ -909,7 +915,7 @@ def detect_edge_subpixel(
     perimeter = float(cv2.arcLength(spot.contour_px.astype(np.float32).reshape(-1, 1, 2), True))
     rays = int(min(max(perimeter / _RAY_SPACING_PX, 64), max_rays))
     centre, ray_angles, radii = rays_through_curve(contour, rays)
-    return detect_edge_along_rays(image, centre, ray_angles, radii, response=response, band_share=band_share)
+    return detect_edge_along_rays(image, centre, ray_angles, radii, response=response, light=light)
 
 
 def rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -966,7 +972,7 @@ def detect_edge_along_rays(
     *,
     align: bool = False,
     response: str | float = "srgb",
-    band_share: float = 0.0,
+    light: EdgeLight | None = None,
 ) -> SpotEdge:
     """Locate an edge to a fraction of a pixel on rays that cross it near ``radii``.
 
@@ -1029,7 +1035,17 @@ def detect_edge_along_rays(
     lut, full_scale = _decoding(image, response)
     channels = image if image.ndim == 3 else image[:, :, None]
     (pixels, kept, width, saturated, ratio, clipped, plateau, background, left_out, amplitude, blur, shift) = (
-        _edge_on_rays(channels, lut, full_scale, centre, angles, radii, align, float(band_share))
+        _edge_on_rays(
+            channels,
+            lut,
+            full_scale,
+            centre,
+            angles,
+            radii,
+            align,
+            _NO_MODEL if light is None else light.model,
+            _NO_LIGHT if light is None else light.light,
+        )
     )
     return SpotEdge(
         pixels,
@@ -1057,7 +1073,8 @@ def _edge_on_rays(
     angles: np.ndarray,
     radii: np.ndarray,
     align: bool,
-    band_share: float,
+    model: np.ndarray,
+    light: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, float, bool, float, float, float, float, int, float, float, float]:
     """:func:`detect_edge_along_rays` on ``image`` (H, W, C), compiled: one call per spot.
 
@@ -1079,7 +1096,7 @@ def _edge_on_rays(
         radii = _aligned_radii(pixels, lut, offset, angles, radii, steps, wide - window)
         window = _window_px(radii, False)  # about the edge found
     edge_radii, valid, width, ratio, clipped, plateau, background, left_out, amplitude, blur, shift = _read_edges(
-        pixels, lut, offset, angles, radii, _window_steps(window, _STEP_PX), lut[full_scale], band_share
+        pixels, lut, offset, angles, radii, _window_steps(window, _STEP_PX), lut[full_scale], centre, model, light
     )
     kept = np.flatnonzero(valid)
     points = np.empty((len(kept), 2))
@@ -1381,7 +1398,9 @@ def _read_edges(
     radii: np.ndarray,
     steps: np.ndarray,
     full_scale: float,
-    band_share: float,
+    centre: np.ndarray,
+    model: np.ndarray,
+    light: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, float, float, float, float, float, int, float, float, float]:
     """The fine pass of :func:`detect_edge_along_rays` on rays sampled at ``steps`` (S,) around ``radii`` (R,).
 
@@ -1392,10 +1411,17 @@ def _read_edges(
     gave no edge: no fall through the halfway level, too little contrast, a
     structure that shaped it (a plateau off its line or a dip where it falls,
     by more than ``_DARK_DIP`` of the contrast and four noises), or next to a
-    ray under a dark structure. Where the plateau clips (over ``_REFIT_CLIPPED`` of it), each valid ray's edge is
-    the photometric model's instead (:func:`spotnav.photometry.fit_clipped_edges`, the soft band
-    ``band_share`` of the edge's distance); the spot's log amplitude over full scale and blur (pixels) are
-    returned, and how far all its edges may lie off together, pixels (1 sigma, from how well the flank pins
+    ray under a dark structure.
+
+    Where the plateau clips (over ``_REFIT_CLIPPED`` of it), each clipped
+    ray's edge is the photometric model's instead
+    (:func:`spotnav.photometry.fit_clipped_edges`): the soft band's width on
+    each ray comes from the camera ``model`` and the beam's ``light``
+    (:class:`spotnav.photometry.EdgeLight`; without them, empty, clipped rays
+    are left out) and the rays' origin ``centre`` in the frame. Then the
+    spot's log amplitude over full scale and blur (pixels) are returned last
+    but one, and last how far all its edges may lie off together, pixels (1
+    sigma, from how well the flank pins
     the amplitude; NaN, NaN and 0 where the plateau does not clip).
     """
     rays, count = len(ray_angles), len(steps)
@@ -1472,14 +1498,17 @@ def _read_edges(
                 samples += 1
     clipped = clipped_samples / max(samples, 1)
     log_amplitude, blur, shift_sigma = np.nan, np.nan, 0.0
-    if clipped > _REFIT_CLIPPED:
+    if clipped > _REFIT_CLIPPED and len(light) == 0:
+        valid &= ~clipped_rays  # no model of the light to read a clipped ray with
+    elif clipped > _REFIT_CLIPPED:
         sample_radii = np.empty((rays, count))
         for r in range(rays):
             for s in range(count):
                 sample_radii[r, s] = radii[r] + steps[s]
+        bands = ray_bands(model, light, centre, ray_angles, edge_radii)
         fitted, flank, log_amplitude, blur, shift_sigma = fit_clipped_edges(
             (pixels.shape[0], pixels.shape[1]), offset, ray_angles, sample_radii, profiles, edge_radii,
-            valid & clipped_rays, ray_backgrounds, full_scale, band_share, noise,
+            valid & clipped_rays & np.isfinite(bands), ray_backgrounds, full_scale, bands, noise,
         )  # fmt: skip
         for r in range(rays):
             if valid[r] and clipped_rays[r]:

@@ -29,30 +29,34 @@ albedo under each ray does not move.
 from __future__ import annotations
 
 import math
-from functools import lru_cache
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
+from spotnav.camera import camera_model, sphere_point
 from spotnav.conefit import edge_angle
 from spotnav.config import Setup
 
-__all__ = ["band_share", "fit_clipped_edges", "profile_light"]
+__all__ = ["EdgeLight", "edge_light", "fit_clipped_edges", "profile_light"]
 
 _SQRT2 = math.sqrt(2.0)
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 _STEP_LIMIT_PX = 1.0  # a ray's edge moves at most this far in one Gauss-Newton step
+_HALVINGS = 5
 _AMPLITUDE_STEP = 0.25  # natural log: the amplitudes tried are a third of a stop apart ...
 _AMPLITUDE_GRID = 36  # ... from the step's (a plateau just at full scale) to 8000 times it
-# The blurs tried (sigma, pixels): from under the pixels' own footprint (a box's 0.29) to a defocus.
-_BLURS_PX = np.array([0.12, 0.18, 0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0])
+# The blur beyond the pixels' own box (sigma, pixels). One value: searched with the amplitude (0.03 to 2 px), a blur
+# and a brighter light traded for each other along the flank and tips erred by up to 0.13 mm at +6 stops (1024 px).
+_BLURS_PX = np.array([0.03])
 _RAY_STEPS = 3  # Gauss-Newton steps of a ray's edge at each amplitude and blur
 _GRID_RAYS = 32  # about this many rays choose the amplitude and the blur
 _DERIVATIVE_PX = 1e-3
-# How far the flank's shape may mislead the amplitude (natural log) beyond its noise: the pixels' footprint, the
-# light's own size and the lens are modelled as one Gaussian, whose tail a box or a disc does not have. Measured on
-# the built-in renderer (1024 px, helix, +4.5 and +6 stops): the tips erred by up to 6 of the noise's sigmas alone,
-# and by up to 3.1 sigmas with 0.4 here.
+_SUBSAMPLES = 4  # a pixel's light is averaged over this many points a side
+_BACKGROUND_REACH_PX = 6.0  # a clipped ray is read this far past its crossing and band: the last 4 px are background
+# How far the flank's shape may mislead the amplitude (natural log) beyond its noise: a blur beyond the pixels' box
+# (defocus, the light's own size) is not fitted. Measured on the built-in renderer (1024 px, helix, +4.5 and +6
+# stops, a Gaussian for the box): the tips erred by up to 6 of the noise's sigmas alone, 3.1 with 0.4 here.
 _FLANK_MODEL_SIGMA = 0.5
 
 
@@ -114,6 +118,18 @@ def profile_light(x: float, band_px: float, blur_px: float) -> float:
 
 
 @njit(cache=True)
+def _pixel_light(x: float, band: float, blur: float, cos: float, sin: float) -> float:
+    """:func:`profile_light` averaged over a pixel whose centre lies ``x`` pixels outward, the ray along
+    ``(cos, sin)``: ``_SUBSAMPLES`` a side, as the renderer averages its pixels across the beam's edge."""
+    total = 0.0
+    for i in range(_SUBSAMPLES):
+        across = ((i + 0.5) / _SUBSAMPLES - 0.5) * cos
+        for j in range(_SUBSAMPLES):
+            total += profile_light(x + across + ((j + 0.5) / _SUBSAMPLES - 0.5) * sin, band, blur)
+    return total / (_SUBSAMPLES * _SUBSAMPLES)
+
+
+@njit(cache=True)
 def _sample_model(
     offset: np.ndarray,
     cos: float,
@@ -147,15 +163,15 @@ def _sample_model(
         if weight == 0.0:
             continue
         x = (iu + du - offset[0]) * cos + (iv + dv - offset[1]) * sin
-        light = profile_light(x - edge, band, blur)
+        light = _pixel_light(x - edge, band, blur, cos, sin)
         base = max(background[0] + background[1] * (x - background[2]), 0.0)
         level = amplitude * light + base
         if level >= full_scale:
             value += weight * full_scale
             continue
         value += weight * level
-        ahead = profile_light(x - edge + _DERIVATIVE_PX, band, blur)
-        behind = profile_light(x - edge - _DERIVATIVE_PX, band, blur)
+        ahead = _pixel_light(x - edge + _DERIVATIVE_PX, band, blur, cos, sin)
+        behind = _pixel_light(x - edge - _DERIVATIVE_PX, band, blur, cos, sin)
         rate_edge += weight * amplitude * (behind - ahead) / (2.0 * _DERIVATIVE_PX)
     return value, rate_edge
 
@@ -189,16 +205,48 @@ def _ray_cost(
 
 
 @njit(cache=True)
-def _inverse_profile(level: float, band: float, blur: float) -> float:
-    """Where :func:`profile_light` falls to ``level`` (in (0, 1)), pixels outward of the half-light point."""
-    low, high = -0.5 * band - 9.0 * blur, 0.5 * band + 9.0 * blur
-    for _ in range(40):
+def _inverse_profile(level: float, band: float, blur: float, cos: float, sin: float) -> float:
+    """Where a pixel's light (:func:`_pixel_light`) falls to ``level`` (in (0, 1)), pixels outward of the
+    half-light point."""
+    low, high = -0.5 * band - 9.0 * blur - 1.0, 0.5 * band + 9.0 * blur + 1.0
+    for _ in range(30):
         middle = 0.5 * (low + high)
-        if profile_light(middle, band, blur) > level:
+        if _pixel_light(middle, band, blur, cos, sin) > level:
             low = middle
         else:
             high = middle
     return 0.5 * (low + high)
+
+
+@njit(cache=True)
+def _angle_from_axis(model: np.ndarray, light: np.ndarray, u: float, v: float) -> float:
+    """The angle between the beam's axis and the direction from its apex to pixel ``(u, v)``'s retina point."""
+    x, y, z = sphere_point(model, u, v, light[8])
+    x, y, z = x - light[0], y - light[1], z - light[2]
+    cosine = (x * light[3] + y * light[4] + z * light[5]) / math.sqrt(x * x + y * y + z * z)
+    return math.acos(min(max(cosine, -1.0), 1.0))
+
+
+@njit(cache=True)
+def ray_bands(
+    model: np.ndarray, light: np.ndarray, centre: np.ndarray, angles: np.ndarray, crossings: np.ndarray
+) -> np.ndarray:
+    """The soft band's width along each ray, pixels: its angular width over the rate at which the ray's angle
+    from the beam's axis grows at its crossing (one pixel's difference).
+
+    ``model`` is the camera's (:func:`spotnav.camera.camera_model`), ``light``
+    an :class:`EdgeLight`'s array; ``centre`` (2,) the rays' origin in the
+    frame, ``angles`` (R,) their directions and ``crossings`` (R,) pixels along
+    them. NaN where a ray misses the bowl or its angle does not grow.
+    """
+    bands = np.full(len(angles), np.nan)
+    for r in range(len(angles)):
+        cos, sin = math.cos(angles[r]), math.sin(angles[r])
+        u, v = centre[0] + crossings[r] * cos, centre[1] + crossings[r] * sin
+        rate = _angle_from_axis(model, light, u + cos, v + sin) - _angle_from_axis(model, light, u, v)
+        if rate > 0.0:
+            bands[r] = (light[7] - light[6]) / rate
+    return bands
 
 
 @njit(cache=True)
@@ -219,9 +267,17 @@ def _ray_edge(
     steps: int,
 ) -> tuple[float, float]:
     """A ray's edge after ``steps`` Gauss-Newton steps from ``edge`` (the spot's amplitude and blur held), and its
-    cost there."""
+    cost there.
+
+    A step that raises the cost is halved until it does not (``_HALVINGS`` times at most, then the edge stays):
+    on a steep clipped flank a full step can leap where the model is clipped or dark throughout and has no
+    gradient left to come back by.
+    """
     height, width = shape
     cos, sin = math.cos(angle), math.sin(angle)
+    cost = _ray_cost(
+        shape, offset, angle, sample_radii, data, first, last, edge, amplitude, band, blur, background, full_scale
+    )
     for _ in range(steps):
         normal = gradient = 0.0
         for k in range(first, last + 1):
@@ -232,10 +288,16 @@ def _ray_edge(
             gradient += rate * (min(data[k], full_scale) - model)
         if not normal > 0.0:
             break
-        edge += min(max(gradient / normal, -_STEP_LIMIT_PX), _STEP_LIMIT_PX)
-    cost = _ray_cost(
-        shape, offset, angle, sample_radii, data, first, last, edge, amplitude, band, blur, background, full_scale
-    )
+        move = min(max(gradient / normal, -_STEP_LIMIT_PX), _STEP_LIMIT_PX)
+        for _ in range(_HALVINGS):
+            tried = _ray_cost(
+                shape, offset, angle, sample_radii, data, first, last, edge + move, amplitude, band, blur,
+                background, full_scale,
+            )  # fmt: skip
+            if tried <= cost:
+                edge, cost = edge + move, tried
+                break
+            move *= 0.5
     return edge, cost
 
 
@@ -263,7 +325,7 @@ def _profile_cost(
     for r in rays:
         background = (backgrounds[r, 0], backgrounds[r, 1], crossings[r])
         level = min(max(0.5 * (full_scale - backgrounds[r, 0]) / amplitude, 1e-9), 1.0 - 1e-9)
-        start = crossings[r] - _inverse_profile(level, bands[r], blur)
+        start = crossings[r] - _inverse_profile(level, bands[r], blur, math.cos(angles[r]), math.sin(angles[r]))
         edges[r], cost = _ray_edge(
             shape, offset, angles[r], sample_radii[r], profiles[r], firsts[r], lasts[r], start, amplitude, bands[r],
             blur, background, full_scale, _RAY_STEPS,
@@ -283,7 +345,7 @@ def fit_clipped_edges(
     usable: np.ndarray,
     backgrounds: np.ndarray,
     full_scale: float,
-    band_share: float,
+    bands: np.ndarray,
     noise: float,
 ) -> tuple[np.ndarray, np.ndarray, float, float, float]:
     """Each ray's edge (its half-light point) from the photometric model, where the spot's plateau clips.
@@ -314,15 +376,16 @@ def fit_clipped_edges(
         The samples, linear light (bilinear in the pixels; NaN off the crop).
     crossings : ndarray, shape (R,)
         Where each ray crosses the level halfway between its clipped plateau and its background, pixels from
-        the origin: the start.
+        the origin (the smoothed samples' crossing); the fitted rays' are replaced by their raw samples'.
     usable : ndarray, shape (R,), bool
         The rays to fit.
     backgrounds : ndarray, shape (R, 2)
-        Each ray's background at its crossing and its slope per pixel outward, linear light.
+        Each ray's background at its crossing and its slope per pixel outward, linear light; the fitted rays'
+        are replaced by the median of their raw samples past the band (slope 0).
     full_scale : float
         The light at which the camera clips.
-    band_share : float
-        The soft band's width as a share of the edge's distance from the origin.
+    bands : ndarray, shape (R,)
+        The soft band's width along each ray, pixels (:func:`ray_bands`).
     noise : float
         The samples' noise, linear light: flank samples lie this far from both ends.
 
@@ -347,17 +410,28 @@ def fit_clipped_edges(
     if len(chosen) == 0:
         return edges, flank, np.nan, np.nan, np.nan
     step = sample_radii[chosen[0], 1] - sample_radii[chosen[0], 0]
-    bands = np.zeros(rays)
     firsts, lasts = np.zeros(rays, dtype=np.int64), np.zeros(rays, dtype=np.int64)
     for r in chosen:
-        bands[r] = band_share * crossings[r]
         # From inside the band (the clipped plateau: the model must clip there too) to past the flank's tail.
         firsts[r] = max(int((crossings[r] - 1.5 * bands[r] - 2.0 - sample_radii[r, 0]) / step), 0)
-        lasts[r] = min(int((crossings[r] + bands[r] + 4.0 - sample_radii[r, 0]) / step) + 1, count - 1)
+        lasts[r] = min(int((crossings[r] + bands[r] + _BACKGROUND_REACH_PX - sample_radii[r, 0]) / step) + 1, count - 1)
         while firsts[r] < lasts[r] and np.isnan(profiles[r, firsts[r]]):
             firsts[r] += 1
         while lasts[r] > firsts[r] and np.isnan(profiles[r, lasts[r]]):
             lasts[r] -= 1
+        # The background: the raw samples past the band and the pixels' reach (the detector's line was fitted to
+        # smoothed samples, which the sharp flank of a clipped spot still lifts near its edge).
+        outside = min(max(int((crossings[r] + bands[r] + 2.0 - sample_radii[r, 0]) / step), firsts[r]), lasts[r])
+        backgrounds[r, 0] = np.median(profiles[r, outside : lasts[r] + 1])
+        backgrounds[r, 1] = 0.0
+        # Where the raw samples last fall through the level halfway between full scale and the background: the
+        # edges start from there (the smoothed crossing lies further out on a clipped flank).
+        level = 0.5 * (full_scale + backgrounds[r, 0])
+        for k in range(lasts[r] - 1, firsts[r] - 1, -1):
+            if profiles[r, k] > level:
+                fraction = (profiles[r, k] - level) / max(profiles[r, k] - profiles[r, k + 1], 1e-12)
+                crossings[r] = sample_radii[r, k] + min(fraction, 1.0) * step
+                break
         for k in range(firsts[r], lasts[r] + 1):
             if backgrounds[r, 0] + 4.0 * noise < profiles[r, k] < full_scale - max(noise, 1e-3):
                 flank[r] += 1
@@ -425,13 +499,36 @@ def fit_clipped_edges(
     return edges, flank, log_amplitude, blur, shift_sigma
 
 
-@lru_cache(maxsize=32)
-def band_share(setup: Setup) -> float:
-    """The beam's soft band as a share of its edge's distance from the spot's centre: ``2 (beta - edge) / edge``.
+@dataclass(frozen=True)
+class EdgeLight:
+    """Where a beam's soft band lies, for reading its spot where it clips: the camera and the beam's cone.
 
-    The band is a smoothstep in the light's angle from ``beta`` in to ``2 edge - beta``, its half-light angle
-    the edge model's (:func:`spotnav.conefit.edge_angle`); 0 for a sharp beam (or an edge model at or beyond
-    ``beta``). Once per setup: every tracked frame asks.
+    Attributes
+    ----------
+    model : ndarray
+        The camera's compiled model (:func:`spotnav.camera.camera_model`).
+    light : ndarray, shape (9,)
+        The edge cone's apex (3, eye frame, mm: the tip, or behind it for a light of finite size), the beam's
+        axis (3, unit), the band's inner and outer angles from the axis (radians: ``2 edge - beta`` and
+        ``beta``), and the eye's radius (mm).
     """
+
+    model: np.ndarray
+    light: np.ndarray
+
+
+def edge_light(setup: Setup, tip_in_eye: np.ndarray, beam_axis: np.ndarray) -> EdgeLight:
+    """The :class:`EdgeLight` of a beam with this axis from a tip about here (a start or a prediction will do:
+    the band's width changes slowly with the pose).
+
+    The band is the smoothstep in the light's angle from ``beta`` in to ``2 edge - beta``, its half-light angle
+    the edge model's (:func:`spotnav.conefit.edge_angle`); a beam whose edge model lies at or beyond ``beta`` is
+    sharp.
+    """
+    instrument = setup.instrument
     edge = edge_angle(setup)
-    return max(2.0 * (setup.instrument.beam_half_angle - edge) / edge, 0.0)
+    outer = max(instrument.beam_half_angle, edge)
+    axis = np.asarray(beam_axis, dtype=float)
+    apex = np.asarray(tip_in_eye, dtype=float) - axis * instrument.light_radius_mm / np.tan(edge)
+    light = np.array([*apex, *axis, 2.0 * edge - outer, outer, setup.eye.radius_mm])
+    return EdgeLight(camera_model(setup.camera), light)

@@ -32,8 +32,8 @@ from spotnav.conefit import (
 from spotnav.config import Setup
 from spotnav.detect import SpotDetection, detect_edge_subpixel, detect_spots_otsu, group_fragments, outer_boundary
 from spotnav.estimate import PoseEstimate
-from spotnav.geometry import angles_between, assign_beams, normalize
-from spotnav.photometry import band_share
+from spotnav.geometry import angles_between, assign_beams, beam_axes, normalize
+from spotnav.photometry import edge_light
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 from spotnav.thesis import ThesisSolution, solve_thesis
 
@@ -326,9 +326,13 @@ def prepare_edges(
         return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
     beams, roll = assignment
     response = setup.camera.pixel_response
-    share = band_share(setup)
+    instrument = setup.instrument
+    beam_axes_in_eye = beam_axes(axis, instrument.beam_count, instrument.beam_tilt, roll)
     spot_edges = [
-        detect_edge_subpixel(image, spot, response, max_rays=max_rays, band_share=share) for spot in solution.spots
+        detect_edge_subpixel(
+            image, spot, response, max_rays=max_rays, light=edge_light(setup, start.pose()[0], beam_axes_in_eye[beam])
+        )
+        for spot, beam in zip(solution.spots, beams, strict=True)
     ]
     radii_px = [np.sqrt(spot.area_px / np.pi) for spot in solution.spots]
     angle = edge_angle(setup)

@@ -34,7 +34,7 @@ from spotnav.config import Setup
 from spotnav.detect import _rays_through_curve, detect_edge_along_rays, rays_through_curve
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import _cone_sphere_points, beam_axes, cone_sphere_curve, normalize
-from spotnav.photometry import band_share
+from spotnav.photometry import edge_light
 from spotnav.precise import localize_precise, localize_precise_with_edges, pose_problem
 from spotnav.reconstruct import fit_ellipse
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
@@ -186,7 +186,13 @@ def _read_predicted_edges(
             status, detail = _REFUSALS[where]
             return PoseEstimate(status, detail=detail)
         edge = detect_edge_along_rays(
-            image, centre, ray_angles, radii, align=True, response=camera.pixel_response, band_share=band_share(setup)
+            image,
+            centre,
+            ray_angles,
+            radii,
+            align=True,
+            response=camera.pixel_response,
+            light=edge_light(setup, predicted_tip, beam_axis),
         )
         if len(edge.pixels) < _MIN_EDGE_RAY_FRACTION * edge.rays:
             found = f"an edge on only {100 * len(edge.pixels) / edge.rays:.0f} % of the rays near the predicted spot"
