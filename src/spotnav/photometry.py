@@ -12,15 +12,16 @@ is modelled as
 
 with ``x`` the pixel centre's distance from the spot's centre along the ray,
 ``e`` the ray's edge (the half-light point), and ``S`` the band's smoothstep
-convolved with a Gaussian of the spot's blur (:func:`profile_light`, in closed
-form). The model's pixels are interpolated bilinearly at the ray's samples, as
+(its width on each ray from the geometry, :class:`EdgeLight`) averaged over
+the pixel, with a small Gaussian for the rest (:func:`profile_light`, in
+closed form). The model's pixels are interpolated bilinearly at the ray's samples, as
 the frame's pixels are, and compared with them: clipped pixels are clipped in
 the model too, so no sample needs to be treated apart.
 
 Where the plateau clips, the half level between plateau and background is
 gone, but the unclipped flank's shape still pins the edge: the spot's
-amplitude (how far over full scale it is) and blur are fitted from the flank
-of all its clipped rays at once, each ray's edge from its own samples
+amplitude (how far over full scale it is) is fitted from the flank of all
+its clipped rays at once, each ray's edge from its own samples
 (:func:`fit_clipped_edges`). Rays whose plateau does not clip keep the half
 level (:func:`spotnav.detect.detect_edge_along_rays`), which the fundus's
 albedo under each ray does not move.
@@ -350,13 +351,13 @@ def fit_clipped_edges(
 ) -> tuple[np.ndarray, np.ndarray, float, float, float]:
     """Each ray's edge (its half-light point) from the photometric model, where the spot's plateau clips.
 
-    The spot's amplitude and blur are one for all its rays: a clipped ray
+    The spot's amplitude is one for all its rays: a clipped ray
     alone cannot tell a brighter light from an edge further in (both move
     where it reaches full scale), while the flank's shape over all the rays,
     each crossing the pixels at another phase, does. They are searched on a
-    grid (amplitudes a third of a stop apart, blurs from the pixels' own
-    footprint to 2 px; every other amplitude at one blur first, then every
-    blur near the best), each ray's edge fitted at every node, and refined by a
+    grid (amplitudes a third of a stop apart, every other one first, then
+    those near the best; ``_BLURS_PX`` holds the blur beyond the pixel's box),
+    each ray's edge fitted at every node, and refined by a
     parabola about the best node; each ray's edge is then fitted at the
     optimum. How well the flank pins the amplitude (the parabola's curvature
     against the residuals' variance, and ``_FLANK_MODEL_SIGMA`` for the blur's
