@@ -232,12 +232,15 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     if np.isfinite(edge.contrast_to_noise) and not edge.contrast_to_noise >= _MIN_CONTRAST_TO_NOISE:
         ratio = f"{edge.contrast_to_noise:.0f} times the noise, under {_MIN_CONTRAST_TO_NOISE:.0f}"
         return "unreliable", f"the edge's contrast is {ratio}"
+    if edge.clipped_fraction > _MAX_CLIPPED_FRACTION and not np.isfinite(edge.log_amplitude):
+        clipped = f"{100 * edge.clipped_fraction:.0f} %"
+        return "unreliable", (
+            f"{clipped} of the spot inside its edge is at full scale in every channel, and the beam has no soft "
+            "band to read its flank by"
+        )
     if len(edge.pixels) < max(MIN_EDGE_POINTS, _MIN_EDGE_FRACTION * edge.rays):
         left_out = f", {edge.dark_rays} left out (vessels, the shaft, glints)" if edge.dark_rays else ""
         return "unreliable", f"too few edge points: {len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
-    if edge.clipped_fraction > _MAX_CLIPPED_FRACTION and not np.isfinite(edge.log_amplitude):
-        clipped = f"{100 * edge.clipped_fraction:.0f} %"
-        return "unreliable", f"{clipped} of the spot inside its edge is at full scale in every channel"
     shift = blur_shift_px(edge, setup, radius_px, edge_angle)
     height_mm = shift * _mm_per_px(setup) / (np.sin(edge_angle) * np.cos(edge_angle))
     if height_mm > _MAX_BLUR_MM:

@@ -866,6 +866,7 @@ class SpotEdge:
 _STEP_PX = 0.5
 _REFIT_CLIPPED = 0.02  # of the plateau's samples at full scale: the half level is gone, the photometric model reads
 _MIN_FLANK_SAMPLES = 1  # a clipped spot's ray needs this many samples on its unclipped flank
+_MIN_BAND_PX = 1.0  # a clipped spot whose soft band is narrower has no flank beyond the pixels' own blur: left out
 _NO_MODEL, _NO_LIGHT = np.zeros(0), np.zeros(0)  # no light to read a clipped spot with
 _COARSE_LEVEL = 0.2
 _PROFILE_RAYS = 64  # the median profile is taken over about this many rays
@@ -1501,19 +1502,23 @@ def _read_edges(
     if clipped > _REFIT_CLIPPED and len(light) == 0:
         valid &= ~clipped_rays  # no model of the light to read a clipped ray with
     elif clipped > _REFIT_CLIPPED:
-        sample_radii = np.empty((rays, count))
-        for r in range(rays):
-            for s in range(count):
-                sample_radii[r, s] = radii[r] + steps[s]
         bands = ray_bands(model, light, centre, ray_angles, edge_radii)
-        fitted, flank, log_amplitude, blur, shift_sigma = fit_clipped_edges(
-            (pixels.shape[0], pixels.shape[1]), offset, ray_angles, sample_radii, profiles, edge_radii,
-            valid & clipped_rays & np.isfinite(bands), ray_backgrounds, full_scale, bands, noise,
-        )  # fmt: skip
-        for r in range(rays):
-            if valid[r] and clipped_rays[r]:
-                edge_radii[r] = fitted[r]
-                valid[r] = flank[r] >= _MIN_FLANK_SAMPLES and np.isfinite(fitted[r])
+        read = valid & clipped_rays & np.isfinite(bands)
+        if not read.any() or np.median(bands[read]) < _MIN_BAND_PX:
+            valid &= ~clipped_rays  # a sharp beam blown out to a step: no flank left to read
+        else:
+            sample_radii = np.empty((rays, count))
+            for r in range(rays):
+                for s in range(count):
+                    sample_radii[r, s] = radii[r] + steps[s]
+            fitted, flank, log_amplitude, blur, shift_sigma = fit_clipped_edges(
+                (pixels.shape[0], pixels.shape[1]), offset, ray_angles, sample_radii, profiles, edge_radii, read,
+                ray_backgrounds, full_scale, bands, noise,
+            )  # fmt: skip
+            for r in range(rays):
+                if valid[r] and clipped_rays[r]:
+                    edge_radii[r] = fitted[r]
+                    valid[r] = flank[r] >= _MIN_FLANK_SAMPLES and np.isfinite(fitted[r])
     # Next to a ray on the image without a light's edge (a vessel or the shaft over it) the edge is the dark
     # structure's: the rays within _NEAR_DARK_WIDTHS edge widths and _NEAR_DARK_PX of it along the edge are left out.
     spacing = 2.0 * np.pi * np.mean(radii) / rays
