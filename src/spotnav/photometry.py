@@ -13,7 +13,7 @@ is modelled as
 with ``x`` the pixel centre's distance from the spot's centre along the ray,
 ``e`` the ray's edge (the half-light point), and ``S`` the band's smoothstep
 (its width on each ray from the geometry, :class:`EdgeLight`) averaged over
-the pixel, with a small Gaussian for the rest (:func:`profile_light`, in
+the pixel's square and a small blur for the rest (:func:`pixel_light`, in
 closed form). The model's pixels are interpolated bilinearly at the ray's samples, as
 the frame's pixels are, and compared with them: clipped pixels are clipped in
 the model too, so no sample needs to be treated apart.
@@ -39,21 +39,19 @@ from spotnav.camera import camera_model, sphere_point
 from spotnav.conefit import edge_angle
 from spotnav.config import Setup
 
-__all__ = ["EdgeLight", "edge_light", "fit_clipped_edges", "profile_light"]
+__all__ = ["EdgeLight", "edge_light", "fit_clipped_edges", "pixel_light"]
 
-_SQRT2 = math.sqrt(2.0)
-_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 _STEP_LIMIT_PX = 1.0  # a ray's edge moves at most this far in one Gauss-Newton step
 _HALVINGS = 5
 _AMPLITUDE_STEP = 0.25  # natural log: the amplitudes tried are a third of a stop apart ...
 _AMPLITUDE_GRID = 36  # ... from the step's (a plateau just at full scale) to 8000 times it
 # The blur beyond the pixels' own box (sigma, pixels). One value: searched with the amplitude (0.03 to 2 px), a blur
 # and a brighter light traded for each other along the flank and tips erred by up to 0.13 mm at +6 stops (1024 px).
-_BLURS_PX = np.array([0.03])
+_BLUR_PX = 0.03
 _RAY_STEPS = 3  # Gauss-Newton steps of a ray's edge at each amplitude and blur
-_GRID_RAYS = 32  # about this many rays choose the amplitude and the blur
-_DERIVATIVE_PX = 1e-3
-_SUBSAMPLES = 4  # a pixel's light is averaged over this many points a side
+_GRID_RAYS = 32  # about this many rays choose the amplitude ...
+_COARSE_RAYS = 8  # ... and this many its neighbourhood
+_COARSE_STRIDE = 4  # the coarse search's amplitudes are this many of the grid's apart
 _BACKGROUND_REACH_PX = 6.0  # a clipped ray is read this far past its crossing and band: the last 4 px are background
 # How far the flank's shape may mislead the amplitude (natural log) beyond its noise: a blur beyond the pixels' box
 # (defocus, the light's own size) is not fitted. Measured on the built-in renderer (1024 px, helix, +4.5 and +6
@@ -61,73 +59,109 @@ _BACKGROUND_REACH_PX = 6.0  # a clipped ray is read this far past its crossing a
 _FLANK_MODEL_SIGMA = 0.5
 
 
-@njit(cache=True)
-def _normal_cdf(z: float) -> float:
-    return 0.5 * math.erfc(-z / _SQRT2)
+_BOX_MIN_PX = 1e-3  # a box narrower than this is left out of the footprint (its differences would cancel)
+# The band's ramp P (0 inside the band's inner side, 1 past its outer side: the light's fall) and its first three
+# antiderivatives in the band's own unit, over the band, and their values at its outer end.
+_RAMP_AT_END = (1.0, 0.5, 0.15, 1.0 / 30.0)
 
 
 @njit(cache=True)
-def _normal_pdf(z: float) -> float:
-    return _INV_SQRT_2PI * math.exp(-0.5 * z * z)
+def _ramp_integral(order: int, x: float, band: float) -> float:
+    """The ``order``-th antiderivative in ``x`` of the band's ramp ``P`` (-1: its derivative), zero inside the
+    band's inner side. ``P = 3 y^2 - 2 y^3`` over the band, ``y = x / band + 1/2``, 0 before and 1 after it; a
+    band under a thousandth of a pixel is a step."""
+    inner = -0.5 * band
+    if band < 1e-9:
+        z = x - inner
+        if z <= 0.0 or order < 0:
+            return 0.0
+        return z**order / math.gamma(order + 1.0)
+    y = (x - inner) / band
+    if y <= 0.0:
+        return 0.0
+    if y <= 1.0:
+        if order == -1:
+            return 6.0 * y * (1.0 - y) / band
+        if order == 0:
+            return y * y * (3.0 - 2.0 * y)
+        if order == 1:
+            return band * y**3 * (1.0 - 0.5 * y)
+        if order == 2:
+            return band**2 * y**4 * (0.25 - 0.1 * y)
+        return band**3 * y**5 * (1.0 / 20.0 - y / 60.0)
+    if order < 0:
+        return 0.0
+    # Past the band: the Taylor series about its outer end, which is exact (the ramp is 1 from there on).
+    past = x - inner - band
+    total, term = 0.0, 1.0
+    for k in range(order + 1):
+        total += _RAMP_AT_END[order - k] * band ** (order - k) * term
+        term *= past / (k + 1)
+    return total
 
 
 @njit(cache=True)
-def profile_light(x: float, band_px: float, blur_px: float) -> float:
-    """The beam's light as a fraction of its plateau, ``x`` pixels outward of its half-light point.
+def _footprint_average(order: int, x: float, band: float, cos: float, sin: float, blur: float) -> float:
+    """The ramp's ``order``-th antiderivative (0: the ramp itself, -1: its derivative) averaged over a pixel's
+    footprint about ``x``: the pixel's square seen along the ray ``(cos, sin)`` is a trapezoid, two boxes
+    ``|cos|`` and ``|sin|`` wide convolved, and the blur a third box of the same variance (``sqrt(12) blur``).
+    Each box is a central difference of the next antiderivative over its width (a box spline)."""
+    widths = (abs(cos), abs(sin), math.sqrt(12.0) * blur)
+    kept = np.empty(3)
+    boxes = 0
+    for width in widths:
+        if width >= _BOX_MIN_PX:
+            kept[boxes] = width
+            boxes += 1
+    total, scale = 0.0, 1.0
+    for b in range(boxes):
+        scale *= kept[b]
+    for corner in range(1 << boxes):
+        shift, sign = 0.0, 1.0
+        for b in range(boxes):
+            if corner >> b & 1:
+                shift += 0.5 * kept[b]
+            else:
+                shift -= 0.5 * kept[b]
+                sign = -sign
+        total += sign * _ramp_integral(order + boxes, x + shift, band)
+    return total / scale
 
-    The smoothstep ``3 t^2 - 2 t^3`` with ``t = 1/2 - x / band_px`` (clipped
-    to [0, 1]: Cycles' spot blend, narrow enough to be linear in the angle)
-    convolved with a Gaussian of ``blur_px``, in closed form (the Gaussian's
-    partial moments). A band narrower than a twentieth of the blur is a step.
+
+@njit(cache=True)
+def pixel_light(x: float, band_px: float, cos: float, sin: float, blur_px: float) -> float:
+    """The beam's light as a fraction of its plateau over a pixel whose centre lies ``x`` pixels outward of the
+    half-light point, along a ray in direction ``(cos, sin)``.
+
+    The smoothstep ``3 t^2 - 2 t^3``, ``t = 1/2 - x / band_px`` clipped to
+    [0, 1] (Cycles' spot blend, narrow enough to be linear in the angle),
+    averaged exactly over the pixel's square and a box of the blur's variance
+    (in closed form: the band's ramp is a cubic, its averages over boxes
+    differences of its antiderivatives).
 
     Parameters
     ----------
     x : float
         Pixels outward (toward the dark background) of the half-light point.
     band_px : float
-        The soft band's full width, pixels (0: a sharp beam).
+        The soft band's full width along the ray, pixels (0: a sharp beam).
+    cos, sin : float
+        The ray's direction in the frame.
     blur_px : float
-        The Gaussian's sigma, pixels.
+        The blur beyond the pixel's square, pixels (its sigma).
 
     Returns
     -------
     float
         In [0, 1].
     """
-    blur = max(blur_px, 1e-3)
-    half = 0.5 * band_px
-    if x > half + 9.0 * blur:
-        return 0.0
-    if x < -half - 9.0 * blur:
-        return 1.0
-    if band_px < 0.05 * blur:
-        return _normal_cdf(-x / blur)
-    k = blur / band_px
-    t0 = 0.5 - x / band_px
-    za = (-half - x) / blur
-    zb = (half - x) / blur
-    pa, pb = _normal_pdf(za), _normal_pdf(zb)
-    m0 = _normal_cdf(zb) - _normal_cdf(za)
-    m1 = pa - pb
-    m2 = m0 + za * pa - zb * pb
-    m3 = 2.0 * m1 + za * za * pa - zb * zb * pb
-    c0 = t0 * t0 * (3.0 - 2.0 * t0)
-    c1 = 6.0 * k * t0 * (t0 - 1.0)
-    c2 = 3.0 * k * k * (1.0 - 2.0 * t0)
-    c3 = 2.0 * k * k * k
-    return min(max(_normal_cdf(za) + c0 * m0 + c1 * m1 + c2 * m2 + c3 * m3, 0.0), 1.0)
+    return min(max(1.0 - _footprint_average(0, x, band_px, cos, sin, blur_px), 0.0), 1.0)
 
 
 @njit(cache=True)
-def _pixel_light(x: float, band: float, blur: float, cos: float, sin: float) -> float:
-    """:func:`profile_light` averaged over a pixel whose centre lies ``x`` pixels outward, the ray along
-    ``(cos, sin)``: ``_SUBSAMPLES`` a side, as the renderer averages its pixels across the beam's edge."""
-    total = 0.0
-    for i in range(_SUBSAMPLES):
-        across = ((i + 0.5) / _SUBSAMPLES - 0.5) * cos
-        for j in range(_SUBSAMPLES):
-            total += profile_light(x + across + ((j + 0.5) / _SUBSAMPLES - 0.5) * sin, band, blur)
-    return total / (_SUBSAMPLES * _SUBSAMPLES)
+def _pixel_light_rate(x: float, band: float, cos: float, sin: float, blur: float) -> float:
+    """The rate of :func:`pixel_light` in ``x``, per pixel (never positive)."""
+    return -_footprint_average(-1, x, band, cos, sin, blur)
 
 
 @njit(cache=True)
@@ -164,16 +198,14 @@ def _sample_model(
         if weight == 0.0:
             continue
         x = (iu + du - offset[0]) * cos + (iv + dv - offset[1]) * sin
-        light = _pixel_light(x - edge, band, blur, cos, sin)
+        light = pixel_light(x - edge, band, cos, sin, blur)
         base = max(background[0] + background[1] * (x - background[2]), 0.0)
         level = amplitude * light + base
         if level >= full_scale:
             value += weight * full_scale
             continue
         value += weight * level
-        ahead = _pixel_light(x - edge + _DERIVATIVE_PX, band, blur, cos, sin)
-        behind = _pixel_light(x - edge - _DERIVATIVE_PX, band, blur, cos, sin)
-        rate_edge += weight * amplitude * (behind - ahead) / (2.0 * _DERIVATIVE_PX)
+        rate_edge -= weight * amplitude * _pixel_light_rate(x - edge, band, cos, sin, blur)
     return value, rate_edge
 
 
@@ -207,12 +239,12 @@ def _ray_cost(
 
 @njit(cache=True)
 def _inverse_profile(level: float, band: float, blur: float, cos: float, sin: float) -> float:
-    """Where a pixel's light (:func:`_pixel_light`) falls to ``level`` (in (0, 1)), pixels outward of the
+    """Where a pixel's light (:func:`pixel_light`) falls to ``level`` (in (0, 1)), pixels outward of the
     half-light point."""
     low, high = -0.5 * band - 9.0 * blur - 1.0, 0.5 * band + 9.0 * blur + 1.0
     for _ in range(30):
         middle = 0.5 * (low + high)
-        if _pixel_light(middle, band, blur, cos, sin) > level:
+        if pixel_light(middle, band, cos, sin, blur) > level:
             low = middle
         else:
             high = middle
@@ -355,9 +387,9 @@ def fit_clipped_edges(
     alone cannot tell a brighter light from an edge further in (both move
     where it reaches full scale), while the flank's shape over all the rays,
     each crossing the pixels at another phase, does. They are searched on a
-    grid (amplitudes a third of a stop apart, every other one first, then
-    those near the best; ``_BLURS_PX`` holds the blur beyond the pixel's box),
-    each ray's edge fitted at every node, and refined by a
+    grid (amplitudes a third of a stop apart: every fourth on a few rays
+    first, then those near the best on more; ``_BLUR_PX`` holds the blur
+    beyond the pixel's square), each ray's edge fitted at every node, and refined by a
     parabola about the best node; each ray's edge is then fitted at the
     optimum. How well the flank pins the amplitude (the parabola's curvature
     against the residuals' variance, and ``_FLANK_MODEL_SIGMA`` for the blur's
@@ -436,46 +468,44 @@ def fit_clipped_edges(
         for k in range(firsts[r], lasts[r] + 1):
             if backgrounds[r, 0] + 4.0 * noise < profiles[r, k] < full_scale - max(noise, 1e-3):
                 flank[r] += 1
+    blur = _BLUR_PX
     grid_rays = chosen[:: max(len(chosen) // _GRID_RAYS, 1)]
+    coarse_rays = chosen[:: max(len(chosen) // _COARSE_RAYS, 1)]
     lowest = math.log(max(full_scale - np.median(backgrounds[chosen, 0]), 1e-6))
-    # Coarse to fine: every other amplitude at the middle blur, then every blur about the best of those.
-    costs = np.full((_AMPLITUDE_GRID, len(_BLURS_PX)), np.inf)
-    middle_blur = len(_BLURS_PX) // 2
-    for j in range(0, _AMPLITUDE_GRID, 2):
-        costs[j, middle_blur] = _profile_cost(
-            shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
-            backgrounds, full_scale, lowest + _AMPLITUDE_STEP * j, _BLURS_PX[middle_blur], edges,
+    # Coarse to fine: every _COARSE_STRIDE-th amplitude on a few rays, then every amplitude about the best of
+    # those on more, widened while the best lies at the fine search's end.
+    coarse_costs = np.full(_AMPLITUDE_GRID, np.inf)
+    for j in range(0, _AMPLITUDE_GRID, _COARSE_STRIDE):
+        coarse_costs[j] = _profile_cost(
+            shape, offset, angles, sample_radii, profiles, crossings, coarse_rays, firsts, lasts, bands,
+            backgrounds, full_scale, lowest + _AMPLITUDE_STEP * j, blur, edges,
         )  # fmt: skip
-    coarse = int(np.argmin(costs[:, middle_blur]))
-    for j in range(max(coarse - 3, 0), min(coarse + 4, _AMPLITUDE_GRID)):
-        for b in range(len(_BLURS_PX)):
-            if np.isfinite(costs[j, b]):
-                continue
-            costs[j, b] = _profile_cost(
-                shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
-                backgrounds, full_scale, lowest + _AMPLITUDE_STEP * j, _BLURS_PX[b], edges,
-            )  # fmt: skip
-    best = np.argmin(costs)
-    j, b = best // len(_BLURS_PX), best % len(_BLURS_PX)
-    for neighbour in (j - 1, j + 1):  # at the fine search's edge, its neighbour too, for the parabola
-        if 0 <= neighbour < _AMPLITUDE_GRID and not np.isfinite(costs[neighbour, b]):
-            costs[neighbour, b] = _profile_cost(
-                shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
-                backgrounds, full_scale, lowest + _AMPLITUDE_STEP * neighbour, _BLURS_PX[b], edges,
-            )  # fmt: skip
-    # A parabola through the best node's neighbours in each direction (at the grid's ends, the node itself).
+    costs = np.full(_AMPLITUDE_GRID, np.inf)
+    coarse = int(np.argmin(coarse_costs))
+    low, high = max(coarse - _COARSE_STRIDE // 2, 0), min(coarse + _COARSE_STRIDE // 2, _AMPLITUDE_GRID - 1)
+    j = -1
+    while True:
+        for node in range(low, high + 1):
+            if not np.isfinite(costs[node]):
+                costs[node] = _profile_cost(
+                    shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
+                    backgrounds, full_scale, lowest + _AMPLITUDE_STEP * node, blur, edges,
+                )  # fmt: skip
+        j = int(np.argmin(costs))
+        if j == low and low > 0:
+            low -= 1
+        elif j == high and high < _AMPLITUDE_GRID - 1:
+            high += 1
+        else:
+            break
+    # A parabola through the best node and its neighbours (at the grid's ends, the node itself).
     log_amplitude, curvature = lowest + _AMPLITUDE_STEP * j, 0.0
     if 0 < j < _AMPLITUDE_GRID - 1:
-        low, middle, high = costs[j - 1, b], costs[j, b], costs[j + 1, b]
-        curvature = (low - 2.0 * middle + high) / _AMPLITUDE_STEP**2
+        below, middle, above = costs[j - 1], costs[j], costs[j + 1]
+        curvature = (below - 2.0 * middle + above) / _AMPLITUDE_STEP**2
         if curvature > 0.0:
-            log_amplitude += min(max(0.5 * (low - high) / (low - 2.0 * middle + high), -0.5), 0.5) * _AMPLITUDE_STEP
-    blur = _BLURS_PX[b]
-    if 0 < b < len(_BLURS_PX) - 1:
-        low, middle, high = costs[j, b - 1], costs[j, b], costs[j, b + 1]
-        if low - 2.0 * middle + high > 0.0:  # the nodes are unevenly spaced: interpolate in the node's index
-            where = min(max(0.5 * (low - high) / (low - 2.0 * middle + high), -0.5), 0.5)
-            blur += where * (_BLURS_PX[b + 1] - blur if where > 0 else blur - _BLURS_PX[b - 1])
+            where = 0.5 * (below - above) / (below - 2.0 * middle + above)
+            log_amplitude += min(max(where, -0.5), 0.5) * _AMPLITUDE_STEP
     _profile_cost(
         shape, offset, angles, sample_radii, profiles, crossings, chosen, firsts, lasts, bands, backgrounds,
         full_scale, log_amplitude, blur, edges,
@@ -485,7 +515,7 @@ def fit_clipped_edges(
     samples = 0
     for r in grid_rays:
         samples += lasts[r] - firsts[r] + 1
-    variance = max(costs[j, b] / max(samples - len(grid_rays) - 2, 1), noise * noise)
+    variance = max(costs[j] / max(samples - len(grid_rays) - 2, 1), noise * noise)
     moved = edges.copy()
     _profile_cost(
         shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands, backgrounds,
