@@ -69,7 +69,7 @@ _RAMP_AT_END = (1.0, 0.5, 0.15, 1.0 / 30.0)
 def _ramp_integral(order: int, x: float, band: float) -> float:
     """The ``order``-th antiderivative in ``x`` of the band's ramp ``P`` (-1: its derivative), zero inside the
     band's inner side. ``P = 3 y^2 - 2 y^3`` over the band, ``y = x / band + 1/2``, 0 before and 1 after it; a
-    band under a thousandth of a pixel is a step."""
+    band under a billionth of a pixel is a step."""
     inner = -0.5 * band
     if band < 1e-9:
         z = x - inner
@@ -107,24 +107,25 @@ def _footprint_average(order: int, x: float, band: float, cos: float, sin: float
     ``|cos|`` and ``|sin|`` wide convolved, and the blur a third box of the same variance (``sqrt(12) blur``).
     Each box is a central difference of the next antiderivative over its width (a box spline)."""
     widths = (abs(cos), abs(sin), math.sqrt(12.0) * blur)
-    kept = np.empty(3)
-    boxes = 0
+    boxes, scale = 0, 1.0
     for width in widths:
         if width >= _BOX_MIN_PX:
-            kept[boxes] = width
             boxes += 1
-    total, scale = 0.0, 1.0
-    for b in range(boxes):
-        scale *= kept[b]
-    for corner in range(1 << boxes):
-        shift, sign = 0.0, 1.0
-        for b in range(boxes):
-            if corner >> b & 1:
-                shift += 0.5 * kept[b]
+            scale *= width
+    total = 0.0
+    for corner in range(8):  # a box left out takes only its upper corner, unshifted
+        shift, sign, kept = 0.0, 1.0, True
+        for b in range(3):
+            upper = corner >> b & 1
+            if widths[b] < _BOX_MIN_PX:
+                kept &= upper == 1
+            elif upper:
+                shift += 0.5 * widths[b]
             else:
-                shift -= 0.5 * kept[b]
+                shift -= 0.5 * widths[b]
                 sign = -sign
-        total += sign * _ramp_integral(order + boxes, x + shift, band)
+        if kept:
+            total += sign * _ramp_integral(order + boxes, x + shift, band)
     return total / scale
 
 
