@@ -16,16 +16,32 @@ from spotnav.photometry import edge_light, pixel_light
 from spotnav.precise import localize_precise_with_edges
 
 
+def _square_below(offset: float, cos: float, sin: float) -> float:
+    """The area of the unit pixel square where ``offset + u cos + v sin < 0``, the square clipped by the line
+    (Sutherland-Hodgman) and measured by the shoelace formula: exact, for a step the grid below would quantize."""
+    corners = [(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)]
+    side = [offset + u * cos + v * sin for u, v in corners]
+    kept: list[tuple[float, float]] = []
+    for i in range(4):
+        (u0, v0), (u1, v1), s0, s1 = corners[i], corners[(i + 1) % 4], side[i], side[(i + 1) % 4]
+        if s0 < 0.0:
+            kept.append((u0, v0))
+        if (s0 < 0.0) != (s1 < 0.0):
+            t = s0 / (s0 - s1)
+            kept.append((u0 + t * (u1 - u0), v0 + t * (v1 - v0)))
+    return 0.5 * abs(sum(kept[i - 1][0] * kept[i][1] - kept[i][0] * kept[i - 1][1] for i in range(len(kept))))
+
+
 def _numerical_light(x: float, band: float, angle: float, blur: float) -> float:
-    """The smoothstep band averaged by brute force over a pixel's square (a 200 x 200 grid) and a box of the
-    blur's variance."""
+    """The smoothstep band averaged by brute force over a pixel's square (a 200 x 200 grid; a step by the exact
+    clipped area) and a box of the blur's variance (128 points)."""
+    box = np.sqrt(12.0) * blur * ((np.arange(128) + 0.5) / 128 - 0.5)
+    if band == 0.0:
+        return float(np.mean([_square_below(x + shift, np.cos(angle), np.sin(angle)) for shift in box]))
     grid = (np.arange(200) + 0.5) / 200 - 0.5
     across, along = np.meshgrid(grid, grid)
     footprint = (across * np.cos(angle) + along * np.sin(angle)).ravel()
-    box = np.sqrt(12.0) * blur * ((np.arange(32) + 0.5) / 32 - 0.5)
     at = x + footprint[:, None] + box[None, :]
-    if band == 0.0:
-        return float(np.mean(at < 0.0))
     t = np.clip(0.5 - at / band, 0.0, 1.0)
     return float(np.mean(t * t * (3.0 - 2.0 * t)))
 
