@@ -844,8 +844,9 @@ class SpotEdge:
         log of the plateau's light, full scale 1) and blur (pixels)
         (:func:`spotnav.photometry.fit_clipped_edges`); NaN elsewhere.
     flank_shift_px : float
-        How far the clipped rays' edges may lie off together (1 sigma,
-        pixels): the amplitude's uncertainty; 0 where nothing clips.
+        How far the spot's edge may lie off as a whole (1 sigma, pixels): the
+        clipped rays' shift that the amplitude's uncertainty leaves, times
+        their share of the edge's points; 0 where nothing clips.
     """
 
     pixels: np.ndarray
@@ -1421,9 +1422,9 @@ def _read_edges(
     (:class:`spotnav.photometry.EdgeLight`; without them, empty, clipped rays
     are left out) and the rays' origin ``centre`` in the frame. Then the
     spot's log amplitude over full scale and blur (pixels) are returned last
-    but one, and last how far all its edges may lie off together, pixels (1
-    sigma, from how well the flank pins
-    the amplitude; NaN, NaN and 0 where the plateau does not clip).
+    but one, and last how far its edge may lie off as a whole, pixels (1
+    sigma: how well the flank pins the amplitude, times the share of the
+    valid rays read from it; NaN, NaN and 0 where the plateau does not clip).
     """
     rays, count = len(ray_angles), len(steps)
     profiles, finite = _sample_rays(pixels, lut, offset, ray_angles, radii, steps)
@@ -1530,6 +1531,8 @@ def _read_edges(
                 if blocked[(r + d) % rays]:
                     valid[r] = False
                     break
+    # The amplitude's uncertainty shifts only the rays read from the flank: over the whole edge, their share of it.
+    shift_sigma *= np.sum(valid & clipped_rays) / max(np.sum(valid), 1)
     contrast_valid = contrast[_every_nth(valid, 1)]
     ratio = np.median(contrast_valid) / max(noise, 1e-6) if len(contrast_valid) else np.nan
     plateau_level = mean_plateau[0] + mean_plateau[1] * middle
