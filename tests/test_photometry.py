@@ -95,6 +95,19 @@ def test_a_clipped_spot_is_read_from_its_flank(stops: float, blend: float, toler
         assert error < 3.0 * np.sqrt(3.0) * estimate.sigma_mm
 
 
+@pytest.mark.parametrize("step", [7, 8])
+def test_a_spot_that_barely_clips_is_answered_within_its_sigma(step: int) -> None:
+    # +3 stops at 2048 px: the plateau just over full scale on most rays, the amplitude at the search grid's lower
+    # end. Once refused (the flank's model error taken as large as where most of it is clipped: 0.037 mm).
+    world = thesis_world(2048, 1, 1.0, exposure_stops=3.0)
+    pose = path_poses("helix", 10, world.instrument.insertion_in_eye)[step]
+    estimate = localize_precise_with_edges(Renderer(world).render(pose, seed=step), with_true_edge(world)).estimate
+    assert estimate.ok, estimate.detail
+    error = float(np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye))
+    assert error < 3.0 * np.sqrt(3.0) * estimate.sigma_mm
+    assert error < 0.03
+
+
 def test_the_amplitude_search_does_not_settle_on_a_far_brighter_light() -> None:
     # A spot at 0.5 W, thesis's exposure, whose flank's cost on a few rays is as low 60 times too bright: the
     # search once chose that and put the tip 0.043 mm off at a sigma of 0.004 mm.
