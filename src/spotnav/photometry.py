@@ -59,9 +59,9 @@ _BACKGROUND_REACH_PX = 6.0  # a clipped ray is read this far past its crossing a
 # stops, a Gaussian for the box): the tips erred by up to 6 of the noise's sigmas alone, 3.1 with 0.4 here.
 _FLANK_MODEL_SIGMA = 0.5
 # ... in full from this far over full scale (natural log), from _FLANK_MODEL_FLOOR of it at full scale. Measured at
-# 1024 px, 0.25 and 0.5 W, thesis's exposure, 25 tips a path: spots that barely clip erred by up to 0.032 mm, 5.2 of
-# their sigmas at a floor of 0 (the rate at which their edges move with the amplitude is the largest there); the
-# floor is twice what covered them.
+# 1024 px, 0.25 and 0.5 W, thesis's exposure, 25 tips a path: spots that barely clip erred by up to 0.032 mm, 4.7
+# times sqrt(3) sigma_mm at a floor of 0 (the rate at which their edges move with the amplitude is the largest
+# there); the floor is twice what covered them.
 _FLANK_MODEL_REACH = 1.0
 _FLANK_MODEL_FLOOR = 0.4
 
