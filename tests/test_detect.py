@@ -156,8 +156,8 @@ def test_a_tone_curve_clips_where_it_writes_full_scale_and_another_channel_is_re
     assert codes[0] == _decoding(codes[None], "agx")[1] == encoding_table("agx", 8)[-1] < 255
     image = np.broadcast_to(codes, (20, 20, 3)).copy()
     lut, full_scale = _decoding(image, "agx")
-    pixels, centre, saturated = _linear_crop(image, full_scale, np.array([10.0, 10.0]), 5.0)
-    assert saturated and lut[full_scale] == decoding_table("agx", 8)[codes[0]]
+    pixels, centre, saturated, channel = _linear_crop(image, full_scale, np.array([10.0, 10.0]), 5.0)
+    assert saturated and channel == 1 and lut[full_scale] == decoding_table("agx", 8)[codes[0]]
     np.testing.assert_array_equal(lut[pixels], decoding_table("agx", 8)[codes[1]])
     assert pixels.shape == (13, 13) and np.array_equal(centre, [6.0, 6.0])  # pixels 4 to 16: 5 px each way, and more
     assert _decoding(codes[None], "srgb")[1] == 254  # sRGB: the first code that decodes to 0.99

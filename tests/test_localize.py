@@ -280,6 +280,19 @@ def test_a_frame_blurred_after_its_encoding_is_refused_whatever_the_spot_s_size(
         assert estimate.status == "blurred", estimate
 
 
+def test_a_frame_blurred_after_its_encoding_is_read_where_its_noise_tells_the_blur() -> None:
+    # A 1 px smoothing of the 8-bit frame moves a sharp edge inward (some 0.4 px, 0.04 mm of tip): the noise beside
+    # each spot shows it was the encoded frame that was blurred, and by how much, so the shift is taken out.
+    world = small_setup(1024)
+    setup = with_true_edge(world)
+    for seed, tip in enumerate(([0.5, 0.5, 4.0], [-1.0, 0.5, 5.0], [0.0, -1.0, 6.0])):
+        pose = InstrumentPose.through_insertion(tip, world.instrument.insertion_in_eye)
+        frame = cv2.GaussianBlur(Renderer(world).render(pose, seed=seed), (0, 0), 1.0)
+        estimate = localize(frame, setup, "precise")
+        error = np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye)
+        assert estimate.ok and error < min(0.010, 3.0 * np.sqrt(3.0) * estimate.sigma_mm), (error, estimate)
+
+
 @pytest.mark.parametrize("method", ["precise", "precise-free", "thesis"])
 def test_a_detailed_result_shows_what_the_pose_came_from(method: str) -> None:
     # The same pose as localize(), each beam's edge points, the fitted cones (whose edges the points lie on),

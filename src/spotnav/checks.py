@@ -13,10 +13,11 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from spotnav.camera import camera_depth_mm, encode_light
+from spotnav.camera import camera_depth_mm
 from spotnav.conefit import DEFAULT_BLEND, PARAMETER_GROUPS, ConeSolution, geometry_covariance, group_of
 from spotnav.config import Camera, Setup
-from spotnav.detect import EDGE_SMOOTHING_PX, SpotEdge, _full_width_at_half_maximum
+from spotnav.detect import SpotEdge
+from spotnav.edgeblur import frame_blur_for_width, frame_blur_shift, response_curve, seen_edge
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import edge_angle_of_blend
 
@@ -39,14 +40,11 @@ _MIN_INLIER_FRACTION = 0.5
 MAX_RMS_DEG = 0.1
 MAX_RMS_PX = 1.0
 _MIN_CONTRAST_TO_NOISE = 20.0  # measured: 60-500 on good frames, 5-10 where heavy noise biased the edge by 0.1 mm
-_MODEL_STEP_PX = 0.05
-_MODEL_SAMPLES = 50  # samples on each side of the model edge; its width and crossing are interpolated
-_OWN_BLUR_PX = 0.5  # sigma of every camera's own blur in light: the pixels' footprint, the rays' bilinear sampling
-_BISECTIONS = 10
 _WIDTH_TOLERANCE_PX = 0.4  # measured: unblurred edges 2.7-3.2 px wide at 256 px where the model says 2.7
 _BAND_SLACK = 0.15  # measured: unblurred edges up to 14 % wider than the band's (rays cross ellipses obliquely)
 _EDGE_REACH = 2.0
 _MAX_BLUR_MM = 0.03  # a blur that may have moved the tip by more than this (height) is refused
+_MAX_CLIPPED_FRAME_BLUR_PX = 0.0  # a clipped spot's flank is read only in a frame not blurred after its encoding
 _MAX_CLIPPED_FRACTION = 0.5  # measured: 0.9-1.0 at +4 stops (edge 0.08-0.1 mm off), mostly under 0.1 at +2 stops
 MAX_SIGMA_MM = 0.03  # a pose more uncertain than this is refused: 3 sigma stays within a silent failure's 0.1 mm
 
@@ -70,7 +68,7 @@ def blur_shift_px(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: fl
     was; a blur of the encoded frame (a camera's or codec's smoothing) moves
     it, the more the brighter the spot against the background. Which one acted
     the edge does not tell, so this is its uncertainty. The blur is the
-    Gaussian that, acting on the encoded model edge (:func:`_seen_edge`),
+    Gaussian that, acting on the encoded model edge (:func:`spotnav.edgeblur.seen_edge`),
     makes it as wide as the edge measured (less ``_WIDTH_TOLERANCE_PX``, how
     well a width is measured); the shift is that model's. 0 for an edge no
     wider than the unblurred model's.
@@ -82,112 +80,17 @@ def blur_shift_px(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: fl
     unblurred = _unblurred_edge(round(band, 2))
     if not width > unblurred[0]:
         return 0.0
-    light, values = _response_curve(setup.camera.pixel_response)
-    return _blurred_shift(edge.plateau, edge.background, band, width, unblurred[1], light, values)
-
-
-@njit(cache=True)
-def _blurred_shift(
-    plateau: float,
-    background: float,
-    band_px: float,
-    width_px: float,
-    unblurred_px: float,
-    light_grid: np.ndarray,
-    value_grid: np.ndarray,
-) -> float:
-    """:func:`blur_shift_px`'s search, compiled: the encoded frame's blur that widens the model edge
-    (:func:`_seen_edge_kernel`) to ``width_px`` (bisected), and how far it moves the midpoint from
-    ``unblurred_px``; inf when no blur up to the width does."""
-    low, high = 0.0, max(width_px, 1.0)
-    if _seen_edge_kernel(plateau, background, band_px, high, light_grid, value_grid)[0] < width_px:
-        return np.inf
-    for _ in range(_BISECTIONS):
-        middle = 0.5 * (low + high)
-        if _seen_edge_kernel(plateau, background, band_px, middle, light_grid, value_grid)[0] < width_px:
-            low = middle
-        else:
-            high = middle
-    return abs(_seen_edge_kernel(plateau, background, band_px, high, light_grid, value_grid)[1] - unblurred_px)
+    light, values = response_curve(setup.camera.pixel_response)
+    blur = frame_blur_for_width(edge.plateau, edge.background, band, width, light, values)
+    return abs(frame_blur_shift(edge.plateau, edge.background, band, blur, light, values))
 
 
 @lru_cache(maxsize=4096)
 def _unblurred_edge(band_px: float) -> tuple[float, float]:
-    """:func:`_seen_edge` without a blur: the levels and the response do not matter then (cached by band)."""
-    return _seen_edge((1.0, 0.0), band_px, 0.0, "linear")
-
-
-def _seen_edge(
-    levels: tuple[float, float], band_px: float, blur_px: float, response: str | float
-) -> tuple[float, float]:
-    """The model edge as the detector measures it: its width and where its midpoint in light lies, pixels.
-
-    The beam's soft band (a smoothstep ``band_px`` wide, from the plateau to
-    the background ``levels``, linear light), blurred in light by the
-    camera's own ``_OWN_BLUR_PX``, is encoded by ``response``,
-    blurred by a Gaussian of ``blur_px`` (sigma), decoded and smoothed as the
-    detector smooths (:data:`spotnav.detect.EDGE_SMOOTHING_PX`). Returns the
-    full width at half maximum of its slope and the signed distance of its
-    half-light crossing from the band's middle (outward positive; inf when
-    there is none).
-    """
-    light, values = _response_curve(response)
-    return _seen_edge_kernel(levels[0], levels[1], band_px, blur_px, light, values)
-
-
-@lru_cache(maxsize=16)
-def _response_curve(response: str | float) -> tuple[np.ndarray, np.ndarray]:
-    """Light (0 and some 2000 steps, log-spaced down to 1e-8) and its encoded values, both strictly increasing."""
-    light = np.concatenate([[0.0], np.logspace(-8.0, 0.0, 2000)])
-    values = encode_light(light, response)
-    knots = np.concatenate([[0], np.flatnonzero(np.diff(values) > 0) + 1])
-    return light[knots], values[knots]
-
-
-@njit(cache=True)
-def _gaussian_nearest(values: np.ndarray, sigma: float) -> np.ndarray:
-    """``values`` convolved with a Gaussian of ``sigma`` samples to 4 sigma, ends held (SciPy's ``mode="nearest"``)."""
-    radius = int(4.0 * sigma + 0.5)
-    kernel = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
-    kernel /= kernel.sum()
-    count = len(values)
-    out = np.empty(count)
-    for i in range(count):
-        total = 0.0
-        for k in range(2 * radius + 1):
-            total += kernel[k] * values[min(max(i + k - radius, 0), count - 1)]
-        out[i] = total
-    return out
-
-
-@njit(cache=True)
-def _seen_edge_kernel(
-    plateau: float, background: float, band_px: float, blur_px: float, light_grid: np.ndarray, value_grid: np.ndarray
-) -> tuple[float, float]:
-    """:func:`_seen_edge`, the response given as its curve (``light_grid`` encoded as ``value_grid``)."""
-    reach = 0.5 * band_px + 5.0 * (blur_px + EDGE_SMOOTHING_PX + _OWN_BLUR_PX) + 1.0
-    step = max(_MODEL_STEP_PX, reach / _MODEL_SAMPLES)  # as many samples whatever the spot's size
-    half = round(reach / step)
-    x = np.arange(-half, half + 1) * step  # outward, 0 at the band's middle
-    t = np.minimum(np.maximum(0.5 - x / max(band_px, step), 0.0), 1.0)
-    light = _gaussian_nearest(background + (plateau - background) * t * t * (3.0 - 2.0 * t), _OWN_BLUR_PX / step)
-    if blur_px > 0:
-        encoded = _gaussian_nearest(np.interp(light, light_grid, value_grid), blur_px / step)
-        light = np.interp(encoded, value_grid, light_grid)
-    seen = _gaussian_nearest(light, EDGE_SMOOTHING_PX / step)
-    count = len(seen)
-    slope = np.empty(count)  # minus np.gradient: central differences, one-sided at the ends
-    slope[0], slope[-1] = seen[0] - seen[1], seen[-2] - seen[-1]
-    for i in range(1, count - 1):
-        slope[i] = 0.5 * (seen[i - 1] - seen[i + 1])
-    width = _full_width_at_half_maximum(slope)[1] * step
-    level = 0.5 * (plateau + background)
-    for i in range(count):
-        if seen[i] <= level:
-            if i == 0:
-                break
-            return width, x[i - 1] + step * (seen[i - 1] - level) / (seen[i - 1] - seen[i])  # between i - 1 and i
-    return width, np.inf
+    """:func:`spotnav.edgeblur.seen_edge` without a blur: the levels and the response do not matter then (cached
+    by band)."""
+    light, values = response_curve("linear")
+    return seen_edge(1.0, 0.0, band_px, 0.0, light, values)
 
 
 def _soft_band_px(setup: Setup, radius_px: float, edge_angle: float) -> float:
@@ -222,7 +125,11 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     it), which lowers that level and moves the edge outward. ``blurred``: a
     blur whose unknown kind may have moved the edge by more than
     ``_MAX_BLUR_MM`` of tip height (:func:`blur_shift_px`), whatever the
-    spot's size. A trusted edge's sigma is half the shift that blur may have
+    spot's size; where the noise beside the spot told the blur of the encoded
+    frame (:attr:`~spotnav.detect.SpotEdge.frame_shift_sigma_px`), its shift
+    was taken out and only its uncertainty counts (twice its sigma), and a
+    clipped spot in a frame blurred over ``_MAX_CLIPPED_FRAME_BLUR_PX`` after
+    its encoding is ``blurred``. A trusted edge's sigma is half the shift that blur may have
     caused and, where the plateau clips, the shift the fitted amplitude's
     uncertainty leaves (:attr:`~spotnav.detect.SpotEdge.flank_shift_px`): a
     uniform shift of ``s`` pixels is an angle of about ``s`` over the spot's
@@ -241,14 +148,27 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     if len(edge.pixels) < max(MIN_EDGE_POINTS, _MIN_EDGE_FRACTION * edge.rays):
         left_out = f", {edge.dark_rays} left out (vessels, the shaft, glints)" if edge.dark_rays else ""
         return "unreliable", f"too few edge points: {len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
-    shift = blur_shift_px(edge, setup, radius_px, edge_angle)
+    if np.isfinite(edge.frame_shift_sigma_px):
+        if np.isfinite(edge.log_amplitude) and edge.frame_blur_px > _MAX_CLIPPED_FRAME_BLUR_PX:
+            return "blurred", (
+                f"the frame was blurred after its encoding ({edge.frame_blur_px:.1f} px, from its noise), which "
+                "the clipped spot's flank model does not include"
+            )
+        if np.isfinite(edge.frame_blur_px):
+            shift = 2.0 * edge.frame_shift_sigma_px
+            why = f"the edge is {edge.width_px:.1f} px wide and the frame's blur after its encoding "
+            why += f"{edge.frame_blur_px:.1f} px (from its noise): that"
+        else:  # the edge was put halfway: it may lie half the shift either way
+            shift = edge.frame_shift_sigma_px
+            why = f"the edge is {edge.width_px:.1f} px wide, blurred: where the blur acted (the noise does not tell)"
+    else:
+        shift = blur_shift_px(edge, setup, radius_px, edge_angle)
+        why = f"the edge is {edge.width_px:.1f} px wide, blurred: where the blur acted"
     height_mm = shift * _mm_per_px(setup) / (np.sin(edge_angle) * np.cos(edge_angle))
     if height_mm > _MAX_BLUR_MM:
-        return "blurred", (
-            f"the edge is {edge.width_px:.1f} px wide, blurred: where the blur acted leaves it {shift:.2f} px "
-            f"({height_mm:.3f} mm of height) uncertain"
-        )
-    return float(np.hypot(0.5 * shift, edge.flank_shift_px)) * edge_angle / radius_px
+        return "blurred", f"{why} leaves it {shift:.2f} px ({height_mm:.3f} mm of height) uncertain"
+    sigma = edge.frame_shift_sigma_px if np.isfinite(edge.frame_shift_sigma_px) else 0.5 * shift
+    return float(np.hypot(sigma, edge.flank_shift_px)) * edge_angle / radius_px
 
 
 @lru_cache(maxsize=32)

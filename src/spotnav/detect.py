@@ -17,10 +17,18 @@ import numpy as np
 from numba import njit
 
 from spotnav.camera import decoding_table, encoding_table
+from spotnav.edgeblur import (
+    EDGE_SMOOTHING_PX,
+    frame_blur_for_width,
+    frame_blur_shift,
+    full_width_at_half_maximum,
+    response_curve,
+    seen_edge,
+)
 from spotnav.photometry import EdgeLight, fit_clipped_edges, ray_bands
+from spotnav.pixelnoise import frame_blur_from_noise
 
 __all__ = [
-    "EDGE_SMOOTHING_PX",
     "Spot",
     "SpotDetection",
     "SpotEdge",
@@ -821,7 +829,7 @@ class SpotEdge:
     width_px : float
         Width of the edge, pixels: full width at half maximum of the median
         profile's slope (its ends interpolated), after the detector's
-        smoothing (:data:`EDGE_SMOOTHING_PX`).
+        smoothing (:data:`spotnav.edgeblur.EDGE_SMOOTHING_PX`).
     saturated : bool
         Whether any channel reaches full scale around the spot (on every other pixel of every other row).
     rays : int
@@ -847,6 +855,16 @@ class SpotEdge:
         How far the spot's edge may lie off as a whole (1 sigma, pixels): the
         clipped rays' shift that the amplitude's uncertainty leaves, times
         their share of the edge's points; 0 where nothing clips.
+    frame_blur_px, frame_blur_sigma_px : float
+        The blur of the encoded frame (a Gaussian's sigma, pixels) that the
+        noise beside the spot shows, and its 1 sigma
+        (:func:`spotnav.pixelnoise.frame_blur_from_noise`): 0 for white noise;
+        NaN where the noise is too faint to tell.
+    frame_shift_px, frame_shift_sigma_px : float
+        How far that blur moved the half-light crossing (outward positive,
+        pixels; :func:`spotnav.edgeblur.frame_blur_shift`), taken out of the
+        edge's points where the half level read them, and its 1 sigma; NaN
+        where the blur or the beam's band is not known.
     """
 
     pixels: np.ndarray
@@ -862,6 +880,10 @@ class SpotEdge:
     log_amplitude: float = float("nan")
     blur_px: float = float("nan")
     flank_shift_px: float = 0.0
+    frame_blur_px: float = float("nan")
+    frame_blur_sigma_px: float = float("nan")
+    frame_shift_px: float = float("nan")
+    frame_shift_sigma_px: float = float("nan")
 
 
 _STEP_PX = 0.5
@@ -869,6 +891,11 @@ _REFIT_CLIPPED = 0.02  # of the plateau's samples at full scale: the half level 
 _MIN_FLANK_SAMPLES = 1  # a clipped spot's ray needs this many samples on its unclipped flank
 _MIN_BAND_PX = 1.0  # a clipped spot whose soft band is narrower has no flank beyond the pixels' own blur: left out
 _NO_MODEL, _NO_LIGHT = np.zeros(0), np.zeros(0)  # no light to read a clipped spot with
+_NOISE_GAP_WIDTHS = 2.5  # the noise is read from this many edge widths past the edge (the background's lines) ...
+_NOISE_RING_PX = 12.0  # ... over a ring this wide, below this share of the way from background to plateau:
+_NOISE_LIT = 0.25
+_FRAME_SHIFT_MODEL = 0.15  # how far the edge model's shift may be off, of itself
+_CURVED_MODEL = 0.25  # how far a blurred curve's shift may be off, of itself (an ellipse's curvature varies)
 _COARSE_LEVEL = 0.2
 _PROFILE_RAYS = 64  # the median profile is taken over about this many rays
 _NOISE_RAYS = 32  # the noise from the steps along about this many rays (a few thousand steps)
@@ -1036,7 +1063,7 @@ def detect_edge_along_rays(
         )
     lut, full_scale = _decoding(image, response)
     channels = image if image.ndim == 3 else image[:, :, None]
-    (pixels, kept, width, saturated, ratio, clipped, plateau, background, left_out, amplitude, blur, shift) = (
+    (pixels, kept, width, saturated, ratio, clipped, plateau, background, left_out, amplitude, blur, shift, encoded) = (
         _edge_on_rays(
             channels,
             lut,
@@ -1047,6 +1074,7 @@ def detect_edge_along_rays(
             align,
             _NO_MODEL if light is None else light.model,
             _NO_LIGHT if light is None else light.light,
+            response_curve(response),
         )
     )
     return SpotEdge(
@@ -1063,6 +1091,7 @@ def detect_edge_along_rays(
         amplitude,
         blur,
         shift,
+        *(float(value) for value in encoded),
     )
 
 
@@ -1077,20 +1106,25 @@ def _edge_on_rays(
     align: bool,
     model: np.ndarray,
     light: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, float, bool, float, float, float, float, int, float, float, float]:
+    response: tuple[np.ndarray, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, float, bool, float, float, float, float, int, float, float, float, np.ndarray]:
     """:func:`detect_edge_along_rays` on ``image`` (H, W, C), compiled: one call per spot.
 
     ``lut`` (codes,) is the light of each code and ``full_scale`` the first
     code at full scale (:func:`_decoding`); ``centre`` (2,) pixels, ``angles``
-    (R,) radians, ``radii`` (R,) pixels. Returns, in order: the edge points
-    (N, 2) in pixels, the rays (N,) that gave them (indices), the edge's width
-    in samples, whether any channel clipped, and :func:`_read_edges`' contrast
-    to noise, clipped fraction, plateau, background and rays left out.
+    (R,) radians, ``radii`` (R,) pixels; ``response`` the light and its
+    encoded values (:func:`spotnav.edgeblur.response_curve`). Returns, in
+    order: the edge points (N, 2) in pixels, the rays (N,) that gave them
+    (indices), the edge's width in samples, whether any channel clipped,
+    :func:`_read_edges`' contrast to noise, clipped fraction, plateau,
+    background, rays left out, log amplitude, blur and flank shift, and
+    :func:`_encoded_blur`'s four values.
     """
     if not (np.isfinite(centre[0] + centre[1]) and np.all(np.isfinite(angles)) and np.all(np.isfinite(radii))):
         raise ValueError("centre, ray_angles and radii must be finite")
     window, wide = _window_px(radii, False), _window_px(radii, True)
-    pixels, offset, saturated = _linear_crop(image, full_scale, centre, np.max(radii) + (wide if align else window))
+    reach = np.max(radii) + (wide if align else window)
+    pixels, offset, saturated, channel = _linear_crop(image, full_scale, centre, reach)
     if align:
         # Every _COARSE_RAY_STRIDE-th ray, _COARSE_SAMPLES samples across the wide window; the edge kept within
         # the fine window's reach (no pixel beyond the wide window is read).
@@ -1100,12 +1134,101 @@ def _edge_on_rays(
     edge_radii, valid, width, ratio, clipped, plateau, background, left_out, amplitude, blur, shift = _read_edges(
         pixels, lut, offset, angles, radii, _window_steps(window, _STEP_PX), lut[full_scale], centre, model, light
     )
+    # The noise beside the spot, out to _NOISE_RING_PX past its edge's outer side, tells a blur of the encoded
+    # frame; its shift is taken out of the rays the half level read (a clipped spot's are judged on it).
+    encoded = _encoded_blur(
+        image[:, :, channel], full_scale, centre, angles, edge_radii, valid, width * _STEP_PX,
+        (plateau, background), model, light, response,
+    )  # fmt: skip
+    if np.isnan(amplitude) and np.isfinite(encoded[2]):
+        edge_radii = edge_radii - encoded[2]
     kept = np.flatnonzero(valid)
     points = np.empty((len(kept), 2))
     for i in range(len(kept)):
         points[i, 0] = centre[0] + edge_radii[kept[i]] * np.cos(angles[kept[i]])
         points[i, 1] = centre[1] + edge_radii[kept[i]] * np.sin(angles[kept[i]])
-    return points, kept, width, saturated, ratio, clipped, plateau, background, left_out, amplitude, blur, shift
+    return (
+        points,
+        kept,
+        width,
+        saturated,
+        ratio,
+        clipped,
+        plateau,
+        background,
+        left_out,
+        amplitude,
+        blur,
+        shift,
+        encoded,
+    )
+
+
+@njit(cache=True)
+def _encoded_blur(
+    codes: np.ndarray,
+    full_scale: int,
+    centre: np.ndarray,
+    angles: np.ndarray,
+    edge_radii: np.ndarray,
+    valid: np.ndarray,
+    width_px: float,
+    levels: tuple[float, float],
+    model: np.ndarray,
+    light: np.ndarray,
+    response: tuple[np.ndarray, np.ndarray],
+) -> np.ndarray:
+    """The blur of the encoded frame about a spot and the shift it gave the edge's half-light crossing.
+
+    The blur comes from the noise in a ring beside the spot
+    (:func:`spotnav.pixelnoise.frame_blur_from_noise`, one channel's
+    ``codes`` (H, W) of the whole frame), the shift from the edge model at the
+    spot's ``levels`` (plateau, background; linear light) and the beam's band
+    on the ``valid`` rays (:func:`spotnav.photometry.ray_bands`, the camera
+    ``model`` and the beam's ``light``; :func:`spotnav.edgeblur.frame_blur_shift`).
+    Returns (4,): the blur and its 1 sigma (pixels; NaN where the noise does
+    not tell), the shift (outward positive) and its 1 sigma (pixels: the
+    blur's sigma and ``_FRAME_SHIFT_MODEL`` of the shift; NaN without a band
+    or a blur).
+    """
+    out = np.full(4, np.nan)
+    if not valid.any():
+        return out
+    inner = np.median(edge_radii[valid]) + _NOISE_GAP_WIDTHS * width_px + 1.0
+    light_grid, value_grid = response
+    lit = levels[1] + _NOISE_LIT * (levels[0] - levels[1])  # brighter is another spot's light, not background
+    ceiling = full_scale
+    if np.isfinite(lit) and levels[0] > levels[1]:
+        ceiling = min(int(np.interp(lit, light_grid, value_grid) * full_scale) + 1, full_scale)
+    out[0], out[1] = frame_blur_from_noise(codes, centre, inner, inner + _NOISE_RING_PX, ceiling)
+    if len(light) == 0 or not levels[0] > levels[1]:
+        return out
+    bands = ray_bands(model, light, centre, angles[valid], edge_radii[valid])
+    bands = bands[np.isfinite(bands)]
+    if len(bands) == 0:
+        return out
+    band = np.median(bands)
+    unblurred_width, unblurred_crossing = seen_edge(levels[0], levels[1], band, 0.0, light_grid, value_grid)
+    # Any blur, in light or of the frame, moves a curved edge inward: a disc of radius R blurred by a Gaussian of
+    # sigma s has its half level about s^2 / (2 R) inside R. The blur is what widens the model edge to the edge's
+    # width (in quadrature, a Gaussian's full width at half maximum being sqrt(8 ln 2) sigmas).
+    blur_squared = max(width_px**2 - unblurred_width**2, 0.0) / (8.0 * np.log(2.0))
+    curved = -blur_squared / (2.0 * np.median(edge_radii[valid]))
+    if np.isnan(out[0]):
+        # The noise does not tell which blur widened the edge: the shift halfway between a blur of the light (none)
+        # and one of the encoded frame as wide (all of it), uncertain by half of it either way.
+        blur = frame_blur_for_width(levels[0], levels[1], band, width_px, light_grid, value_grid)
+        half = 0.5 * frame_blur_shift(levels[0], levels[1], band, blur, light_grid, value_grid)
+        out[2] = half + curved
+        out[3] = np.hypot(half, _CURVED_MODEL * curved)
+        return out
+    shift = wider = 0.0  # white noise: no blur of the encoded frame (one under some 0.4 px is not told from none)
+    if out[0] > 0.0:
+        shift = seen_edge(levels[0], levels[1], band, out[0], light_grid, value_grid)[1] - unblurred_crossing
+        wider = seen_edge(levels[0], levels[1], band, out[0] + out[1], light_grid, value_grid)[1] - unblurred_crossing
+    out[2] = shift + curved
+    out[3] = np.hypot(np.hypot(wider - shift, _FRAME_SHIFT_MODEL * shift), _CURVED_MODEL * curved)
+    return out
 
 
 @njit(cache=True)
@@ -1128,8 +1251,7 @@ def _window_px(radii: np.ndarray, align: bool) -> float:
 
 # The compiled kernels below read rays one sample at a time: a frame's few thousand samples cost
 # microseconds, where array calls would cost tens of microseconds each (tracking's budget is 5 ms).
-_SMOOTHING = cv2.getGaussianKernel(17, 2.0).ravel()  # Gaussian of 2 samples' sigma
-EDGE_SMOOTHING_PX = 2.0 * _STEP_PX  # that smoothing's sigma in pixels: every measured edge is this much wider
+_SMOOTHING = cv2.getGaussianKernel(17, EDGE_SMOOTHING_PX / _STEP_PX).ravel()  # Gaussian of 2 samples' sigma
 
 
 @njit(cache=True)
@@ -1211,29 +1333,6 @@ def _fit_line(values: np.ndarray, start: float, stop: float) -> tuple[float, flo
         variance += (i - index_mean) ** 2
     slope = covariance / variance
     return value_mean - index_mean * slope, slope
-
-
-@njit(cache=True)
-def _full_width_at_half_maximum(values: np.ndarray) -> tuple[float, float]:
-    """Width, in samples, of the region around the maximum above half of it: counted, and its ends interpolated.
-
-    The count (the samples above half, the ends included) sets where the
-    edge's lines are fitted; the interpolated width measures the blur.
-    """
-    peak = int(np.argmax(values))
-    half = 0.5 * values[peak]
-    left = peak
-    while left > 0 and values[left - 1] > half:
-        left -= 1
-    right = peak
-    while right < len(values) - 1 and values[right + 1] > half:
-        right += 1
-    width = float(right - left)
-    if left > 0 and values[left] > values[left - 1]:
-        width += (values[left] - half) / (values[left] - values[left - 1])
-    if right < len(values) - 1 and values[right] > values[right + 1]:
-        width += (values[right] - half) / (values[right] - values[right + 1])
-    return float(right - left + 1), width
 
 
 @njit(cache=True)
@@ -1454,7 +1553,7 @@ def _read_edges(
     for s in range(1, count - 1):
         mean_slope[s] = 0.5 * (mean_smooth[s - 1] - mean_smooth[s + 1])
     mean_slope[0], mean_slope[-1] = mean_smooth[0] - mean_smooth[1], mean_smooth[-2] - mean_smooth[-1]
-    counted, measured = _full_width_at_half_maximum(mean_slope)
+    counted, measured = full_width_at_half_maximum(mean_slope)
     width = max(counted, 3.0)  # samples
     middle = int(np.argmax(mean_slope))
     lo, hi = max(int(middle - width), 0), min(int(middle + width) + 1, count - 1)
@@ -1608,7 +1707,7 @@ _CHANNEL_GRID = 128  # the brightest channel is judged on about this many pixels
 @njit(cache=True)
 def _linear_crop(
     image: np.ndarray, full_scale: int, centre: np.ndarray, reach: float
-) -> tuple[np.ndarray, np.ndarray, bool]:
+) -> tuple[np.ndarray, np.ndarray, bool, int]:
     """The pixels of ``image`` (H, W, C) within ``reach`` of ``centre`` (clipped to the image) in one channel.
 
     The channel is the brightest that never clips there (else the least
@@ -1616,7 +1715,7 @@ def _linear_crop(
     another channel still holds the edge's true shape. A tone curve may write
     full scale below the top code (AgX-like: 242 of 255), and ``full_scale``
     is the code where it clips. Returns the crop of that channel (a view),
-    ``centre`` in the crop's pixels, and whether any channel clipped.
+    ``centre`` in the crop's pixels, whether any channel clipped, and the channel.
     """
     height, width = image.shape[0], image.shape[1]
     u0, v0 = max(int(np.floor(centre[0] - reach)) - 1, 0), max(int(np.floor(centre[1] - reach)) - 1, 0)
@@ -1624,7 +1723,7 @@ def _linear_crop(
     v1 = min(int(np.ceil(centre[1] + reach)) + 2, height)
     crop = image[v0:v1, u0:u1]
     channel, saturated = _brightest_channel(crop, full_scale)
-    return crop[:, :, channel], np.array([centre[0] - u0, centre[1] - v0]), saturated
+    return crop[:, :, channel], np.array([centre[0] - u0, centre[1] - v0]), saturated, channel
 
 
 @njit(cache=True)

@@ -32,9 +32,11 @@ from spotnav.checks import check_image_size, judge_edge, judge_fit
 from spotnav.conefit import ConeSolution, edge_angle, fit_cones
 from spotnav.config import Setup
 from spotnav.detect import _rays_through_curve, detect_edge_along_rays, rays_through_curve
+from spotnav.edgeblur import frame_blur_for_width, frame_blur_shift, response_curve
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import _cone_sphere_points, beam_axes, cone_sphere_curve, normalize
 from spotnav.photometry import edge_light
+from spotnav.pixelnoise import frame_blur_from_noise
 from spotnav.precise import localize_precise, localize_precise_with_edges, pose_problem
 from spotnav.reconstruct import fit_ellipse
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
@@ -281,12 +283,17 @@ def prepare_kernels(setup: Setup) -> None:
     frame, rather than during a tracked frame.
     """
     rows, columns = np.mgrid[:96, :96]
-    image = np.zeros((96, 96, 3), dtype=np.uint8)
+    noise = np.random.default_rng(0).normal(0.0, 3.0, (96, 96, 1))  # the noise beside the spot is read
+    image = np.clip(np.round(20.0 + noise), 1, 254).astype(np.uint8).repeat(3, axis=2)
     image[(rows - 48) ** 2 + (columns - 48) ** 2 < 24**2] = 200
     circle = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
     curve_px = 48 + 20 * np.column_stack([np.cos(circle), np.sin(circle)])
     edge = detect_edge_along_rays(image, *rays_through_curve(curve_px, 64), align=True)
-    judge_edge(replace(edge, width_px=2.0 * edge.width_px), setup, 20.0, edge_angle(setup))  # the blur model's kernels
+    judge_edge(replace(edge, width_px=2.0 * edge.width_px), setup, 20.0, edge_angle(setup))
+    light_grid, value_grid = response_curve(setup.camera.pixel_response)  # the edge model's kernels
+    blur = frame_blur_for_width(0.5, 0.01, 3.0, 6.0, light_grid, value_grid)
+    frame_blur_shift(0.5, 0.01, 3.0, blur, light_grid, value_grid)
+    frame_blur_from_noise(image[:, :, 0], np.array([48.0, 48.0]), 26.0, 40.0, 255)  # as the edge reader calls it
     fit_ellipse(curve_px)  # the whole-frame method's start, warmed even where the frame below cannot show a spot
     instrument, eye = setup.instrument, setup.eye
     tip_in_eye = eye.center_in_eye - np.array([0.0, 0.0, eye.radius_mm - 3.0])  # 3 mm above the pole: a whole spot

@@ -1,0 +1,183 @@
+"""The frame's noise at the pixel scale, and the blur of the encoded frame that it shows.
+
+A camera's noise (shot, read) is added to the light before the encoding and
+is white from pixel to pixel; the encoding's rounding adds white noise of
+``1/12`` code squared. A blur of the *encoded* frame (a codec's or a
+camera's smoothing, a Gaussian applied to the written file) averages that
+noise over its width, so neighbouring pixels' noise becomes correlated. A blur
+of the light (defocus, the lens) acts before the noise is added and leaves it
+white. The two blurs widen an edge alike (their profiles differ by under 1 %
+of the contrast), but only the blur of the encoded frame moves the edge's
+half-light point, and only it correlates the noise: the noise tells which
+blur acted and how wide it was.
+
+Along a row (and a column) of the background next to a spot, the second
+differences at lags 1 and 2, ``s_k = x[i-k] - 2 x[i] + x[i+k]``, have
+variances ``n A_k(b) + 6 q``: ``n`` the noise's variance before the blur,
+``q`` the rounding's, and, for a Gaussian blur of ``b`` pixels (sigma,
+sampled at the pixels) whose noise correlates as ``rho(d)`` (about
+``exp(-d^2 / (4 b^2))``), ``A_k = 6 - 8 rho(k) + 2 rho(2k)`` (6 for white
+noise, both lags alike).
+Their ratio gives ``b``; texture that is smooth over a few pixels adds to
+both lags almost alike at the background's scale. Where the noise is no
+larger than the rounding's (a camera with little noise, or a frame smoothed
+so much that only the rounding is left), the blur is not known
+(:data:`UNKNOWN`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["CAMERA_NOISE_BLUR_PX", "frame_blur_from_noise"]
+
+_ROUNDING = 1.0 / 12.0  # variance of the encoding's rounding, codes squared
+# The noise must add this share of the rounding's variance at lag 1: measured on the built-in renderer's frames
+# blurred by 1 px (its noise then adds 0.55 of it), the blur found is within 0.05 px; under that the rounding of a
+# field that varies by less than a code is no longer the uniform 1/12.
+_MIN_NOISE = 0.4
+_MAX_SAMPLES = 1024  # pixels read at most (evenly spread over the ring)
+_TRIM = 4.0  # differences beyond this many of their robust sigmas (a vessel's edge, a glint) are left out
+_MIN_TRIM = 3.0  # ... but never those within this many codes (integer codes of a quiet frame)
+_EFFECTIVE_SHARE = 1.0 / 3.0  # overlapping differences: about a third of them are independent
+_WHITE_SIGMAS = 2.0  # noise whose ratio is within this many sigmas of white noise's shows no blur ...
+# ... nor noise correlated no wider than a camera's own filter in light: a render's pixel filter (Blender Cycles'
+# default, Blackman-Harris 1.5 px wide, correlates its noise as a blur of some 0.5 px would), a sensor's
+# demosaicing. It correlates the noise but blurs the light before the encoding, which moves no edge.
+CAMERA_NOISE_BLUR_PX = 0.6
+_MAX_BLUR_PX = 6.0
+_BISECTIONS = 40
+
+
+@njit(cache=True)
+def _correlation(blur_px: float, lag: int) -> float:
+    """The correlation at ``lag`` pixels of white noise blurred by a Gaussian of ``blur_px`` (sigma) sampled at the
+    pixels, as filters do (``exp(-lag^2 / (4 blur^2))`` for a wide one)."""
+    reach = math.ceil(4.0 * blur_px) + 1
+    total, shifted = 0.0, 0.0
+    for i in range(-reach, reach + 1):
+        weight = math.exp(-0.5 * (i / blur_px) ** 2)
+        total += weight * weight
+        shifted += weight * math.exp(-0.5 * ((i + lag) / blur_px) ** 2)
+    return shifted / total
+
+
+@njit(cache=True)
+def _lag_weights(blur_px: float, lag: int) -> float:
+    """``A_lag``: the variance of a second difference at ``lag`` of unit noise blurred by ``blur_px`` (sigma)."""
+    if blur_px <= 0.0:
+        return 6.0
+    return 6.0 - 8.0 * _correlation(blur_px, lag) + 2.0 * _correlation(blur_px, 2 * lag)
+
+
+@njit(cache=True)
+def _ratio(blur_px: float) -> float:
+    return _lag_weights(blur_px, 2) / _lag_weights(blur_px, 1)
+
+
+@njit(cache=True)
+def _blur_of_ratio(ratio: float) -> float:
+    """The blur whose lag-2 over lag-1 variance is ``ratio`` (bisected; 0 at or under 1, the largest past it)."""
+    if ratio <= 1.0:
+        return 0.0
+    low, high = 0.0, _MAX_BLUR_PX
+    if _ratio(high) <= ratio:
+        return high
+    for _ in range(_BISECTIONS):
+        middle = 0.5 * (low + high)
+        if _ratio(middle) < ratio:
+            low = middle
+        else:
+            high = middle
+    return 0.5 * (low + high)
+
+
+@njit(cache=True)
+def _trimmed_variance(values: np.ndarray) -> float:
+    """The variance (about 0) of ``values`` with their outliers left out (iterated)."""
+    if len(values) == 0:
+        return np.nan
+    variance = np.mean(values * values)
+    for _ in range(3):
+        limit = max(_TRIM * math.sqrt(variance), _MIN_TRIM)
+        total, count = 0.0, 0
+        for value in values:
+            if abs(value) <= limit:
+                total += value * value
+                count += 1
+        variance = total / max(count, 1)
+    return variance
+
+
+@njit(cache=True)
+def frame_blur_from_noise(
+    codes: np.ndarray, centre: np.ndarray, inner_px: float, outer_px: float, ceiling: int
+) -> tuple[float, float]:
+    """The blur of the encoded frame that the noise shows in a ring about a spot, and its 1-sigma, pixels.
+
+    Parameters
+    ----------
+    codes : ndarray, shape (H, W)
+        One channel's codes (integers) about the spot.
+    centre : ndarray, shape (2,)
+        The spot's centre ``(u, v)`` in ``codes``' pixels.
+    inner_px, outer_px : float
+        The ring read: pixels whose centre lies this far from ``centre`` (outside the spot's edge).
+    ceiling : int
+        Differences that reach this code (the light of another spot, a glint, full scale) or code 0 are left
+        out: only the background's noise is read.
+
+    Returns
+    -------
+    blur_px, sigma_px : float
+        The Gaussian blur (sigma, pixels) of the encoded frame and its uncertainty: 0 for noise as white as
+        it can tell (within ``_WHITE_SIGMAS``) or no more correlated than a camera's own
+        (:data:`CAMERA_NOISE_BLUR_PX`), with the blur its 1-sigma upper end would show as the sigma; NaN
+        and NaN where the noise is no larger than the rounding's (``_MIN_NOISE``) or the ring is off the frame.
+    """
+    height, width = codes.shape
+    ring = math.pi * (outer_px**2 - inner_px**2)
+    stride = max(int(math.sqrt(ring / _MAX_SAMPLES)), 1)
+    size = 2 * int(ring / stride**2 + 4.0 * outer_px / stride + 8)
+    first, second = np.empty(size), np.empty(size)
+    count = 0
+    taps = np.empty(5)
+    for v in range(max(int(centre[1] - outer_px), 2), min(int(centre[1] + outer_px) + 1, height - 2), stride):
+        across = v - centre[1]
+        if abs(across) > outer_px:
+            continue
+        reach = math.sqrt(outer_px**2 - across**2)
+        gap = math.sqrt(inner_px**2 - across**2) if abs(across) < inner_px else -1.0
+        for u in range(max(int(centre[0] - reach), 2), min(int(centre[0] + reach) + 1, width - 2), stride):
+            if abs(u - centre[0]) < gap or count + 2 > size:
+                continue
+            for du, dv in ((1, 0), (0, 1)):
+                usable = True
+                for k in range(-2, 3):
+                    code = codes[v + k * dv, u + k * du]
+                    usable &= 0 < code < ceiling
+                    taps[k + 2] = code
+                if usable:
+                    first[count] = taps[1] - 2.0 * taps[2] + taps[3]
+                    second[count] = taps[0] - 2.0 * taps[2] + taps[4]
+                    count += 1
+    if count < 64:
+        return np.nan, np.nan
+    lag_1, lag_2 = _trimmed_variance(first[:count]), _trimmed_variance(second[:count])
+    rounding = 6.0 * _ROUNDING
+    if not lag_1 - rounding > _MIN_NOISE * rounding:
+        return np.nan, np.nan
+    ratio = max(lag_2 - rounding, 0.0) / (lag_1 - rounding)
+    blur = _blur_of_ratio(ratio)
+    # A variance from m independent differences is uncertain by sqrt(2 / m) of itself.
+    independent = _EFFECTIVE_SHARE * count
+    spread = ratio * math.sqrt(
+        2.0 / independent * ((lag_1 / (lag_1 - rounding)) ** 2 + (lag_2 / max(lag_2 - rounding, rounding)) ** 2)
+    )
+    upper = _blur_of_ratio(ratio + spread)
+    if _blur_of_ratio(ratio - _WHITE_SIGMAS * spread) <= CAMERA_NOISE_BLUR_PX:
+        return 0.0, upper  # the camera's own, or as white as the noise can tell: none, up to its 1-sigma upper end
+    return blur, 0.5 * (upper - _blur_of_ratio(ratio - spread))
