@@ -44,7 +44,6 @@ _WIDTH_TOLERANCE_PX = 0.4  # measured: unblurred edges 2.7-3.2 px wide at 256 px
 _BAND_SLACK = 0.15  # measured: unblurred edges up to 14 % wider than the band's (rays cross ellipses obliquely)
 _EDGE_REACH = 2.0
 _MAX_BLUR_MM = 0.03  # a blur that may have moved the tip by more than this (height) is refused
-_MAX_CLIPPED_FRAME_BLUR_PX = 0.0  # a clipped spot's flank is read only in a frame not blurred after its encoding
 _MAX_CLIPPED_FRACTION = 0.5  # measured: 0.9-1.0 at +4 stops (edge 0.08-0.1 mm off), mostly under 0.1 at +2 stops
 MAX_SIGMA_MM = 0.03  # a pose more uncertain than this is refused: 3 sigma stays within a silent failure's 0.1 mm
 
@@ -128,8 +127,8 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     spot's size; where the noise beside the spot told the blur of the encoded
     frame (:attr:`~spotnav.detect.SpotEdge.frame_shift_sigma_px`), its shift
     was taken out and only its uncertainty counts (twice its sigma), and a
-    clipped spot in a frame blurred over ``_MAX_CLIPPED_FRAME_BLUR_PX`` after
-    its encoding is ``blurred``. A trusted edge's sigma is half the shift that blur may have
+    clipped spot in a frame the noise shows blurred after its encoding is
+    ``blurred``. A trusted edge's sigma is half the shift that blur may have
     caused and, where the plateau clips, the shift the fitted amplitude's
     uncertainty leaves (:attr:`~spotnav.detect.SpotEdge.flank_shift_px`): a
     uniform shift of ``s`` pixels is an angle of about ``s`` over the spot's
@@ -149,7 +148,7 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
         left_out = f", {edge.dark_rays} left out (vessels, the shaft, glints)" if edge.dark_rays else ""
         return "unreliable", f"too few edge points: {len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
     if np.isfinite(edge.frame_shift_sigma_px):
-        if np.isfinite(edge.log_amplitude) and edge.frame_blur_px > _MAX_CLIPPED_FRAME_BLUR_PX:
+        if np.isfinite(edge.log_amplitude) and edge.frame_blur_px > 0.0:  # the flank model has no such blur
             return "blurred", (
                 f"the frame was blurred after its encoding ({edge.frame_blur_px:.1f} px, from its noise), which "
                 "the clipped spot's flank model does not include"
