@@ -1137,7 +1137,7 @@ def _edge_on_rays(
     # The noise beside the spot, out to _NOISE_RING_PX past its edge's outer side, tells a blur of the encoded
     # frame; its shift is taken out of the rays the half level read (a clipped spot's are judged on it).
     encoded = _encoded_blur(
-        image[:, :, channel], full_scale, centre, angles, edge_radii, valid, width * _STEP_PX,
+        image, channel, full_scale, centre, angles, edge_radii, valid, width * _STEP_PX,
         (plateau, background), model, light, response,
     )  # fmt: skip
     if np.isnan(amplitude) and np.isfinite(encoded[2]):
@@ -1166,7 +1166,8 @@ def _edge_on_rays(
 
 @njit(cache=True)
 def _encoded_blur(
-    codes: np.ndarray,
+    image: np.ndarray,
+    channel: int,
     full_scale: int,
     centre: np.ndarray,
     angles: np.ndarray,
@@ -1181,9 +1182,11 @@ def _encoded_blur(
     """The blur of the encoded frame about a spot and the shift it gave the edge's half-light crossing.
 
     The blur comes from the noise in a ring beside the spot
-    (:func:`spotnav.pixelnoise.frame_blur_from_noise`, one channel's
-    ``codes`` (H, W) of the whole frame), the shift from the edge model at the
-    spot's ``levels`` (plateau, background; linear light) and the beam's band
+    (:func:`spotnav.pixelnoise.frame_blur_from_noise`) in the edge's
+    ``channel`` of the whole frame ``image`` (H, W, C); where that channel's
+    background is too dark for its noise to tell (a clipped spot read in its
+    least bright channel), in the channel whose noise tells it best. The
+    shift comes from the edge model at the spot's ``levels`` (plateau, background; linear light) and the beam's band
     on the ``valid`` rays (:func:`spotnav.photometry.ray_bands`, the camera
     ``model`` and the beam's ``light``; :func:`spotnav.edgeblur.frame_blur_shift`).
     Returns (4,): the blur and its 1 sigma (pixels; NaN where the noise does
@@ -1200,7 +1203,15 @@ def _encoded_blur(
     ceiling = full_scale
     if np.isfinite(lit) and levels[0] > levels[1]:
         ceiling = min(int(np.interp(lit, light_grid, value_grid) * full_scale) + 1, full_scale)
-    out[0], out[1] = frame_blur_from_noise(codes, centre, inner, inner + _NOISE_RING_PX, ceiling)
+    outer = inner + _NOISE_RING_PX
+    out[0], out[1] = frame_blur_from_noise(image[:, :, channel], centre, inner, outer, ceiling)
+    if np.isnan(out[0]):
+        best = np.inf  # the channel whose noise tells the blur best; its ceiling is its full scale
+        for other in range(image.shape[2]):
+            if other != channel:
+                blur, sigma = frame_blur_from_noise(image[:, :, other], centre, inner, outer, full_scale)
+                if np.isfinite(blur) and sigma < best:
+                    out[0], out[1], best = blur, sigma, sigma
     if len(light) == 0 or not levels[0] > levels[1]:
         return out
     bands = ray_bands(model, light, centre, angles[valid], edge_radii[valid])
