@@ -280,17 +280,21 @@ def test_a_frame_blurred_after_its_encoding_is_refused_whatever_the_spot_s_size(
         assert estimate.status == "blurred", estimate
 
 
-def test_a_frame_blurred_after_its_encoding_is_read_where_its_noise_tells_the_blur() -> None:
+@pytest.mark.parametrize(("blur_px", "tolerance_mm"), [(1.0, 0.010), (2.0, 0.030)])
+def test_a_frame_blurred_after_its_encoding_is_read_where_its_noise_tells_the_blur(
+    blur_px: float, tolerance_mm: float
+) -> None:
     # A 1 px smoothing of the 8-bit frame moves a sharp edge inward (some 0.4 px, 0.04 mm of tip): the noise beside
-    # each spot shows it was the encoded frame that was blurred, and by how much, so the shift is taken out.
+    # each spot shows it was the encoded frame that was blurred, and by how much, so the shift is taken out. At
+    # 2 px the noise is lost in the rounding at lag 1 and read at lags 2 to 4 (once refused or 0.05 mm off).
     world = small_setup(1024)
     setup = with_true_edge(world)
     for seed, tip in enumerate(([0.5, 0.5, 4.0], [-1.0, 0.5, 5.0], [0.0, -1.0, 6.0])):
         pose = InstrumentPose.through_insertion(tip, world.instrument.insertion_in_eye)
-        frame = cv2.GaussianBlur(Renderer(world).render(pose, seed=seed), (0, 0), 1.0)
+        frame = cv2.GaussianBlur(Renderer(world).render(pose, seed=seed), (0, 0), blur_px)
         estimate = localize(frame, setup, "precise")
         error = np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye)
-        assert estimate.ok and error < min(0.010, 3.0 * np.sqrt(3.0) * estimate.sigma_mm), (error, estimate)
+        assert estimate.ok and error < min(tolerance_mm, 3.0 * np.sqrt(3.0) * estimate.sigma_mm), (error, estimate)
 
 
 @pytest.mark.parametrize("method", ["precise", "precise-free", "thesis"])

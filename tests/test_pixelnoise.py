@@ -11,9 +11,11 @@ from spotnav.pixelnoise import CAMERA_NOISE_BLUR_PX, frame_blur_from_noise
 _CENTRE = np.array([100.0, 100.0])
 
 
-def _noisy_background(noise_dn: float, seed: int, level: float = 40.0) -> np.ndarray:
+def _noisy_background(noise_dn: float, seed: int, level: float = 40.0, texture_dn: float = 0.0) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    return np.clip(np.round(level + noise_dn * rng.standard_normal((200, 200))), 0, 255).astype(np.uint8)
+    v, u = np.mgrid[:200, :200]
+    texture = texture_dn * np.sin(u / 7.0) * np.cos(v / 9.0)  # smooth over a few pixels, as a fundus's
+    return np.clip(np.round(level + texture + noise_dn * rng.standard_normal((200, 200))), 0, 255).astype(np.uint8)
 
 
 def _blur_of(codes: np.ndarray) -> tuple[float, float]:
@@ -35,6 +37,25 @@ def test_the_blur_of_an_encoded_frame_is_read_from_its_noise(true_px: float) -> 
     blur, sigma = _blur_of(blurred)
     assert blur == pytest.approx(true_px, abs=0.1)
     assert abs(blur - true_px) < 3.0 * sigma + 0.02
+
+
+@pytest.mark.parametrize(("noise_dn", "true_px"), [(2.0, 1.0), (3.0, 1.5), (6.0, 2.0)])
+def test_a_blur_that_hides_the_noise_in_the_rounding_at_lag_1_is_read_at_longer_lags(
+    noise_dn: float, true_px: float
+) -> None:
+    # Blurred this much, the noise's second differences at lag 1 are under the rounding's; lags 2 to 4 still see it.
+    for seed in range(3):
+        blur, sigma = _blur_of(cv2.GaussianBlur(_noisy_background(noise_dn, seed), (0, 0), true_px))
+        assert abs(blur - true_px) < max(3.0 * sigma, 0.1), (seed, blur, sigma)
+
+
+@pytest.mark.parametrize("texture_dn", [3.0, 10.0])
+def test_smooth_texture_is_not_taken_for_a_blurred_noise(texture_dn: float) -> None:
+    # Texture grows from lag to lag as the lag's fourth power: without noise it does not tell; with a little
+    # noise, the noise is white.
+    assert np.isnan(_blur_of(_noisy_background(0.0, 1, texture_dn=texture_dn))).all()
+    blur, _ = _blur_of(_noisy_background(0.6, 1, texture_dn=texture_dn))
+    assert blur == 0.0
 
 
 def test_noise_no_more_correlated_than_a_camera_s_own_shows_no_blur_of_the_frame() -> None:

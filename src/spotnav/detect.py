@@ -1186,12 +1186,16 @@ def _encoded_blur(
     ``channel`` of the whole frame ``image`` (H, W, C); where that channel's
     background is too dark for its noise to tell (a clipped spot read in its
     least bright channel), in the channel whose noise tells it best. The
-    shift comes from the edge model at the spot's ``levels`` (plateau, background; linear light) and the beam's band
-    on the ``valid`` rays (:func:`spotnav.photometry.ray_bands`, the camera
-    ``model`` and the beam's ``light``; :func:`spotnav.edgeblur.frame_blur_shift`).
-    Returns (4,): the blur and its 1 sigma (pixels; NaN where the noise does
-    not tell), the shift (outward positive) and its 1 sigma (pixels: the
-    blur's sigma and ``_FRAME_SHIFT_MODEL`` of the shift; NaN without a band
+    shift comes from the edge model at the spot's ``levels`` (plateau,
+    background; linear light) and the beam's band on the ``valid`` rays
+    (:func:`spotnav.photometry.ray_bands`, the camera ``model`` and the
+    beam's ``light``; :func:`spotnav.edgeblur.seen_edge`) for the noise's
+    blur, or the widest the edge's width allows where that is less.
+    Returns (4,): the noise's blur and its 1 sigma (pixels; NaN where the
+    noise does not tell), the shift (outward positive) and its 1 sigma
+    (pixels: a quarter of the shift's range over blurs within two of the
+    noise's sigmas and that bound, and ``_FRAME_SHIFT_MODEL`` of
+    the shift; NaN without a band
     or a blur).
     """
     out = np.full(4, np.nan)
@@ -1225,20 +1229,27 @@ def _encoded_blur(
     # width (in quadrature, a Gaussian's full width at half maximum being sqrt(8 ln 2) sigmas).
     blur_squared = max(width_px**2 - unblurred_width**2, 0.0) / (8.0 * np.log(2.0))
     curved = -blur_squared / (2.0 * np.median(edge_radii[valid]))
+    # A blur of the encoded frame that alone widens the edge to its width: the most the frame can have had.
+    widest = frame_blur_for_width(levels[0], levels[1], band, width_px, light_grid, value_grid)
     if np.isnan(out[0]):
         # The noise does not tell which blur widened the edge: the shift halfway between a blur of the light (none)
         # and one of the encoded frame as wide (all of it), uncertain by half of it either way.
-        blur = frame_blur_for_width(levels[0], levels[1], band, width_px, light_grid, value_grid)
-        half = 0.5 * frame_blur_shift(levels[0], levels[1], band, blur, light_grid, value_grid)
+        half = 0.5 * frame_blur_shift(levels[0], levels[1], band, widest, light_grid, value_grid)
         out[2] = half + curved
         out[3] = np.hypot(half, _CURVED_MODEL * curved)
         return out
-    shift = wider = 0.0  # white noise: no blur of the encoded frame (one under some 0.4 px is not told from none)
+    shift = spread = 0.0  # white noise: no blur of the encoded frame (one under some 0.4 px is not told from none)
     if out[0] > 0.0:
-        shift = seen_edge(levels[0], levels[1], band, out[0], light_grid, value_grid)[1] - unblurred_crossing
-        wider = seen_edge(levels[0], levels[1], band, out[0] + out[1], light_grid, value_grid)[1] - unblurred_crossing
+        # The noise's blur, no wider than the edge allows; uncertain by a quarter of the shifts' range over blurs
+        # within two of the noise's sigmas and that bound.
+        high = min(out[0] + 2.0 * out[1], widest)
+        low = min(max(out[0] - 2.0 * out[1], 0.0), high)
+        shift = seen_edge(levels[0], levels[1], band, min(out[0], high), light_grid, value_grid)[1]
+        nearer = seen_edge(levels[0], levels[1], band, low, light_grid, value_grid)[1]
+        further = seen_edge(levels[0], levels[1], band, high, light_grid, value_grid)[1]
+        shift, spread = shift - unblurred_crossing, 0.25 * abs(further - nearer)
     out[2] = shift + curved
-    out[3] = np.hypot(np.hypot(wider - shift, _FRAME_SHIFT_MODEL * shift), _CURVED_MODEL * curved)
+    out[3] = np.hypot(np.hypot(spread, _FRAME_SHIFT_MODEL * shift), _CURVED_MODEL * curved)
     return out
 
 

@@ -19,10 +19,15 @@ sampled at the pixels) whose noise correlates as ``rho(d)`` (about
 ``exp(-d^2 / (4 b^2))``), ``A_k = 6 - 8 rho(k) + 2 rho(2k)`` (6 for white
 noise, both lags alike).
 Their ratio gives ``b``; texture that is smooth over a few pixels adds to
-both lags almost alike at the background's scale. Where the noise is no
-larger than the rounding's (a camera with little noise, or a frame smoothed
-so much that only the rounding is left), the blur is not known
-(:data:`UNKNOWN`).
+both lags almost alike at the background's scale. A blur of a pixel or more
+hides the noise at lag 1 in the rounding (``A_1`` is 0.5 at 1 px, 0.04 at
+2 px); lags 2 to 4 still see it, and their ratios give ``b`` up to some
+2.5 px, where a blurred noise grows from lag to lag as smooth texture does
+(as the lag's fourth power). There the lags the ratio did not use must see
+no more than the blurred noise leaves them: texture would add to them.
+Where the noise is no larger than the rounding's at any lag (a camera with
+little noise, or a frame smoothed so much that only the rounding is left),
+or the lags disagree, the blur is not known (NaN).
 """
 
 from __future__ import annotations
@@ -49,6 +54,10 @@ _WHITE_SIGMAS = 2.0  # noise whose ratio is within this many sigmas of white noi
 # demosaicing. It correlates the noise but blurs the light before the encoding, which moves no edge.
 CAMERA_NOISE_BLUR_PX = 0.6
 _MAX_BLUR_PX = 6.0
+_LAGS = 4  # second differences at lags 1 to this: 1 and 2 for blurs up to about a pixel, the last two past it
+_SHORT_PAIR_MAX_PX = 1.5  # lags 2 and 4 tell a blur up to this; past it lag 2 nears the rounding: lags 3 and 4
+_MAX_LONG_BLUR_PX = 2.5  # the longest lags tell a blur up to this; past it, blurred noise looks like texture
+_ROUNDING_SLACK = 0.1  # the shorter lags' variance may exceed the blurred noise's by this share of the rounding
 _BISECTIONS = 40
 
 
@@ -74,21 +83,22 @@ def _lag_weights(blur_px: float, lag: int) -> float:
 
 
 @njit(cache=True)
-def _ratio(blur_px: float) -> float:
-    return _lag_weights(blur_px, 2) / _lag_weights(blur_px, 1)
+def _ratio(blur_px: float, lags: tuple[int, int]) -> float:
+    return _lag_weights(blur_px, lags[1]) / _lag_weights(blur_px, lags[0])
 
 
 @njit(cache=True)
-def _blur_of_ratio(ratio: float) -> float:
-    """The blur whose lag-2 over lag-1 variance is ``ratio`` (bisected; 0 at or under 1, the largest past it)."""
+def _blur_of_ratio(ratio: float, lags: tuple[int, int] = (1, 2)) -> float:
+    """The blur whose variance at the longer of ``lags`` over that at the shorter is ``ratio`` (bisected; 0 at or
+    under 1, the largest past it)."""
     if ratio <= 1.0:
         return 0.0
     low, high = 0.0, _MAX_BLUR_PX
-    if _ratio(high) <= ratio:
+    if _ratio(high, lags) <= ratio:
         return high
     for _ in range(_BISECTIONS):
         middle = 0.5 * (low + high)
-        if _ratio(middle) < ratio:
+        if _ratio(middle, lags) < ratio:
             low = middle
         else:
             high = middle
@@ -136,48 +146,81 @@ def frame_blur_from_noise(
         The Gaussian blur (sigma, pixels) of the encoded frame and its uncertainty: 0 for noise as white as
         it can tell (within ``_WHITE_SIGMAS``) or no more correlated than a camera's own
         (:data:`CAMERA_NOISE_BLUR_PX`), with the blur its 1-sigma upper end would show as the sigma; NaN
-        and NaN where the noise is no larger than the rounding's (``_MIN_NOISE``) or the ring is off the frame.
+        and NaN where the noise is no larger than the rounding's (``_MIN_NOISE``) at any lag, where the lags
+        disagree with a blurred noise (texture), or where the ring is off the frame.
     """
     height, width = codes.shape
     ring = math.pi * (outer_px**2 - inner_px**2)
     stride = max(int(math.sqrt(ring / _MAX_SAMPLES)), 1)
     size = 2 * int(ring / stride**2 + 4.0 * outer_px / stride + 8)
-    first, second = np.empty(size), np.empty(size)
+    differences = np.empty((_LAGS, size))  # second differences at lags 1 to _LAGS
     count = 0
-    taps = np.empty(5)
-    for v in range(max(int(centre[1] - outer_px), 2), min(int(centre[1] + outer_px) + 1, height - 2), stride):
+    taps = np.empty(2 * _LAGS + 1)
+    for v in range(max(int(centre[1] - outer_px), _LAGS), min(int(centre[1] + outer_px) + 1, height - _LAGS), stride):
         across = v - centre[1]
         if abs(across) > outer_px:
             continue
         reach = math.sqrt(outer_px**2 - across**2)
         gap = math.sqrt(inner_px**2 - across**2) if abs(across) < inner_px else -1.0
-        for u in range(max(int(centre[0] - reach), 2), min(int(centre[0] + reach) + 1, width - 2), stride):
+        for u in range(max(int(centre[0] - reach), _LAGS), min(int(centre[0] + reach) + 1, width - _LAGS), stride):
             if abs(u - centre[0]) < gap or count + 2 > size:
                 continue
             for du, dv in ((1, 0), (0, 1)):
                 usable = True
-                for k in range(-2, 3):
+                for k in range(-_LAGS, _LAGS + 1):
                     code = codes[v + k * dv, u + k * du]
                     usable &= 0 < code < ceiling
-                    taps[k + 2] = code
+                    taps[k + _LAGS] = code
                 if usable:
-                    first[count] = taps[1] - 2.0 * taps[2] + taps[3]
-                    second[count] = taps[0] - 2.0 * taps[2] + taps[4]
+                    for lag in range(1, _LAGS + 1):
+                        differences[lag - 1, count] = taps[_LAGS - lag] - 2.0 * taps[_LAGS] + taps[_LAGS + lag]
                     count += 1
     if count < 64:
         return np.nan, np.nan
-    lag_1, lag_2 = _trimmed_variance(first[:count]), _trimmed_variance(second[:count])
+    variances = np.empty(_LAGS)
+    for lag in range(_LAGS):
+        variances[lag] = _trimmed_variance(differences[lag, :count])
     rounding = 6.0 * _ROUNDING
-    if not lag_1 - rounding > _MIN_NOISE * rounding:
-        return np.nan, np.nan
-    ratio = max(lag_2 - rounding, 0.0) / (lag_1 - rounding)
-    blur = _blur_of_ratio(ratio)
-    # A variance from m independent differences is uncertain by sqrt(2 / m) of itself.
     independent = _EFFECTIVE_SHARE * count
+    if variances[0] - rounding > _MIN_NOISE * rounding:
+        ratio, spread = _lag_ratio(variances, (1, 2), independent)
+        upper = _blur_of_ratio(ratio + spread)
+        if _blur_of_ratio(ratio - _WHITE_SIGMAS * spread) <= CAMERA_NOISE_BLUR_PX:
+            return 0.0, upper  # the camera's own, or as white as the noise can tell: none, up to its 1-sigma upper end
+        return _blur_of_ratio(ratio), 0.5 * (upper - _blur_of_ratio(ratio - spread))
+    # The noise is lost in the rounding at lag 1: a blur of the encoded frame of a pixel or more (or a camera with
+    # little noise). The longer lags still see a blurred noise, whose variance grows from lag to lag as the blur
+    # says; smooth texture's grows as the lag's fourth power, which a blur's shows only past _MAX_LONG_BLUR_PX.
+    if not variances[_LAGS - 2] - rounding > _MIN_NOISE * rounding:
+        return np.nan, np.nan
+    lags = (2, _LAGS)
+    ratio, spread = _lag_ratio(variances, lags, independent)
+    if not variances[1] - rounding > _MIN_NOISE * rounding or _blur_of_ratio(ratio, lags) > _SHORT_PAIR_MAX_PX:
+        # A blur that leaves lag 2 too near the rounding: the two longest lags.
+        lags = (_LAGS - 1, _LAGS)
+        ratio, spread = _lag_ratio(variances, lags, independent)
+    blur = _blur_of_ratio(ratio, lags)
+    if _blur_of_ratio(ratio - _WHITE_SIGMAS * spread, lags) <= CAMERA_NOISE_BLUR_PX or blur > _MAX_LONG_BLUR_PX:
+        return np.nan, np.nan  # white at long lags but not at lag 1, or texture: not a blurred noise
+    # The other lags must not see more than the blurred noise leaves them (texture would add to them); they may see
+    # less: a field smoother than a code from pixel to pixel rounds to less than the uniform rounding.
+    level = (variances[lags[1] - 1] - rounding) / _lag_weights(blur, lags[1])
+    for lag in range(1, _LAGS):
+        allowed = 3.0 * variances[lag - 1] * math.sqrt(2.0 / independent) + _ROUNDING_SLACK * rounding
+        if lag not in lags and variances[lag - 1] - rounding - level * _lag_weights(blur, lag) > allowed:
+            return np.nan, np.nan
+    upper, lower = _blur_of_ratio(ratio + spread, lags), _blur_of_ratio(ratio - spread, lags)
+    return blur, 0.5 * (upper - lower)
+
+
+@njit(cache=True)
+def _lag_ratio(variances: np.ndarray, lags: tuple[int, int], independent: float) -> tuple[float, float]:
+    """The ratio of the noise's variances at ``lags`` (the rounding's taken out) and its 1-sigma spread: a variance
+    from m independent differences is uncertain by sqrt(2 / m) of itself."""
+    rounding = 6.0 * _ROUNDING
+    short, long = variances[lags[0] - 1], variances[lags[1] - 1]
+    ratio = max(long - rounding, 0.0) / (short - rounding)
     spread = ratio * math.sqrt(
-        2.0 / independent * ((lag_1 / (lag_1 - rounding)) ** 2 + (lag_2 / max(lag_2 - rounding, rounding)) ** 2)
+        2.0 / independent * ((short / (short - rounding)) ** 2 + (long / max(long - rounding, rounding)) ** 2)
     )
-    upper = _blur_of_ratio(ratio + spread)
-    if _blur_of_ratio(ratio - _WHITE_SIGMAS * spread) <= CAMERA_NOISE_BLUR_PX:
-        return 0.0, upper  # the camera's own, or as white as the noise can tell: none, up to its 1-sigma upper end
-    return blur, 0.5 * (upper - _blur_of_ratio(ratio - spread))
+    return ratio, spread

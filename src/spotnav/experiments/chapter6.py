@@ -598,9 +598,10 @@ def _side_by_side(at_1w: Mapping[tuple[str, str], Mapping[str, Mapping[str, list
         "",
         *markdown_table(header, rows),
         "",
-        "The precise method's cells give its frames with a pose. It refuses a frame whose spot is at full scale "
-        'inside its edge (status `unreliable`, "... at full scale in every channel"): a clipped edge does not '
-        "show where the light is half of its full value (issue 18's limit).",
+        "The precise method's cells give its frames with a pose. Where a spot is at full scale inside its edge, "
+        "the half level is gone: its edge is read from the unclipped flank by the photometric model "
+        "(docs/methods.md); only a beam without a soft band, blown out to a step, is refused (`unreliable`, "
+        '"... at full scale in every channel").',
     ]
 
 
