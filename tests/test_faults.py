@@ -68,7 +68,11 @@ def test_fault_study_smoke(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> N
     report = (tmp_path / "report.md").read_text()
     for case in faults.FAULT_CASES:
         assert f"| {case.category} | {case.severity} | precise |" in report
-    assert f"0 silent failures in {len(faults.FAULT_CASES)} frames" in experiments[0].summary
+    limits = [case for case in faults.FAULT_CASES if case.limit]
+    assert f"0 silent failures in {len(faults.FAULT_CASES) - len(limits)} frames" in experiments[0].summary
+    for case in limits:  # shown, not hidden
+        assert f"{case.category} {case.severity}: " in experiments[0].summary
+        assert case.limit in report
     assert (tmp_path / "faults.png").stat().st_size > 10000
 
 
@@ -90,6 +94,7 @@ def test_every_category_of_the_issue_is_in_the_study() -> None:
         "frame blur",
         "encoding",
         "glow",
+        "combined",
     }
     assert all(sum(c.default for c in faults.FAULT_CASES if c.category == k) == 1 for k in categories)
     assert len(faults.FAULT_CASES) * -(-faults.MIN_FRAMES // len(faults.FAULT_CASES)) >= 1000

@@ -46,6 +46,9 @@ class FaultCase:
         Lowers the helix to 1.5-3 mm above the retina (spots touch there).
     default : bool
         The category's default severity.
+    limit : str
+        Why the method is known to fail here (empty: it must not): such a row's silent failures are counted and
+        reported apart, so that the study shows them without hiding the others' count.
     """
 
     category: str
@@ -54,6 +57,7 @@ class FaultCase:
     shift_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     low: bool = False
     default: bool = False
+    limit: str = ""
 
 
 def _section(name: str, **values: object) -> Callable[[Setup], Setup]:
@@ -86,6 +90,23 @@ def _encoding(response: str | float, bits: int) -> Callable[[Setup], Setup]:
 
 def _same(world: Setup) -> Setup:
     return world
+
+
+def _combined(*changes: Callable[[Setup], Setup]) -> Callable[[Setup], Setup]:
+    """Every one of ``changes``, in order: disturbances that come together in an operating room."""
+
+    def change(world: Setup) -> Setup:
+        for each in changes:
+            world = each(world)
+        return world
+
+    return change
+
+
+_VESSELS = _section("faults", vessels=4, vessel_contrast=0.8)
+_GLOW = _section("faults", glow=0.05)
+# Defocus on a clipped spot: measured at 1024 px, 25 helix tips, +4.5 stops and 2 px, 25 of 25 frames 0.11-0.3 mm off.
+_DEFOCUSED_CLIP = "the clipped flank's model has no blur of the light; its shape cannot tell one from a brighter light"
 
 
 FAULT_CASES: tuple[FaultCase, ...] = (
@@ -135,6 +156,35 @@ FAULT_CASES: tuple[FaultCase, ...] = (
     FaultCase("touching beams", "3 x 11 deg, low", _three_beams(11.0), low=True),
     FaultCase("touching beams", "3 x 12.5 deg, low", _three_beams(12.5), low=True, default=True),
     FaultCase("touching beams", "3 x 14 deg, low", _three_beams(14.0), low=True),
+    # The photometric edge's cases together: a clipped or blurred spot among vessels and glow.
+    FaultCase(
+        "combined",
+        "+4.5 stops, frame blur 1 px, vessels, glow",
+        _combined(_section("render", exposure_stops=4.5), _section("faults", frame_blur_px=1.0), _VESSELS, _GLOW),
+        default=True,
+    ),
+    FaultCase(
+        "combined",
+        "+4.5 stops, defocus 2 px, vessels, glow",
+        _combined(_section("render", exposure_stops=4.5), _section("faults", defocus_px=2.0), _VESSELS, _GLOW),
+        limit=_DEFOCUSED_CLIP,
+    ),
+    FaultCase(
+        "combined", "+6 stops, vessels, glow", _combined(_section("render", exposure_stops=6.0), _VESSELS, _GLOW)
+    ),
+    FaultCase(
+        "combined",
+        "gamma 1.8, frame blur 1.5 px, vessels",
+        _combined(_encoding(1.8, 8), _section("faults", frame_blur_px=1.5), _VESSELS),
+    ),
+    FaultCase(
+        "combined",
+        "AgX-like, +3 stops, defocus 1 px, glow",
+        _combined(
+            _encoding("agx", 8), _section("render", exposure_stops=3.0), _section("faults", defocus_px=1.0), _GLOW
+        ),
+        limit=_DEFOCUSED_CLIP,
+    ),
 )
 
 
@@ -163,6 +213,7 @@ def run_faults(options: Options) -> Experiment:
     header = ["disturbance", "severity", "method", "available", "mean [mm]", "max [mm]", "silent failures", "refusals"]
     rows, cells, shaft = [], {}, []
     frames = silent_total = 0
+    limits = []
     for index, case in enumerate(FAULT_CASES):
         world = fault_world(case, options.size_px)
         poses = poses_through_insertion(_tips(case, count), world.instrument.insertion_in_eye)
@@ -176,7 +227,9 @@ def run_faults(options: Options) -> Experiment:
             row += [f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}", str(silent), _refusals(results)]
             rows.append(row)
             cells[(case.category, case.severity, variant.label)] = (summary.ok / summary.frames, silent, case.default)
-            if variant.label == "precise":
+            if variant.label == "precise" and case.limit:
+                limits.append(f"{case.category} {case.severity}: {silent} silent in {summary.frames} ({case.limit})")
+            elif variant.label == "precise":
                 frames, silent_total = frames + summary.frames, silent_total + silent
                 if case.category == "shaft" and case.default:
                     shaft = row
@@ -194,11 +247,15 @@ def run_faults(options: Options) -> Experiment:
         *markdown_table(header, rows),
         "",
         "![availability and silent failures per disturbance](faults.png)",
+        "",
+        "Known limits (rows whose silent failures are counted apart): " + ("; ".join(limits) or "none") + ".",
     ]
     summary_line = (
         f"faults: precise method {silent_total} silent failures in {frames} frames; "
         f"shaft {shaft[1]} available {shaft[3]}, max {shaft[5]} mm"
     )
+    if limits:
+        summary_line += "; known limits: " + "; ".join(limits)
     return Experiment("faults", "\n".join(lines), summary_line)
 
 
