@@ -18,6 +18,7 @@ from spotnav.experiments.chapter6 import Experiment, Options, run_ellipse, run_p
 from spotnav.experiments.core import THESIS_TABLE_4_1_UM, approximation_rows, run_approximation, run_volume
 from spotnav.experiments.faults import run_faults
 from spotnav.experiments.geometry import run_geometry
+from spotnav.experiments.light import run_light
 from spotnav.experiments.paths import helix_tips, square_tips, working_volume_tips
 from spotnav.experiments.runner import ErrorSummary, FrameResult, FrameRunner, run_frames, summarize
 
@@ -45,6 +46,7 @@ EXPERIMENTS: dict[str, Callable[[Options], Experiment]] = {
     "calibration": run_calibration,
     "volume": run_volume,
     "faults": run_faults,
+    "light": run_light,
     "geometry": run_geometry,
 }
 

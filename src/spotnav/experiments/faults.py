@@ -17,7 +17,7 @@ from spotnav.config import Setup
 from spotnav.experiments.chapter6 import Experiment, Options, markdown_table, thesis_world, with_true_edge
 from spotnav.experiments.figures import plot_fault_study
 from spotnav.experiments.paths import HELIX, helix_tips, poses_through_insertion
-from spotnav.experiments.runner import FrameJob, FrameResult, Variant, run_frame, summarize
+from spotnav.experiments.runner import FrameJob, FrameResult, Variant, count_refusals, run_frame, summarize
 
 __all__ = ["FAULT_CASES", "SILENT_ERROR_MM", "FaultCase", "fault_world", "run_faults"]
 
@@ -224,7 +224,7 @@ def run_faults(options: Options) -> Experiment:
             results = [output[number] for output in outputs]
             silent, summary = _silent_failures(results), summarize(results)
             row = [case.category, case.severity, variant.label, f"{summary.ok}/{summary.frames}"]
-            row += [f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}", str(silent), _refusals(results)]
+            row += [f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}", str(silent), count_refusals(results)]
             rows.append(row)
             cells[(case.category, case.severity, variant.label)] = (summary.ok / summary.frames, silent, case.default)
             if variant.label == "precise" and case.limit:
@@ -261,8 +261,3 @@ def run_faults(options: Options) -> Experiment:
 
 def _silent_failures(results: list[FrameResult]) -> int:
     return sum(1 for r in results if r.estimate.ok and r.error_mm > SILENT_ERROR_MM)
-
-
-def _refusals(results: list[FrameResult]) -> str:
-    statuses = [r.estimate.status for r in results if not r.estimate.ok]
-    return ", ".join(f"{s} {statuses.count(s)}" for s in sorted(set(statuses))) or "-"

@@ -29,6 +29,7 @@ __all__ = [
     "FrameResult",
     "FrameRunner",
     "Variant",
+    "count_refusals",
     "localize_variants",
     "render_timed",
     "run_frames",
@@ -163,6 +164,12 @@ def summarize(results: Sequence[FrameResult]) -> ErrorSummary:
         within_3_sigma=float(np.mean(errors[with_sigma] <= 3.0 * sigmas[with_sigma])) if with_sigma.any() else nan,
         sigma_median_mm=float(np.median(sigmas[with_sigma])) if with_sigma.any() else nan,
     )
+
+
+def count_refusals(results: Sequence[FrameResult]) -> str:
+    """The statuses of the frames without a pose, each with its count (``"blurred 3, unreliable 1"``; ``-``: none)."""
+    statuses = [r.estimate.status for r in results if not r.estimate.ok]
+    return ", ".join(f"{s} {statuses.count(s)}" for s in sorted(set(statuses))) or "-"
 
 
 def run_frame(job: FrameJob) -> tuple[FrameResult, ...]:
