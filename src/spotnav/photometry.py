@@ -163,12 +163,25 @@ def pixel_light(x: float, band_px: float, cos: float, sin: float, blur_px: float
     float
         In [0, 1].
     """
+    reach = _support(band_px, cos, sin, blur_px)
+    if x >= reach:  # exactly dark or lit beyond the band and the footprint: the differences there only round
+        return 0.0
+    if x <= -reach:
+        return 1.0
     return min(max(1.0 - _footprint_average(0, x, band_px, cos, sin, blur_px), 0.0), 1.0)
+
+
+@njit(cache=True)
+def _support(band: float, cos: float, sin: float, blur: float) -> float:
+    """How far from the half-light point the band and a pixel's footprint (its boxes) reach, pixels."""
+    return 0.5 * (band + abs(cos) + abs(sin) + math.sqrt(12.0) * blur)
 
 
 @njit(cache=True)
 def _pixel_light_rate(x: float, band: float, cos: float, sin: float, blur: float) -> float:
     """The rate of :func:`pixel_light` in ``x``, per pixel (never positive)."""
+    if abs(x) >= _support(band, cos, sin, blur):
+        return 0.0
     return -_footprint_average(-1, x, band, cos, sin, blur)
 
 

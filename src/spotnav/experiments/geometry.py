@@ -33,7 +33,7 @@ from spotnav.experiments.chapter6 import (
 )
 from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.experiments.figures import plot_geometry_study
-from spotnav.experiments.runner import FrameJob, FrameResult, Variant, run_frame, summarize
+from spotnav.experiments.runner import FrameJob, FrameResult, Variant, count_refusals, run_frame, summarize
 
 __all__ = ["GEOMETRY_CASES", "MAX_SIZE_PX", "GeometryCase", "run_geometry"]
 
@@ -197,8 +197,7 @@ def run_geometry(options: Options) -> Experiment:
 def _row(case: str, beams: int, variant: str, results: list[FrameResult]) -> tuple[list[str], int]:
     summary = summarize(results)
     silent = sum(1 for r in results if r.estimate.ok and r.error_mm > SILENT_ERROR_MM)
-    statuses = [r.estimate.status for r in results if not r.estimate.ok]
-    refusals = ", ".join(f"{s} {statuses.count(s)}" for s in sorted(set(statuses))) or "-"
+    refusals = count_refusals(results)
     coverage = "-" if not np.isfinite(summary.within_3_sigma) else f"{100 * summary.within_3_sigma:.0f} %"
     mean = "-" if not summary.ok else f"{summary.mean_mm:.4f}"
     worst = "-" if not summary.ok else f"{summary.max_mm:.4f}"
