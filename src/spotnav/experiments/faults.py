@@ -8,7 +8,7 @@ failures: frames ``ok`` with an error over :data:`SILENT_ERROR_MM`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -19,7 +19,15 @@ from spotnav.experiments.figures import plot_fault_study
 from spotnav.experiments.paths import HELIX, helix_tips, poses_through_insertion
 from spotnav.experiments.runner import FrameJob, FrameResult, Variant, count_refusals, run_frame, summarize
 
-__all__ = ["FAULT_CASES", "SILENT_ERROR_MM", "FaultCase", "fault_world", "run_faults"]
+__all__ = [
+    "FAULT_CASES",
+    "SILENT_ERROR_MM",
+    "FaultCase",
+    "combine_changes",
+    "count_silent_failures",
+    "fault_world",
+    "run_faults",
+]
 
 SILENT_ERROR_MM = 0.1
 MIN_FRAMES = 1000  # the whole study, at least
@@ -92,8 +100,8 @@ def _same(world: Setup) -> Setup:
     return world
 
 
-def _combined(*changes: Callable[[Setup], Setup]) -> Callable[[Setup], Setup]:
-    """Every one of ``changes``, in order: disturbances that come together in an operating room."""
+def combine_changes(*changes: Callable[[Setup], Setup]) -> Callable[[Setup], Setup]:
+    """A change that makes every one of ``changes``, in order (none: the world as it is)."""
 
     def change(world: Setup) -> Setup:
         for each in changes:
@@ -162,27 +170,27 @@ FAULT_CASES: tuple[FaultCase, ...] = (
     FaultCase(
         "combined",
         "+4.5 stops, frame blur 1 px, vessels, glow",
-        _combined(_section("render", exposure_stops=4.5), _section("faults", frame_blur_px=1.0), _VESSELS, _GLOW),
+        combine_changes(_section("render", exposure_stops=4.5), _section("faults", frame_blur_px=1.0), _VESSELS, _GLOW),
         default=True,
     ),
     FaultCase(
         "combined",
         "+4.5 stops, defocus 2 px, vessels, glow",
-        _combined(_section("render", exposure_stops=4.5), _section("faults", defocus_px=2.0), _VESSELS, _GLOW),
+        combine_changes(_section("render", exposure_stops=4.5), _section("faults", defocus_px=2.0), _VESSELS, _GLOW),
         limit=_DEFOCUSED_CLIP,
     ),
     FaultCase(
-        "combined", "+6 stops, vessels, glow", _combined(_section("render", exposure_stops=6.0), _VESSELS, _GLOW)
+        "combined", "+6 stops, vessels, glow", combine_changes(_section("render", exposure_stops=6.0), _VESSELS, _GLOW)
     ),
     FaultCase(
         "combined",
         "gamma 1.8, frame blur 1.5 px, vessels",
-        _combined(_encoding(1.8, 8), _section("faults", frame_blur_px=1.5), _VESSELS),
+        combine_changes(_encoding(1.8, 8), _section("faults", frame_blur_px=1.5), _VESSELS),
     ),
     FaultCase(
         "combined",
         "AgX-like, +3 stops, defocus 1 px, glow",
-        _combined(
+        combine_changes(
             _encoding("agx", 8), _section("render", exposure_stops=3.0), _section("faults", defocus_px=1.0), _GLOW
         ),
         limit=_DEFOCUSED_CLIP,
@@ -215,7 +223,7 @@ def run_faults(options: Options) -> Experiment:
     header = ["disturbance", "severity", "method", "available", "mean [mm]", "max [mm]", "silent failures", "refusals"]
     rows, cells, shaft = [], {}, []
     frames = silent_total = 0
-    limits: list[str] = []
+    limits: list[tuple[str, FaultCase]] = []  # each known limit's silent failures, and its case
     for index, case in enumerate(FAULT_CASES):
         world = fault_world(case, options.size_px)
         poses = poses_through_insertion(_tips(case, count), world.instrument.insertion_in_eye)
@@ -224,14 +232,14 @@ def run_faults(options: Options) -> Experiment:
         outputs = options.runner.map(run_frame, jobs, f"faults: {case.category} {case.severity}")
         for number, variant in enumerate(variants):
             results = [output[number] for output in outputs]
-            silent, summary = _silent_failures(results), summarize(results)
+            silent, summary = count_silent_failures(results), summarize(results)
             row = [case.category, case.severity, variant.label, f"{summary.ok}/{summary.frames}"]
             row += [f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}", str(silent), count_refusals(results)]
             rows.append(row)
             severity = case.severity + (" (known limit)" if case.limit else "")
             cells[(case.category, severity, variant.label)] = (summary.ok / summary.frames, silent, case.default)
             if variant.label == "precise" and case.limit:
-                limits.append(f"{case.category} {case.severity}: {silent}/{summary.frames} silent")
+                limits.append((f"{case.category} {case.severity}: {silent}/{summary.frames} silent", case))
             elif variant.label == "precise":
                 frames, silent_total = frames + summary.frames, silent_total + silent
                 if case.category == "shaft" and case.default:
@@ -253,7 +261,7 @@ def run_faults(options: Options) -> Experiment:
         "",
         f"The precise method: {silent_total} silent failures in {frames} frames outside the known limits. Known "
         "limits, their silent failures counted apart: "
-        + ("; ".join(f"{line} ({case.limit})" for line, case in zip(limits, _limit_cases(), strict=True)) or "none")
+        + ("; ".join(f"{line} ({case.limit})" for line, case in limits) or "none")
         + ".",
     ]
     summary_line = (
@@ -261,14 +269,10 @@ def run_faults(options: Options) -> Experiment:
         f"shaft {shaft[1]} available {shaft[3]}, max {shaft[5]} mm"
     )
     if limits:
-        summary_line += "; known limits: " + "; ".join(limits)
+        summary_line += "; known limits: " + "; ".join(line for line, _ in limits)
     return Experiment("faults", "\n".join(lines), summary_line)
 
 
-def _limit_cases() -> list[FaultCase]:
-    """The cases the method is known to fail, in the study's order."""
-    return [case for case in FAULT_CASES if case.limit]
-
-
-def _silent_failures(results: list[FrameResult]) -> int:
+def count_silent_failures(results: Sequence[FrameResult]) -> int:
+    """How many frames are ``ok`` and over :data:`SILENT_ERROR_MM` off."""
     return sum(1 for r in results if r.estimate.ok and r.error_mm > SILENT_ERROR_MM)

@@ -31,9 +31,17 @@ from spotnav.experiments.chapter6 import (
     thesis_world,
     write_results_csv,
 )
-from spotnav.experiments.faults import SILENT_ERROR_MM
+from spotnav.experiments.faults import SILENT_ERROR_MM, combine_changes, count_silent_failures
 from spotnav.experiments.figures import plot_geometry_study
-from spotnav.experiments.runner import FrameJob, FrameResult, Variant, count_refusals, run_frame, summarize
+from spotnav.experiments.runner import (
+    FrameJob,
+    FrameResult,
+    Variant,
+    count_refusals,
+    error_cells,
+    run_frame,
+    summarize,
+)
 
 __all__ = ["GEOMETRY_CASES", "MAX_SIZE_PX", "GeometryCase", "run_geometry"]
 
@@ -90,17 +98,8 @@ def _beam(half_angle_deg: float) -> Callable[[Setup], Setup]:
     return lambda world: replace(world, instrument=replace(world.instrument, beam_half_angle_deg=half_angle_deg))
 
 
-def _all(*changes: Callable[[Setup], Setup]) -> Callable[[Setup], Setup]:
-    def change(world: Setup) -> Setup:
-        for one in changes:
-            world = one(world)
-        return world
-
-    return change
-
-
 GEOMETRY_CASES: tuple[GeometryCase, ...] = (
-    GeometryCase("nothing", _all()),
+    GeometryCase("nothing", combine_changes()),
     GeometryCase("insertion point 0.5 mm in x", _insertion(0.5, 0.0, 0.0)),
     GeometryCase("insertion point 1 mm in z", _insertion(0.0, 0.0, 1.0)),
     GeometryCase("camera 1 mm higher (1 %)", _camera(centre_mm=(0.0, 0.0, 1.0))),
@@ -113,7 +112,7 @@ GEOMETRY_CASES: tuple[GeometryCase, ...] = (
     GeometryCase("radial distortion, k1 = -3", _camera(k1=-3.0)),
     GeometryCase(
         "everything at once",
-        _all(
+        combine_changes(
             _insertion(0.5, 0.0, 1.0),
             _camera(centre_mm=(0.5, 0.0, 1.0), rotation_deg=0.5, focal=0.01, principal_px=20.0, k1=-3.0),
             _eye(12.7),
@@ -196,10 +195,7 @@ def run_geometry(options: Options) -> Experiment:
 
 def _row(case: str, beams: int, variant: str, results: list[FrameResult]) -> tuple[list[str], int]:
     summary = summarize(results)
-    silent = sum(1 for r in results if r.estimate.ok and r.error_mm > SILENT_ERROR_MM)
-    refusals = count_refusals(results)
-    coverage = "-" if not np.isfinite(summary.within_3_sigma) else f"{100 * summary.within_3_sigma:.0f} %"
-    mean = "-" if not summary.ok else f"{summary.mean_mm:.4f}"
-    worst = "-" if not summary.ok else f"{summary.max_mm:.4f}"
-    row = [case, str(beams), variant, f"{summary.ok}/{summary.frames}", mean, worst, coverage, str(silent), refusals]
+    silent = count_silent_failures(results)
+    row = [case, str(beams), variant, f"{summary.ok}/{summary.frames}", *error_cells(summary), str(silent)]
+    row.append(count_refusals(results))
     return row, silent

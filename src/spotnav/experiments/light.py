@@ -13,12 +13,18 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import numpy as np
-
 from spotnav.config import Setup
 from spotnav.experiments.chapter6 import Experiment, Options, markdown_table, thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
-from spotnav.experiments.runner import FrameJob, FrameResult, Variant, count_refusals, run_frame, summarize
+from spotnav.experiments.runner import (
+    FrameJob,
+    FrameResult,
+    Variant,
+    count_refusals,
+    error_cells,
+    run_frame,
+    summarize,
+)
 
 __all__ = ["EXPOSURE_STOPS", "FRAME_BLURS_PX", "run_light"]
 
@@ -45,9 +51,8 @@ def run_light(options: Options) -> Experiment:
     for index, (kind, label, world) in enumerate(cases):
         results = _helix(options, world, 1000 * index, f"light: {kind} {label}")
         summary = summarize(results)
-        mean, most = (f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}") if summary.ok else ("-", "-")
-        share = "-" if not np.isfinite(summary.within_3_sigma) else f"{100 * summary.within_3_sigma:.0f} %"
-        rows.append([f"{kind} {label}", f"{summary.ok}/{summary.frames}", mean, most, share, count_refusals(results)])
+        row = [f"{kind} {label}", f"{summary.ok}/{summary.frames}", *error_cells(summary), count_refusals(results)]
+        rows.append(row)
         answered[kind] = [answered[kind][0] + summary.ok, answered[kind][1] + summary.frames]
         if summary.ok:
             worst[kind] = max(worst[kind], summary.max_mm)

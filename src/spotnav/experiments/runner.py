@@ -30,6 +30,7 @@ __all__ = [
     "FrameRunner",
     "Variant",
     "count_refusals",
+    "error_cells",
     "localize_variants",
     "render_timed",
     "run_frames",
@@ -170,6 +171,14 @@ def count_refusals(results: Sequence[FrameResult]) -> str:
     """The statuses of the frames without a pose, each with its count (``"blurred 3, unreliable 1"``; ``-``: none)."""
     statuses = [r.estimate.status for r in results if not r.estimate.ok]
     return ", ".join(f"{s} {statuses.count(s)}" for s in sorted(set(statuses))) or "-"
+
+
+def error_cells(summary: ErrorSummary) -> list[str]:
+    """A report's mean and max tip error (mm, 4 decimals) and share within 3 sigma (per cent); ``-`` where none."""
+    if not summary.ok:
+        return ["-", "-", "-"]
+    share = "-" if not np.isfinite(summary.within_3_sigma) else f"{100 * summary.within_3_sigma:.0f} %"
+    return [f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}", share]
 
 
 def run_frame(job: FrameJob) -> tuple[FrameResult, ...]:
