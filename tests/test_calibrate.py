@@ -102,12 +102,13 @@ def test_a_wrong_geometry_is_measured_and_localized_within_its_sigma(monkeypatch
     setup = replace(nominal, uncertainty=Uncertainty())
     known = known_frames(world, 10, seed=11, axes=True)
     result = calibrate(known, setup)
-    # The parameters left at the setup's values (the camera's centre and principal point, the eye) still move a
-    # tip found from the edges alone along the instrument's axis: the calibration frames' own tips miss by about
-    # 0.01 mm, more than the fit's covariance says, and it is scaled up (by 1.8) where every pose reads it.
-    assert len(result.tip_misses_mm) == 10 and np.mean(result.tip_misses_mm) > 0.008
+    # The calibration frames' own tips, found from their edges alone, miss by 0.003 mm on average, within what the
+    # fit's covariance says. They missed by 0.01 mm, and the covariance was scaled up 1.8 times, while vessels along
+    # the edges moved the rays that read them; the edge reader now leaves such rays out (the scale's own test is
+    # test_the_most_likely_scale_of_the_geometry_s_sigmas). Whatever the scale, every sigma carries it.
+    assert len(result.tip_misses_mm) == 10 and np.mean(result.tip_misses_mm) < 0.006
     scale = result.covariance_scale
-    assert scale > 1.5
+    assert scale >= 1.0
     with monkeypatch.context() as patch:
         patch.setattr(calibration_module, "_most_likely_scale", lambda *_: 1.0)
         unscaled = calibrate(known, setup)
