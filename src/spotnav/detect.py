@@ -1617,17 +1617,20 @@ def _misshapen_falls(
 ) -> np.ndarray:
     """Which ``valid`` rays (R,) fall otherwise than the spot's light, by more than their ``allowed`` share (R,).
 
-    Each ray's fall (``shares``, ``wheres``: :func:`_aligned_falls`) is
-    compared, at whole samples from its own crossing within the edge's
-    ``width_px``, with the median of the valid rays'. A ray that crosses the
-    edge aslant, or where the light meets the retina obliquely, falls wider by
-    the geometry alone: a ray that differs is read again with its samples
-    scaled by its expected fall's width over the spot's, the band's variance
+    Each ray's fall (``shares`` (R, S), ``wheres`` (R,): :func:`_aligned_fall`)
+    is compared, at whole samples (``step_px`` apart) from its own crossing
+    within the edge's ``width_px``, with the median of about
+    ``_PROFILE_RAYS`` valid rays'. A ray that crosses the edge aslant, or
+    where the light meets the retina obliquely, falls wider by the geometry
+    alone: a ray that differs is read again with its samples scaled by its
+    expected fall's width over the spot's, the band's variance
     (:func:`spotnav.photometry.ray_bands` of the camera ``model`` and the
-    beam's ``light``, ``band^2 / 20`` for the smoothstep's slope) beside what
-    the rays share (the pixels, the blurs and the smoothing: the measured
-    width's variance less the spot's band's), and is misshapen only if it
-    still differs.
+    beam's ``light`` from the frame's ``centre`` along ``ray_angles`` to
+    ``edge_radii``, at about ``_FALL_REFERENCE_RAYS`` rays, the nearest one's;
+    ``band^2 / 20`` for the smoothstep's slope) beside what the rays share
+    (the pixels, the blurs and the smoothing: the measured width's variance
+    less the spot's band's), and is misshapen only if it still differs.
+    Without a ``light`` (empty) no ray is.
     """
     rays = len(wheres)
     odd = np.zeros(rays, dtype=np.bool_)
