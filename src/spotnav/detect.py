@@ -1626,7 +1626,7 @@ def _misshapen_falls(
     expected fall's width over the spot's, the band's variance
     (:func:`spotnav.photometry.ray_bands` of the camera ``model`` and the
     beam's ``light`` from the frame's ``centre`` along ``ray_angles`` to
-    ``edge_radii``, at about ``_FALL_REFERENCE_RAYS`` rays, the nearest one's;
+    ``edge_radii``, at about ``_FALL_REFERENCE_RAYS`` rays, the nearest one's around the spot;
     ``band^2 / 20`` for the smoothstep's slope) beside what the rays share
     (the pixels, the blurs and the smoothing: the measured width's variance
     less the spot's band's), and is misshapen only if it still differs.
@@ -1647,14 +1647,16 @@ def _misshapen_falls(
     reach = int(np.ceil(width_px / step_px))
     typical = _typical_fall(shares, wheres, _every_nth(valid, 1 + len(kept) // _PROFILE_RAYS), reach)
     shared = max(measured - spot_band, 1.0 / 12.0 + EDGE_SMOOTHING_PX**2)
-    nearest = 0  # the reference ray nearest each ray, around the spot: the band varies slowly along the edge
     for r in kept:
         odd[r] = _fall_distance(_aligned_fall(shares[r], wheres[r], 1.0, reach), typical) > allowed[r]
         if not odd[r]:
             continue
-        while nearest + 1 < len(reference) and abs(reference[nearest + 1] - r) <= abs(reference[nearest] - r):
-            nearest += 1
-        band = ray_bands_at[nearest]
+        band, apart = np.nan, rays  # the nearest reference ray's, around the spot: the band varies slowly along it
+        for j in range(len(reference)):
+            gap = abs(reference[j] - r)
+            gap = min(gap, rays - gap)
+            if np.isfinite(ray_bands_at[j]) and gap < apart:
+                band, apart = ray_bands_at[j], gap
         if np.isfinite(band):
             stretch = np.sqrt((band**2 / 20.0 + shared) / (spot_band + shared))
             odd[r] = _fall_distance(_aligned_fall(shares[r], wheres[r], stretch, reach), typical) > allowed[r]
@@ -1807,8 +1809,6 @@ def _read_edges(
                 clipped_samples += profiles[r, s] >= full_scale
                 samples += 1
     clipped = clipped_samples / max(samples, 1)
-    # A ray whose fall is not the spot's light's; only where the plateau does not clip: a clipped spot's falls differ
-    # by how far each ray clips, and the flank model reads them.
     # Next to a ray on the image without a light's edge (a vessel or the shaft over it) the edge is the dark
     # structure's: the rays within _NEAR_DARK_WIDTHS edge widths and _NEAR_DARK_PX of it along the edge are left out.
     spacing = 2.0 * np.pi * np.mean(radii) / rays
@@ -1821,15 +1821,17 @@ def _read_edges(
                 if blocked[(r + d) % rays]:
                     beside_dark[r] = True
                     break
+    # A ray whose fall is not the spot's light's; only where the plateau does not clip: a clipped spot's falls differ
+    # by how far each ray clips, and the flank model reads them.
     misshapen = np.zeros(rays, dtype=np.bool_)
     judged = valid & ~beside_dark
     # Only on a spot whose edge is mostly read: on a short arc (the shaft over the rest) too few rays, too alike in
     # place, tell a vessel from the texture, and leaving any out shortens an arc whose bias no residual shows.
     wide = measured * (steps[1] - steps[0]) >= _MIN_FALL_PX
     if clipped <= _REFIT_CLIPPED and wide and judged.sum() >= _MIN_JUDGED * finite.sum() and judged.any():
-        allowed = _FALL_SHIFT_PX / (measured * (steps[1] - steps[0])) + 4.0 * noise / np.maximum(contrast, 1e-6)
+        fall_allowed = _FALL_SHIFT_PX / (measured * (steps[1] - steps[0])) + 4.0 * noise / np.maximum(contrast, 1e-6)
         misshapen = _misshapen_falls(
-            shares, wheres, allowed, judged, measured * (steps[1] - steps[0]), steps[1] - steps[0], centre,
+            shares, wheres, fall_allowed, judged, measured * (steps[1] - steps[0]), steps[1] - steps[0], centre,
             ray_angles, edge_radii, model, light,
         )  # fmt: skip
         # Where most rays' falls differ from their median, that is no spot's fall: the texture shapes every ray, and
@@ -1837,7 +1839,7 @@ def _read_edges(
         # a ray alone, the texture.
         if misshapen.sum() > _MAX_MISSHAPEN * judged.sum():
             misshapen[:] = False
-        misshapen = _long_runs(misshapen, judged, int(np.ceil(_MISSHAPEN_RUN_PX / spacing)))
+        misshapen = _long_runs(misshapen, judged, max(int(np.ceil(_MISSHAPEN_RUN_PX / spacing)), 2))
         valid &= ~misshapen
     log_amplitude, blur, shift_sigma = np.nan, np.nan, 0.0
     if clipped > _REFIT_CLIPPED and len(light) == 0:

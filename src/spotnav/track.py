@@ -197,7 +197,10 @@ def _read_predicted_edges(
             light=edge_light(setup, predicted_tip, beam_axis),
         )
         if len(edge.pixels) + edge.misshapen_rays < _MIN_EDGE_RAY_FRACTION * edge.rays:
-            found = f"an edge on only {100 * len(edge.pixels) / edge.rays:.0f} % of the rays near the predicted spot"
+            found = (
+                f"an edge on only {100 * (len(edge.pixels) + edge.misshapen_rays) / edge.rays:.0f} % of the rays "
+                "near the predicted spot"
+            )
             return PoseEstimate("unreliable", detail=found)
         verdict = judge_edge(edge, setup, float(radii.mean()), angle)
         if isinstance(verdict, tuple):
