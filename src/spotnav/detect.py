@@ -40,6 +40,7 @@ __all__ = [
     "linear_luminance",
     "otsu_threshold",
     "outer_boundary",
+    "rays_around_spot",
     "rays_through_curve",
     "to_gray8",
 ]
@@ -956,13 +957,17 @@ def detect_edge_subpixel(
     -------
     SpotEdge
     """
+    return detect_edge_along_rays(image, *rays_around_spot(spot, max_rays), response=response, light=light)
+
+
+def rays_around_spot(spot: Spot, max_rays: int = 2048) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rays :func:`detect_edge_subpixel` reads a spot's edge on: from the centre of its coarse boundary, one per
+    ``_RAY_SPACING_PX`` of its perimeter (64 to ``max_rays``), as :func:`rays_through_curve` returns them."""
     if max_rays < 64:
         raise ValueError(f"max_rays must be at least 64, got {max_rays}")
-    contour = spot.contour_px.astype(float)
     perimeter = float(cv2.arcLength(spot.contour_px.astype(np.float32).reshape(-1, 1, 2), True))
     rays = int(min(max(perimeter / _RAY_SPACING_PX, 64), max_rays))
-    centre, ray_angles, radii = rays_through_curve(contour, rays)
-    return detect_edge_along_rays(image, centre, ray_angles, radii, response=response, light=light)
+    return rays_through_curve(spot.contour_px.astype(float), rays)
 
 
 def rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1554,6 +1559,28 @@ def _line_deviation(values: np.ndarray, line: tuple[float, float], start: float,
 
 
 @njit(cache=True)
+def _median_profile(
+    profiles: np.ndarray, rays: np.ndarray, padded: np.ndarray, scratch: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The median over about ``_PROFILE_RAYS`` of the ``rays`` (R,) of their ``profiles`` (R, S), smoothed (S,),
+    and minus its gradient (S,: central differences, one-sided at the ends)."""
+    count = profiles.shape[1]
+    chosen = _every_nth(rays, 1 + rays.sum() // _PROFILE_RAYS)
+    column = np.empty(len(chosen))
+    profile = np.empty(count)
+    for s in range(count):
+        for j in range(len(chosen)):
+            column[j] = profiles[chosen[j], s]
+        profile[s] = _median(column, scratch)
+    smooth = _smooth(profile, _SMOOTHING, 0, count, padded, np.empty(count))
+    slope = np.empty(count)
+    for s in range(1, count - 1):
+        slope[s] = 0.5 * (smooth[s - 1] - smooth[s + 1])
+    slope[0], slope[-1] = smooth[0] - smooth[1], smooth[-2] - smooth[-1]
+    return smooth, slope
+
+
+@njit(cache=True)
 def _aligned_fall(shares: np.ndarray, where: float, stretch: float, reach: int) -> np.ndarray:
     """A ray's fall at whole samples ``-reach..reach`` from its crossing ``where``, scaled by ``stretch``
     (2 reach + 1,).
@@ -1742,19 +1769,8 @@ def _read_edges(
         if finite[r]:
             inner[r] = _median(profiles[r, : count // 2], scratch)
     lit = finite & (inner >= _LIT * np.nanpercentile(inner, 90.0))
-    chosen = _every_nth(lit, 1 + lit.sum() // _PROFILE_RAYS)
-    column = np.empty(len(chosen))
-    mean_profile = np.empty(count)
-    for s in range(count):
-        for j in range(len(chosen)):
-            column[j] = profiles[chosen[j], s]
-        mean_profile[s] = _median(column, scratch)
     padded, smooth_buffer = np.empty(count + len(_SMOOTHING)), np.empty(count)
-    mean_smooth = _smooth(mean_profile, _SMOOTHING, 0, count, padded, np.empty(count))
-    mean_slope = np.empty(count)  # minus the gradient: central differences, one-sided at the ends
-    for s in range(1, count - 1):
-        mean_slope[s] = 0.5 * (mean_smooth[s - 1] - mean_smooth[s + 1])
-    mean_slope[0], mean_slope[-1] = mean_smooth[0] - mean_smooth[1], mean_smooth[-2] - mean_smooth[-1]
+    mean_smooth, mean_slope = _median_profile(profiles, lit, padded, scratch)
     counted, measured = full_width_at_half_maximum(mean_slope)
     width = max(counted, 3.0)  # samples
     middle = int(np.argmax(mean_slope))
@@ -1841,6 +1857,9 @@ def _read_edges(
             misshapen[:] = False
         misshapen = _long_runs(misshapen, judged, max(int(np.ceil(_MISSHAPEN_RUN_PX / spacing)), 2))
         valid &= ~misshapen
+        if misshapen.any():
+            # A vessel along the edge narrows the median fall too: the edge's width is the other rays'.
+            measured = full_width_at_half_maximum(_median_profile(profiles, lit & ~misshapen, padded, scratch)[1])[1]
     log_amplitude, blur, shift_sigma = np.nan, np.nan, 0.0
     if clipped > _REFIT_CLIPPED and len(light) == 0:
         valid &= ~clipped_rays  # no model of the light to read a clipped ray with
