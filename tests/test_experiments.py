@@ -209,11 +209,13 @@ def test_profile_accounts_for_each_stage_time() -> None:
     assert [p.stage for p in profiles] == list(PROFILED_STAGES)
     acquisition, tracking = profiles
     assert (acquisition.frames, tracking.frames) == (3, 2)  # the tracker acquires the first frame
-    assert [step for step, _ in acquisition.steps_ms] == [
+    assert [step for step, _ in acquisition.steps_ms] == [  # the frame pipeline's stages
         "detection",
-        "thesis start and sub-pixel edges",
-        "fit, shaft and checks",
+        "find: thesis start, beams, rays",
+        "read the light",
+        "fit, shaft and judge",
     ]
+    assert [step for step, _ in tracking.steps_ms] == ["find: predicted rays", "read the light", "fit, shaft and judge"]
     for p in profiles:
         # The parts' own times add up to the profiled time, less the time outside any function call.
         assert 0.5 * p.total_ms <= sum(p.parts_ms) <= p.total_ms

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav import precise
+from spotnav import pipeline, precise
 from spotnav.camera import camera_depth_mm, project_points
 from spotnav.conefit import AXIS_MODES, ConeProblem, ConeSolution, cone_problem, fit_cones
 from spotnav.config import Light, Setup
@@ -345,7 +345,8 @@ def test_a_refused_fit_is_not_repeated_with_a_wider_shaft_band_that_hides_no_mor
         fits.append(int(problem.axis_mode[0]))
         return fit_cones(problem, **options)
 
-    monkeypatch.setattr(precise, "fit_cones", counted)
+    monkeypatch.setattr(precise, "fit_cones", counted)  # the cross-check's
+    monkeypatch.setattr(pipeline, "fit_cones", counted)  # the fit stage's
     skipped = precise.localize_precise(image, setup)
     skipped_fits = len(fits)
     assert fits == [AXIS_MODES["insertion"]] * skipped_fits

@@ -231,10 +231,10 @@ import numba
 import spotnav.detect as d, spotnav.conefit as c, spotnav.checks as k, spotnav.geometry as g, spotnav.camera as m
 import spotnav.reconstruct as r, spotnav.edgeblur as b, spotnav.pixelnoise as n
 import spotnav.track as t
-kernels = [t._predicted_rays, d._edge_on_rays, d._rays_through_curve,
+kernels = [t._predicted_rays, d._edge_on_rays, d.curve_rays,
            c._fit_recipe, c._at_box, c._frame_uncertainty,
            b.seen_edge, b.frame_blur_for_width, b.frame_blur_shift, n.frame_blur_from_noise, k._fit_spread,
-           g._cone_sphere_points, m._behind_segment,
+           g.cone_sphere_points, m._behind_segment,
            d._histograms, d.otsu_threshold,
            c._instrument_axis, r._fit_ellipse, c._start_frames, c._frame_starts, c._spot_rows, c._frame_order,
            c._tip_box, c._free_trace, g._unit_rows, d._background_level, d._one_row_means]

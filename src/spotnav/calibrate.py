@@ -56,6 +56,7 @@ from spotnav.conefit import (
     ConeSolution,
     EdgePoints,
     cone_problem,
+    edge_angle,
     fit_cones,
     geometry_covariance,
     geometry_to_file_units,
@@ -65,16 +66,17 @@ from spotnav.conefit import (
     setup_with_geometry,
 )
 from spotnav.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup, Uncertainty
-from spotnav.detect import detect_edge_subpixel
 from spotnav.errors import InputError
 from spotnav.estimate import PoseEstimate
-from spotnav.geometry import assign_beams, beam_axes, normalize
-from spotnav.photometry import edge_light
-from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges, pose_problem
+from spotnav.geometry import assign_beams, normalize
+from spotnav.pipeline import LightReading, plan_found_spots, pose_problem, read_light
+from spotnav.precise import EdgeFrame, detect_spots, localize_precise_with_edges
 from spotnav.thesis import fit_height_correction
 
 __all__ = [
     "DETERMINED_RATIO",
+    "EDGE_BAND_FACTORS",
+    "EDGE_BAND_MARGIN",
     "MIN_FRAMES",
     "MIN_FRAMES_FOR_SELF_CALIBRATION",
     "PRIORITY",
@@ -89,6 +91,7 @@ __all__ = [
     "insertion_from_axes",
     "prepare_self_calibration",
     "self_calibrate_radius",
+    "with_edge_band",
 ]
 
 MIN_FRAMES = 3
@@ -124,6 +127,13 @@ RESPONSE_CANDIDATES: tuple[str | float, ...] = ("srgb", "agx")
 # A reading's spots must agree this much better than sRGB's to replace it. Measured: AgX frames read as AgX agree
 # 23-72 % better (the Cycles sets) and 84 % (spotnav's renderer); sRGB frames read as AgX agree worse.
 RESPONSE_MARGIN = 0.15
+# The soft bands tried where known frames' spots clip, as factors of the setup's (instrument.edge_band_deg, by default
+# 2 (beta - edge)), and how much better than the setup's a band's spots must agree to replace it. Measured on the
+# cycles-photometry frames (blend 0.1 against the setup's default 0.15, a shallow depth of field): the spots' RMS
+# offset fell from 0.047 px at the setup's band (0.69 deg) to 0.030 at 0.3 deg (one beam); the test frames' tips
+# from 0.0066 / 0.0163 mm to 0.0032 / 0.0060.
+EDGE_BAND_FACTORS = (0.45, 0.65, 0.8, 1.0, 1.25, 1.6)
+EDGE_BAND_MARGIN = 0.15
 
 
 @dataclass(frozen=True)
@@ -191,6 +201,11 @@ class Calibration:
     tip_misses_mm : tuple of float
         How far each frame's tip, found from its edges alone in the calibrated
         setup, is from the known one, mm (the frames whose fit settled).
+    edge_bands : tuple of (float, float)
+        Where some known frame's spot clips: each soft band tried
+        (``instrument.edge_band_deg``, the setup's first) and the RMS of its
+        spots' mean offsets from their cones after its calibration, pixels
+        (NaN: its calibration failed); empty where none clips.
     """
 
     setup: Setup
@@ -208,29 +223,43 @@ class Calibration:
     responses: tuple[tuple[str | float, float], ...] = ()
     covariance_scale: float = 1.0
     tip_misses_mm: tuple[float, ...] = ()
+    edge_bands: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass(frozen=True)
 class _FrameEdges:
-    edges_px: list[np.ndarray]
-    beams: list[int]
+    """A known frame's light read (:func:`_frame_edges`), at its known tip and axis and the roll its spots show."""
+
+    reading: LightReading
     tip: np.ndarray
     axis: np.ndarray
     roll: float
 
+    @property
+    def edges_px(self) -> tuple[np.ndarray, ...]:
+        return self.reading.edges_px
 
-def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
-    """The frame's spots' edges, the beam of each and the starting roll, or why the frame cannot be used."""
-    instrument, response = setup.instrument, setup.camera.pixel_response
+    @property
+    def beams(self) -> tuple[int, ...]:
+        return self.reading.beams
+
+
+def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | PoseEstimate:
+    """The frame's pipeline up to its fit: the find stage from the known pose (its spots, the beam of each and the
+    starting roll) and the spots' light read (:func:`spotnav.pipeline.read_light`); or why the frame cannot be used
+    (its detail names the frame)."""
+    instrument = setup.instrument
     wrong = check_image_size(frame.image, setup)
     if wrong is not None:
-        return f"{frame.name}: {wrong.detail}"
+        return replace(wrong, detail=f"{frame.name}: {wrong.detail}")
     detection = detect_spots(frame.image, setup, _FIND_RADIUS_PX)
     spots = detection.spots
     whole = [spot for spot in spots if not spot.touches_border]
     if len(spots) != instrument.beam_count or len(whole) != len(spots):
         cut = f", {len(spots) - len(whole)} cut by the border" if len(whole) != len(spots) else ""
-        return f"{frame.name}: {detection.regions}{cut}, {instrument.beam_count} beams"
+        status = "clipped" if cut else "ambiguous" if len(spots) > instrument.beam_count else "too_few_spots"
+        detail = f"{frame.name}: {detection.regions}{cut}, {instrument.beam_count} beams"
+        return PoseEstimate(status, spots=len(spots), detail=detail)
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
     beams, roll = [0], 0.0
@@ -244,17 +273,14 @@ def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | str:
         # Around their centroid, not the tip: a camera that is not where the setup says moves them all alike.
         assignment = assign_beams(centres - centres.mean(axis=0), axis)
         if assignment is None:
-            return f"{frame.name}: cannot tell which spot each beam made"
+            detail = f"{frame.name}: cannot tell which spot each beam made"
+            return PoseEstimate("ambiguous", spots=len(spots), detail=detail)
         beams, roll = assignment
     # Each spot's edge is read knowing its beam: where the spot clips, the beam's soft band is the light's model.
-    axes = beam_axes(axis, instrument.beam_count, instrument.beam_tilt, roll)
-    edges = [
-        detect_edge_subpixel(
-            frame.image, spot, response, max_rays=_RAYS, light=edge_light(setup, tip, axes[beam])
-        ).pixels
-        for spot, beam in zip(spots, beams, strict=True)
-    ]
-    return _FrameEdges(edges, beams, tip, axis, roll)
+    reading = read_light(frame.image, setup, plan_found_spots(setup, spots, beams, tip, axis, roll, _RAYS))
+    if isinstance(reading, PoseEstimate):
+        return replace(reading, detail=f"{frame.name}: {reading.detail}")
+    return _FrameEdges(reading, tip, axis, roll)
 
 
 def insertion_from_axes(tips_in_eye: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -385,8 +411,21 @@ def calibrate(
     both = sorted(set(fit) & set(fix))
     if both:
         raise InputError(f"{both[0]} cannot be both fitted and fixed")
+    setup = with_edge_band(setup)
+    responses: tuple[tuple[str | float, float], ...] = ()
     if setup.camera.response is not None:
-        return _finish(_fit_geometry(frames, setup, fit, fix))
+        chosen = _fit_geometry(frames, setup, fit, fix)
+    else:
+        chosen, responses = _choose_response(frames, setup, fit, fix)
+    chosen, bands = _choose_edge_band(frames, chosen, fit, fix)
+    return replace(_finish(chosen), responses=responses, edge_bands=bands)
+
+
+def _choose_response(
+    frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str], fix: Sequence[str]
+) -> tuple[_GeometryFit, tuple[tuple[str | float, float], ...]]:
+    """The calibration through the response whose spots agree best (the module's docstring), and each response's
+    spread (:attr:`Calibration.responses`)."""
     fits: list[_GeometryFit | None] = []
     spreads: list[float] = []
     for response in RESPONSE_CANDIDATES:
@@ -407,8 +446,53 @@ def calibrate(
     assert chosen is not None
     if best == 0:  # not told apart from the default reading: the response stays unstated
         chosen = replace(chosen, setup=replace(chosen.setup, camera=replace(chosen.setup.camera, response=None)))
-    responses = tuple((r, float(v)) for r, v in zip(RESPONSE_CANDIDATES, spreads, strict=True))
-    return replace(_finish(chosen), responses=responses)
+    return chosen, tuple((r, float(v)) for r, v in zip(RESPONSE_CANDIDATES, spreads, strict=True))
+
+
+def with_edge_band(setup: Setup) -> Setup:
+    """``setup`` with its light model's soft band stated (``instrument.edge_band_deg``, by default ``2 (beta -
+    edge)`` at its edge): a calibration that moves the edge keeps the band its frames were read with."""
+    instrument = setup.instrument
+    if instrument.edge_band_deg is not None:
+        return setup
+    band = 2.0 * max(instrument.beam_half_angle - edge_angle(setup), 0.0)
+    return replace(setup, instrument=replace(instrument, edge_band_deg=float(np.degrees(band))))
+
+
+def _choose_edge_band(
+    frames: Sequence[KnownFrame], fitted: _GeometryFit, fit: Sequence[str], fix: Sequence[str]
+) -> tuple[_GeometryFit, tuple[tuple[float, float], ...]]:
+    """Where a known frame's spot clips (read from its flank, :func:`spotnav.photometry.fit_clipped_edges`), the
+    calibration through the soft band (:data:`EDGE_BAND_FACTORS` of the setup's) whose spots agree best, if it
+    beats the setup's by :data:`EDGE_BAND_MARGIN`; and each band's spread (:attr:`Calibration.edge_bands`).
+
+    A band too narrow or too wide moves each clipped spot's edge by an amount that depends on how far its
+    plateau is over full scale: spots of different brightness then disagree, which no geometry absorbs.
+    """
+    clipped = any(np.isfinite(edge.log_amplitude) for frame in fitted.edges for edge in frame.reading.edges)
+    nominal = fitted.setup.instrument.edge_band_deg
+    if not clipped or nominal is None or nominal == 0.0:
+        return fitted, ()
+    bands = [nominal] + [factor * nominal for factor in EDGE_BAND_FACTORS if factor != 1.0]
+    fits: list[_GeometryFit | None] = [fitted]
+    spreads = [fitted.spot_spread_px()]
+    for band in bands[1:]:
+        try:
+            # The fit's own starting setup (the response it read with, the insertion point its axes gave).
+            setup = replace(fitted.setup, instrument=replace(fitted.setup.instrument, edge_band_deg=band))
+            other = _fit_geometry(frames, setup, fit, fix)
+        except ValueError:  # too few frames read with this band (a band under a pixel reads no flank)
+            fits.append(None)
+            spreads.append(np.nan)
+            continue
+        fits.append(other)
+        spreads.append(other.spot_spread_px() if other.solution.inliers.mean() >= _MIN_INLIER_FRACTION else np.nan)
+    best = int(np.nanargmin(spreads)) if np.any(np.isfinite(spreads)) else 0
+    if np.isfinite(spreads[0]) and not spreads[best] < (1.0 - EDGE_BAND_MARGIN) * spreads[0]:
+        best = 0
+    chosen = fits[best]
+    assert chosen is not None
+    return chosen, tuple((float(b), float(s)) for b, s in zip(bands, spreads, strict=True))
 
 
 @dataclass(frozen=True)
@@ -453,7 +537,10 @@ def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str]
     edges, skipped = [], []
     for frame in frames:
         result = _frame_edges(frame, setup)
-        (skipped if isinstance(result, str) else edges).append(result)
+        if isinstance(result, PoseEstimate):
+            skipped.append(f"{result.detail} ({result.status})")
+        else:
+            edges.append(result)
     if len(edges) < MIN_FRAMES:
         reasons = "; ".join(skipped) if skipped else "none given"
         raise InputError(f"calibration needs at least {MIN_FRAMES} usable frames, got {len(edges)} ({reasons})")

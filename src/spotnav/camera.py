@@ -38,6 +38,7 @@ __all__ = [
     "pixels_behind_segment",
     "project_point",
     "project_points",
+    "project_rows",
     "sphere_point",
     "sphere_point_rates",
     "sphere_points",
@@ -207,7 +208,9 @@ def _bowl_point(model: np.ndarray, x: float, y: float, radius: float) -> tuple[f
 
 
 @njit(cache=True)
-def _project_rows(model: np.ndarray, points: np.ndarray) -> np.ndarray:
+def project_rows(model: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """:func:`project_points` of rows (N, 3) of points in the eye frame, mm, through a compiled ``model``
+    (:func:`camera_model`), compiled for other kernels: pixels (N, 2), NaN behind the camera."""
     pixels = np.empty((len(points), 2))
     for n in range(len(points)):
         pixels[n, 0], pixels[n, 1] = project_point(model, points[n, 0], points[n, 1], points[n, 2])
@@ -324,7 +327,7 @@ def project_points(camera: Camera, points_in_eye: np.ndarray) -> np.ndarray:
     """
     points_in_eye = _check_last_axis("points_in_eye", points_in_eye, 3)
     rows = np.ascontiguousarray(points_in_eye.reshape(-1, 3))
-    return _project_rows(camera_model(camera), rows).reshape(*points_in_eye.shape[:-1], 2)
+    return project_rows(camera_model(camera), rows).reshape(*points_in_eye.shape[:-1], 2)
 
 
 def camera_depth_mm(camera: Camera, points_in_eye: np.ndarray) -> np.ndarray:
@@ -434,7 +437,7 @@ def _behind_segment(
     """:func:`pixels_behind_segment` of pixels (N, 2), compiled: the segment runs between ``ends`` (2, 3)."""
     hidden = np.zeros(len(pixels), dtype=np.bool_)
     # Pixels beyond the segment's image box (grown by the radius seen at the nearer end) cannot be hidden.
-    ends_px = _project_rows(model, ends)
+    ends_px = project_rows(model, ends)
     depth = np.inf
     for k in range(2):  # along the optical axis: the rotation's third row
         depth = min(depth, np.sum(model[_R + 6 : _R + 9] * (ends[k] - model[_CENTRE : _CENTRE + 3])))

@@ -114,8 +114,9 @@ def _soft_band_share(setup: Setup, edge_angle: float) -> float:
     return 2.0 * soft / beta
 
 
-def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float) -> tuple[str, str] | float:
-    """Why a spot's edge cannot be trusted, as a status and a reason; else its own whole-edge sigma, radians.
+def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float) -> PoseEstimate | float:
+    """Why a spot's edge cannot be trusted, as an estimate with that status and reason; else its own whole-edge
+    sigma, radians.
 
     ``unreliable``: noise that biases the halfway level (contrast under
     ``_MIN_CONTRAST_TO_NOISE`` times the noise); too few points (under
@@ -137,21 +138,24 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     """
     if np.isfinite(edge.contrast_to_noise) and not edge.contrast_to_noise >= _MIN_CONTRAST_TO_NOISE:
         ratio = f"{edge.contrast_to_noise:.0f} times the noise, under {_MIN_CONTRAST_TO_NOISE:.0f}"
-        return "unreliable", f"the edge's contrast is {ratio}"
+        return PoseEstimate("unreliable", detail=f"the edge's contrast is {ratio}")
     if edge.clipped_fraction > _MAX_CLIPPED_FRACTION and not np.isfinite(edge.log_amplitude):
         clipped = f"{100 * edge.clipped_fraction:.0f} %"
-        return "unreliable", (
-            f"{clipped} of the spot inside its edge is at full scale in every channel, and the beam has no soft "
-            "band to read its flank by"
+        return PoseEstimate(
+            "unreliable",
+            detail=f"{clipped} of the spot inside its edge is at full scale in every channel, and the beam has no "
+            "soft band to read its flank by",
         )
     if len(edge.pixels) < max(MIN_EDGE_POINTS, _MIN_EDGE_FRACTION * edge.rays):
         left_out = f", {edge.dark_rays} left out (vessels, the shaft, glints)" if edge.dark_rays else ""
-        return "unreliable", f"too few edge points: {len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
+        found = f"{len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
+        return PoseEstimate("unreliable", detail=f"too few edge points: {found}")
     if np.isfinite(edge.frame_shift_sigma_px):
         if np.isfinite(edge.log_amplitude) and edge.frame_blur_px > 0.0:  # the flank model has no such blur
-            return "blurred", (
-                f"the frame was blurred after its encoding ({edge.frame_blur_px:.1f} px, from its noise), which "
-                "the clipped spot's flank model does not include"
+            return PoseEstimate(
+                "blurred",
+                detail=f"the frame was blurred after its encoding ({edge.frame_blur_px:.1f} px, from its noise), "
+                "which the clipped spot's flank model does not include",
             )
         if np.isfinite(edge.frame_blur_px):
             shift = 2.0 * edge.frame_shift_sigma_px
@@ -165,7 +169,8 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
         why = f"the edge is {edge.width_px:.1f} px wide, blurred: where the blur acted"
     height_mm = shift * _mm_per_px(setup) / (np.sin(edge_angle) * np.cos(edge_angle))
     if height_mm > _MAX_BLUR_MM:
-        return "blurred", f"{why} leaves it {shift:.2f} px ({height_mm:.3f} mm of height) uncertain"
+        uncertain = f"{shift:.2f} px ({height_mm:.3f} mm of height) uncertain"
+        return PoseEstimate("blurred", detail=f"{why} leaves it {uncertain}")
     sigma = edge.frame_shift_sigma_px if np.isfinite(edge.frame_shift_sigma_px) else 0.5 * shift
     return float(np.hypot(sigma, edge.flank_shift_px)) * edge_angle / radius_px
 

@@ -599,6 +599,19 @@ def _calibration_lines(result: Calibration) -> list[str]:
                 f"camera.response = {response}: estimated, its spots agree best with the edge model "
                 f"(spots' RMS offset, px: {tried}); written to the calibrated setup"
             )
+    band = result.setup.instrument.edge_band_deg
+    if result.edge_bands:
+        tried = ", ".join(f"{b:.3f} {spread:.4f}" for b, spread in result.edge_bands if np.isfinite(spread))
+        how = "fitted" if band != result.edge_bands[0][0] else "the setup's (no other agrees 15 % better)"
+        lines.append(
+            f"instrument.edge_band_deg = {band:.4g}: the light's soft band about the edge, {how}, from the spots "
+            f"that clip (spots' RMS offset, px, by band in deg: {tried})"
+        )
+    else:
+        lines.append(
+            f"instrument.edge_band_deg = {band:.4g}: the light's soft band, the setup's, written so that frames are "
+            "read as these were (no known frame's spot clips: the band is fitted only from spots that do)"
+        )
     return lines
 
 

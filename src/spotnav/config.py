@@ -400,6 +400,13 @@ class Instrument:
         (a fibre's core), in [0, 1) mm. The edge is the cone of
         ``edge_half_angle_deg`` widened by this much: its apex lies
         ``light_radius_mm / tan(edge)`` behind the tip. 0: a point source.
+    edge_band_deg : float or None
+        The precise method's light model: the width in angle, degrees in
+        [0, 10), of the soft band over which the beam's light falls from full
+        to none, centred on the edge; a spot whose plateau clips is read from
+        its flank by it. ``None``: ``2 (beta - edge)`` (0 where the edge lies
+        at or beyond beta). ``spotnav calibrate`` fits it from known frames
+        whose spots clip.
     shaft_diameter_mm : float
         Diameter of the instrument's shaft, in [0, 5] mm: the precise method
         ignores the edge that the shaft, from the tip toward the insertion
@@ -414,6 +421,7 @@ class Instrument:
     edge_half_angle_deg: float | None = None
     light_radius_mm: float = 0.0
     shaft_diameter_mm: float = 0.6
+    edge_band_deg: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -435,6 +443,9 @@ class Instrument:
             _in_range(key, _number(key, self.edge_half_angle_deg), 0.0, 45.0, low_open=True, high_open=True)
         key = "instrument.light_radius_mm"
         _in_range(key, _number(key, self.light_radius_mm), 0.0, 1.0, high_open=True)
+        if self.edge_band_deg is not None:
+            key = "instrument.edge_band_deg"
+            _in_range(key, _number(key, self.edge_band_deg), 0.0, 10.0, high_open=True)
         _in_range(
             "instrument.shaft_diameter_mm", _number("instrument.shaft_diameter_mm", self.shaft_diameter_mm), 0.0, 5.0
         )
@@ -982,6 +993,7 @@ beam_tilt_deg = 15.0          # tilt of each beam from the axis when beam_count 
 height_correction = 1.0       # thesis method only: section 5.5 height factor, 1 = none
 # edge_half_angle_deg = 8.656 # precise method's edge model (default: beta with Blender's blend 0.15)
 # light_radius_mm = 0.0       # precise method's edge model: the light's emitting radius (0 = a point)
+# edge_band_deg = 0.69        # precise method's light model: the soft band about the edge (default 2 (beta - edge))
 shaft_diameter_mm = 0.6       # precise method: ignore the edge the shaft hides (0 = no shaft)
 
 [uncertainty]                 # how well the geometry above is known (1 sigma); the precise methods add it to

@@ -32,6 +32,7 @@ __all__ = [
     "Spot",
     "SpotDetection",
     "SpotEdge",
+    "curve_rays",
     "detect_edge_along_rays",
     "detect_edge_subpixel",
     "detect_spots_otsu",
@@ -990,11 +991,11 @@ def rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.
     curve_px = np.ascontiguousarray(curve_px, dtype=float)
     if curve_px.ndim != 2 or curve_px.shape[1] != 2 or len(curve_px) == 0:
         raise ValueError(f"curve_px must have shape (N, 2) with N >= 1, got {curve_px.shape}")
-    return _rays_through_curve(curve_px, int(rays))
+    return curve_rays(curve_px, int(rays))
 
 
 @njit(cache=True)
-def _rays_through_curve(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def curve_rays(curve_px: np.ndarray, rays: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`rays_through_curve`, compiled: the curve's radius interpolated linearly in angle, periodically."""
     centre = np.array([np.mean(curve_px[:, 0]), np.mean(curve_px[:, 1])])
     count = len(curve_px)

@@ -22,6 +22,7 @@ __all__ = [
     "beam_axes",
     "cone_generators",
     "cone_sphere_curve",
+    "cone_sphere_points",
     "edge_angle_of_blend",
     "instrument_to_eye",
     "intersect_rays_sphere",
@@ -225,11 +226,11 @@ def cone_sphere_curve(
     apex, center = np.asarray(apex, float), np.asarray(center, float)
     if np.linalg.norm(apex - center) >= radius:
         raise ValueError("apex must lie strictly inside the sphere")
-    return _cone_sphere_points(apex, normalize(axis), float(half_angle), center, float(radius), int(count))
+    return cone_sphere_points(apex, normalize(axis), float(half_angle), center, float(radius), int(count))
 
 
 @njit(cache=True)
-def _cone_sphere_points(
+def cone_sphere_points(
     apex: np.ndarray, axis: np.ndarray, half_angle: float, center: np.ndarray, radius: float, count: int
 ) -> np.ndarray:
     """:func:`cone_sphere_curve` for a unit ``axis`` and an apex inside the sphere, compiled (tracking draws

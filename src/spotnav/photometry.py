@@ -578,13 +578,16 @@ def edge_light(setup: Setup, tip_in_eye: np.ndarray, beam_axis: np.ndarray) -> E
     """The :class:`EdgeLight` of a beam with this axis from a tip about here (a start or a prediction will do:
     the band's width changes slowly with the pose).
 
-    The band is the smoothstep in the light's angle from ``beta`` in to ``2 edge - beta``, its half-light angle
-    the edge model's (:func:`spotnav.conefit.edge_angle`); a beam whose edge model lies at or beyond ``beta`` is
-    sharp.
+    The band is the smoothstep in the light's angle over ``instrument.edge_band_deg`` centred on the edge model's
+    half-light angle (:func:`spotnav.conefit.edge_angle`); by default from ``beta`` in to ``2 edge - beta``, and
+    a beam whose edge model lies at or beyond ``beta`` is sharp.
     """
     instrument = setup.instrument
     edge = edge_angle(setup)
-    outer = max(instrument.beam_half_angle, edge)
+    if instrument.edge_band_deg is None:
+        outer = max(instrument.beam_half_angle, edge)
+    else:
+        outer = edge + 0.5 * math.radians(instrument.edge_band_deg)
     axis = np.asarray(beam_axis, dtype=float)
     apex = np.asarray(tip_in_eye, dtype=float) - axis * instrument.light_radius_mm / np.tan(edge)
     light = np.array([*apex, *axis, 2.0 * edge - outer, outer, setup.eye.radius_mm])

@@ -19,21 +19,13 @@ from functools import lru_cache
 import numpy as np
 
 from spotnav.camera import camera_depth_mm
-from spotnav.checks import check_image_size, judge_edge, judge_fit
-from spotnav.conefit import (
-    PARAMETER_GROUPS,
-    ConeProblem,
-    ConeSolution,
-    EdgePoints,
-    cone_problem,
-    edge_angle,
-    fit_cones,
-)
+from spotnav.checks import check_image_size, judge_fit
+from spotnav.conefit import PARAMETER_GROUPS, ConeSolution, cone_problem, fit_cones
 from spotnav.config import Setup
-from spotnav.detect import SpotDetection, detect_edge_subpixel, detect_spots_otsu, group_fragments, outer_boundary
+from spotnav.detect import SpotDetection, detect_spots_otsu, group_fragments, outer_boundary
 from spotnav.estimate import PoseEstimate
-from spotnav.geometry import angles_between, assign_beams, beam_axes, normalize
-from spotnav.photometry import edge_light
+from spotnav.geometry import angles_between, assign_beams, normalize
+from spotnav.pipeline import LightReading, SpotPlan, fit_visible, fitted_edges_px, plan_found_spots, read_light
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 from spotnav.thesis import ThesisSolution, solve_thesis
 
@@ -44,7 +36,7 @@ __all__ = [
     "largest_spot_area_px",
     "localize_precise",
     "localize_precise_with_edges",
-    "pose_problem",
+    "plan_spots",
     "prepare_edges",
     "smallest_spot_area_px",
 ]
@@ -75,16 +67,12 @@ _MIN_MISCALIBRATION_DEG = 1.0  # a free axis errs by up to 0.6 deg on the thesis
 
 @dataclass(frozen=True)
 class EdgeFrame:
-    """One frame's material for the precise fit: sub-pixel edges per spot, the beam of each, a start.
+    """One frame's material for the precise fit: its spots' light read, and the thesis's start.
 
     Attributes
     ----------
-    edges_px : tuple of ndarray, shape (N_k, 2)
-        Each spot's sub-pixel edge points, in order around the spot.
-    edge_sigmas : tuple of float
-        Each spot's own whole-edge uncertainty, radians (a blur of unknown kind).
-    beams : list of int
-        The beam that made each spot.
+    reading : LightReading
+        Each spot's sub-pixel edge, its own whole-edge sigma and its beam.
     start : PoseEstimate
         The thesis's closed form (``ok``).
     axis : ndarray, shape (3,)
@@ -95,13 +83,26 @@ class EdgeFrame:
         The thesis's reconstruction it started from.
     """
 
-    edges_px: tuple[np.ndarray, ...]
-    edge_sigmas: tuple[float, ...]
-    beams: list[int]
+    reading: LightReading
     start: PoseEstimate
     axis: np.ndarray
     roll: float
     solution: ThesisSolution
+
+    @property
+    def edges_px(self) -> tuple[np.ndarray, ...]:
+        """Each spot's sub-pixel edge points, in order around it, pixels, shapes (N_k, 2)."""
+        return self.reading.edges_px
+
+    @property
+    def edge_sigmas(self) -> tuple[float, ...]:
+        """Each spot's own whole-edge uncertainty, radians."""
+        return self.reading.sigmas
+
+    @property
+    def beams(self) -> tuple[int, ...]:
+        """The beam that made each spot."""
+        return self.reading.beams
 
 
 def detect_spots(image: np.ndarray, setup: Setup, find_radius_px: float = _FIND_SPOT_RADIUS_PX) -> SpotDetection:
@@ -189,30 +190,6 @@ def smallest_spot_area_px(setup: Setup) -> float:
     return float(np.pi * radius_px**2)
 
 
-def pose_problem(
-    setup: Setup,
-    edges_px: Sequence[np.ndarray],
-    beams: Sequence[int],
-    tip_in_eye: np.ndarray,
-    axis: np.ndarray,
-    roll: float,
-    *,
-    through_insertion: bool = True,
-    edge_sigmas: Sequence[float] | None = None,
-) -> ConeProblem:
-    """One frame's pose as a cone problem: its spots' edges (and their own whole-edge sigmas, radians), a start,
-    the axis through the insertion point or free."""
-    points = EdgePoints.of_frames([edges_px], [beams], None if edge_sigmas is None else [edge_sigmas])
-    return cone_problem(
-        setup,
-        points,
-        np.asarray(tip_in_eye, dtype=float)[None],
-        np.asarray(axis, dtype=float)[None],
-        np.array([roll]),
-        axis="insertion" if through_insertion else "free",
-    )
-
-
 @dataclass(frozen=True)
 class PreciseResult:
     """The precise method's answer for one frame, and what it came from.
@@ -235,10 +212,7 @@ class PreciseResult:
     @property
     def fitted_edges_px(self) -> tuple[np.ndarray, ...]:
         """The edge points the fit used, per spot, pixels, shapes (N_k, 2); empty without a fit."""
-        if self.fit is None:
-            return ()
-        points = self.fit.problem.points
-        return tuple(points.pixels[points.spot == spot] for spot in np.unique(points.spot))
+        return () if self.fit is None else fitted_edges_px(self.fit)
 
 
 def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool = True) -> PoseEstimate:
@@ -304,10 +278,28 @@ def localize_precise_with_edges(
 def prepare_edges(
     image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool, max_rays: int = _MAX_RAYS
 ) -> EdgeFrame | PoseEstimate:
-    """The precise method up to its fit: spots, beams, starting pose and sub-pixel edges (at most ``max_rays`` per
-    spot).
+    """The precise method up to its fit: the find stage (:func:`plan_spots`), then the spots' light read
+    (:func:`spotnav.pipeline.read_light`).
 
     Returns the reason (a :class:`PoseEstimate` that is not ``ok``) when the frame cannot be used.
+    """
+    planned = plan_spots(detection, setup, through_insertion, max_rays)
+    if isinstance(planned, PoseEstimate):
+        return planned
+    plan, solution, axis, roll = planned
+    reading = read_light(image, setup, plan)
+    if isinstance(reading, PoseEstimate):
+        return replace(reading, spots=solution.estimate.spots)
+    return EdgeFrame(reading, solution.estimate, axis, roll, solution)
+
+
+def plan_spots(
+    detection: SpotDetection, setup: Setup, through_insertion: bool, max_rays: int = _MAX_RAYS
+) -> tuple[SpotPlan, ThesisSolution, np.ndarray, float] | PoseEstimate:
+    """The precise method's find stage: the spots' rays (at most ``max_rays`` each), the beam of each and the
+    light's pose from the thesis's closed form; with the thesis's solution, the starting axis and roll.
+
+    Returns ``ambiguous`` (which beam made each spot is not told) or the thesis's own refusal.
     """
     plain = _without_height_correction(setup)
     # Start from the spots' convex outlines: the shaft or a vessel in front of a spot carves into it.
@@ -325,23 +317,8 @@ def prepare_edges(
     if assignment is None:
         return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
     beams, roll = assignment
-    response = setup.camera.pixel_response
-    instrument = setup.instrument
-    beam_axes_in_eye = beam_axes(axis, instrument.beam_count, instrument.beam_tilt, roll)
-    spot_edges = [
-        detect_edge_subpixel(
-            image, spot, response, max_rays=max_rays, light=edge_light(setup, start.pose()[0], beam_axes_in_eye[beam])
-        )
-        for spot, beam in zip(solution.spots, beams, strict=True)
-    ]
-    radii_px = [np.sqrt(spot.area_px / np.pi) for spot in solution.spots]
-    angle = edge_angle(setup)
-    verdicts = [judge_edge(e, setup, r, angle) for e, r in zip(spot_edges, radii_px, strict=True)]
-    problems = [v for v in verdicts if isinstance(v, tuple)]
-    if problems:
-        return PoseEstimate(problems[0][0], spots=start.spots, detail=problems[0][1])
-    sigmas = tuple(float(v) for v in verdicts)
-    return EdgeFrame(tuple(e.pixels for e in spot_edges), sigmas, beams, start, axis, roll, solution)
+    plan = plan_found_spots(setup, solution.spots, beams, start.pose()[0], axis, roll, max_rays)
+    return plan, solution, axis, roll
 
 
 @lru_cache(maxsize=32)
@@ -372,24 +349,21 @@ def _fit_unhidden(
     fitted pose.
     """
     (tip, axis), roll = prepared.start.pose(), prepared.roll
-    hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
+    edges_px = prepared.edges_px
+    hidden = hidden_by_shaft(setup, edges_px, tip, axis, margin_mm)
     views = [_ShaftView(tip, axis, hidden)]
-    visible = visible_edge_points(setup, prepared.edges_px, hidden)
-    if isinstance(visible, PoseEstimate):  # judge the shaft at a fitted pose instead
-        hidden = [np.zeros(len(edge), dtype=bool) for edge in prepared.edges_px]
-        visible = visible_edge_points(setup, prepared.edges_px, hidden)
+    if isinstance(visible_edge_points(setup, edges_px, hidden), PoseEstimate):  # judge the shaft at a fitted pose
+        hidden = [np.zeros(len(edge), dtype=bool) for edge in edges_px]
     for _ in range(_SHAFT_PASSES):
-        if isinstance(visible, PoseEstimate):
-            return visible
-        problem = pose_problem(setup, visible, prepared.beams, tip, axis, roll, edge_sigmas=prepared.edge_sigmas)
-        fit = fit_cones(problem, solver="levenberg-marquardt")
+        fit = fit_visible(setup, prepared.reading, hidden, tip, axis, roll)
+        if isinstance(fit, PoseEstimate):
+            return fit
         tip, axis, roll = fit.tip(), fit.axis(), fit.roll()
-        now_hidden = hidden_by_shaft(setup, prepared.edges_px, tip, axis, margin_mm)
+        now_hidden = hidden_by_shaft(setup, edges_px, tip, axis, margin_mm)
         views.append(_ShaftView(tip, axis, now_hidden))
         if _same_hidden(hidden, now_hidden):
             break
         hidden = now_hidden
-        visible = visible_edge_points(setup, prepared.edges_px, hidden)
     return fit, views
 
 
@@ -447,12 +421,9 @@ def _fit_free(
 
     A cone and its mirror image fit one contour almost equally; ``ambiguous`` when they do.
     """
-    start, beams = prepared.start, prepared.beams
+    start = prepared.start
     # The shaft runs along the free axis (which the constrained fit does not know, off the insertion line).
     hidden = hidden_by_shaft(setup, prepared.edges_px, free.tip(), free.axis())
-    visible = visible_edge_points(setup, prepared.edges_px, hidden)
-    if isinstance(visible, PoseEstimate):
-        return visible, None
     starts = [(free.tip(), free.axis(), free.roll())]
     if setup.instrument.beam_count == 1:
         candidates = prepared.solution.candidates[0]
@@ -460,15 +431,12 @@ def _fit_free(
         starts += [(apex, cone_axis, 0.0) for apex, cone_axis in mirrors]
     else:
         starts.append((start.pose()[0], prepared.axis, prepared.roll))
-    fits = [
-        fit_cones(
-            pose_problem(
-                setup, visible, beams, tip, axis, roll, through_insertion=False, edge_sigmas=prepared.edge_sigmas
-            ),
-            solver="levenberg-marquardt",
-        )
-        for tip, axis, roll in starts
-    ]
+    fits = []
+    for tip, axis, roll in starts:
+        fit = fit_visible(setup, prepared.reading, hidden, tip, axis, roll, through_insertion=False)
+        if isinstance(fit, PoseEstimate):
+            return fit, None
+        fits.append(fit)
     inside = sorted(
         (f for f in fits if setup.contains_point(f.tip())), key=lambda f: float(np.mean(np.abs(f.residuals)))
     )

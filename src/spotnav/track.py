@@ -27,19 +27,19 @@ import cv2
 import numpy as np
 from numba import njit
 
-from spotnav.camera import _project_rows, camera_model, project_points
+from spotnav.camera import camera_model, project_points, project_rows
 from spotnav.checks import check_image_size, judge_edge, judge_fit
 from spotnav.conefit import ConeSolution, edge_angle, fit_cones
 from spotnav.config import Setup
-from spotnav.detect import _rays_through_curve, detect_edge_along_rays, rays_through_curve
+from spotnav.detect import curve_rays, detect_edge_along_rays, rays_through_curve
 from spotnav.edgeblur import frame_blur_for_width, frame_blur_shift, response_curve
 from spotnav.estimate import PoseEstimate
-from spotnav.geometry import _cone_sphere_points, beam_axes, cone_sphere_curve, normalize
-from spotnav.photometry import edge_light
+from spotnav.geometry import beam_axes, cone_sphere_curve, cone_sphere_points, normalize
+from spotnav.pipeline import LightReading, RayFan, SpotPlan, fit_visible, fitted_edges_px, pose_problem, read_light
 from spotnav.pixelnoise import frame_blur_from_noise
-from spotnav.precise import localize_precise, localize_precise_with_edges, pose_problem
+from spotnav.precise import localize_precise, localize_precise_with_edges
 from spotnav.reconstruct import fit_ellipse
-from spotnav.shaft import hidden_by_shaft, visible_edge_points
+from spotnav.shaft import hidden_by_shaft
 
 __all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "frozen_heap", "prepare_kernels", "track_frame"]
 
@@ -157,19 +157,28 @@ def _track_once(
     read = _read_predicted_edges(image, setup, predicted, max_rays)
     if isinstance(read, PoseEstimate):
         return read, (), None
-    return _fit_read_edges(setup, predicted, *read, through_insertion)
+    return _fit_read_edges(setup, predicted, read, through_insertion)
 
 
 def _read_predicted_edges(
     image: np.ndarray, setup: Setup, predicted: PoseEstimate, max_rays: int
-) -> PoseEstimate | tuple[list[np.ndarray], list[float]]:
-    """Each beam's edge points (N_k, 2) along rays across its predicted edge curve, pixels, and their sigmas; or
-    why they cannot be read or used."""
+) -> LightReading | PoseEstimate:
+    """The find stage from a prediction (:func:`_plan_predicted`), then each beam's light read where it was
+    predicted; or why it cannot be read or used."""
+    plan = _plan_predicted(setup, predicted, max_rays)
+    if isinstance(plan, PoseEstimate):
+        return plan
+    return read_light(image, setup, plan, min_edge_fraction=_MIN_EDGE_RAY_FRACTION)
+
+
+def _plan_predicted(setup: Setup, predicted: PoseEstimate, max_rays: int) -> SpotPlan | PoseEstimate:
+    """Tracking's find stage: rays across each beam's predicted edge curve, one spot per beam, or why a predicted
+    spot cannot be read (``clipped``, ``unreliable``)."""
     predicted_tip, predicted_axis = predicted.pose()
     camera, instrument = setup.camera, setup.instrument
     angle = edge_angle(setup)
     axes = beam_axes(predicted_axis, instrument.beam_count, instrument.beam_tilt, predicted.roll)
-    edges, sigmas = [], []
+    fans = []
     model, eye = camera_model(camera), setup.eye
     for beam_axis in axes:
         apex_in_eye = predicted_tip - beam_axis * instrument.light_radius_mm / np.tan(angle)
@@ -187,55 +196,36 @@ def _read_predicted_edges(
         if where != _ON_IMAGE:
             status, detail = _REFUSALS[where]
             return PoseEstimate(status, detail=detail)
-        edge = detect_edge_along_rays(
-            image,
-            centre,
-            ray_angles,
-            radii,
-            align=True,
-            response=camera.pixel_response,
-            light=edge_light(setup, predicted_tip, beam_axis),
-        )
-        if len(edge.pixels) + edge.misshapen_rays < _MIN_EDGE_RAY_FRACTION * edge.rays:
-            found = (
-                f"an edge on only {100 * (len(edge.pixels) + edge.misshapen_rays) / edge.rays:.0f} % of the rays "
-                "near the predicted spot"
-            )
-            return PoseEstimate("unreliable", detail=found)
-        verdict = judge_edge(edge, setup, float(radii.mean()), angle)
-        if isinstance(verdict, tuple):
-            return PoseEstimate(verdict[0], detail=verdict[1])
-        edges.append(edge.pixels)
-        sigmas.append(verdict)
-    return edges, sigmas
+        fans.append(RayFan(centre, ray_angles, radii, align=True))
+    return SpotPlan(
+        fans=tuple(fans),
+        beams=tuple(range(instrument.beam_count)),
+        radii_px=tuple(float(fan.radii_px.mean()) for fan in fans),
+        tip_in_eye=predicted_tip,
+        beam_axes_in_eye=axes,
+    )
 
 
 def _fit_read_edges(
-    setup: Setup,
-    predicted: PoseEstimate,
-    edges: list[np.ndarray],
-    sigmas: list[float],
-    through_insertion: bool,
+    setup: Setup, predicted: PoseEstimate, reading: LightReading, through_insertion: bool
 ) -> tuple[PoseEstimate, tuple[np.ndarray, ...], ConeSolution | None]:
-    """The fit of :func:`_read_predicted_edges`'s edges from the predicted pose, judged, the edge points it used
-    (those the shaft does not hide) and the fit (None when none ran)."""
+    """Tracking's fit and judge stages: the read edges fitted from the predicted pose (Gauss-Newton; the shaft's
+    points at the predicted pose left out), judged, the edge points it used and the fit (None when none ran)."""
     predicted_tip, predicted_axis = predicted.pose()
-    instrument = setup.instrument
-    visible = visible_edge_points(setup, edges, hidden_by_shaft(setup, edges, predicted_tip, predicted_axis))
-    if isinstance(visible, PoseEstimate):
-        return visible, (), None
-    problem = pose_problem(
+    hidden = hidden_by_shaft(setup, reading.edges_px, predicted_tip, predicted_axis)
+    fit = fit_visible(
         setup,
-        visible,
-        list(range(instrument.beam_count)),
+        reading,
+        hidden,
         predicted_tip,
         predicted_axis,
         predicted.roll,
         through_insertion=through_insertion,
-        edge_sigmas=sigmas,
+        solver="gauss-newton",
     )
-    fit = fit_cones(problem, solver="gauss-newton")
-    return judge_fit(fit, setup, spots=instrument.beam_count), tuple(visible), fit
+    if isinstance(fit, PoseEstimate):
+        return fit, (), None
+    return judge_fit(fit, setup, spots=setup.instrument.beam_count), fitted_edges_px(fit), fit
 
 
 @njit(cache=True)
@@ -263,8 +253,8 @@ def _predicted_rays(
     if not np.sum(offset * offset) < eye_radius * eye_radius:
         return _OUTSIDE_EYE, np.empty(2), none, none
     axis = beam_axis / np.sqrt(np.sum(beam_axis * beam_axis))
-    curve_in_eye = _cone_sphere_points(apex_in_eye, axis, angle, eye_centre, eye_radius, _CURVE_POINTS)
-    curve_px = _project_rows(model, curve_in_eye)
+    curve_in_eye = cone_sphere_points(apex_in_eye, axis, angle, eye_centre, eye_radius, _CURVE_POINTS)
+    curve_px = project_rows(model, curve_in_eye)
     if not np.all(np.isfinite(curve_px)):
         return _OFF_RETINA, np.empty(2), none, none
     perimeter = 0.0
@@ -275,7 +265,7 @@ def _predicted_rays(
     high_u, high_v = curve_px[:, 0].max() + _BORDER_PX, curve_px[:, 1].max() + _BORDER_PX
     if low_u < 0 or low_v < 0 or high_u > width_px - 1 or high_v > height_px - 1:
         return _AT_BORDER, np.empty(2), none, none
-    centre, ray_angles, radii = _rays_through_curve(curve_px, int(min(max(perimeter / 2.0, 64.0), max_rays)))
+    centre, ray_angles, radii = curve_rays(curve_px, int(min(max(perimeter / 2.0, 64.0), max_rays)))
     return _ON_IMAGE, centre, ray_angles, radii
 
 
@@ -376,7 +366,7 @@ class Tracker:
     _velocity: np.ndarray | None = field(default=None, init=False, repr=False)
     _change: np.ndarray | None = field(default=None, init=False, repr=False)
     _steady: bool = field(default=False, init=False, repr=False)
-    _rehearsal: tuple[list[np.ndarray], list[float]] | None = field(default=None, init=False, repr=False)
+    _rehearsal: LightReading | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.max_jump_mm) and self.max_jump_mm > 0):
@@ -431,7 +421,7 @@ class Tracker:
             read = _read_predicted_edges(image, self.setup, self._last, _REHEARSAL_RAYS)
             self._rehearsal = None if isinstance(read, PoseEstimate) else read
         else:
-            _fit_read_edges(self.setup, self._last, *self._rehearsal, self.through_insertion)
+            _fit_read_edges(self.setup, self._last, self._rehearsal, self.through_insertion)
             self._rehearsal = None
 
     def _predict(self) -> PoseEstimate | None:

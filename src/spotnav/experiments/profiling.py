@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from numba.core.registry import CPUDispatcher
 
-from spotnav import precise, track
+from spotnav import pipeline, precise, track
 from spotnav.experiments.bench import HELIX_FRAMES, STAGES
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
@@ -38,12 +38,14 @@ PROFILED_STAGES = (STAGES[2], STAGES[4])  # the acquisition, right after the the
 _STEPS: dict[str, tuple[tuple[str, Callable[..., object]], ...]] = {
     PROFILED_STAGES[0]: (
         ("detection", precise.detect_spots),
-        ("thesis start and sub-pixel edges", precise.prepare_edges),
-        ("fit, shaft and checks", precise._fit_precise),
+        ("find: thesis start, beams, rays", precise.plan_spots),
+        ("read the light", pipeline.read_light),
+        ("fit, shaft and judge", precise._fit_precise),
     ),
     PROFILED_STAGES[1]: (
-        ("edges along the predicted rays", track._read_predicted_edges),
-        ("fit, shaft and checks", track._fit_read_edges),
+        ("find: predicted rays", track._plan_predicted),
+        ("read the light", pipeline.read_light),
+        ("fit, shaft and judge", track._fit_read_edges),
     ),
 }
 _Result = TypeVar("_Result")
