@@ -1276,11 +1276,11 @@ def _encoded_blur(
     # width (in quadrature, a Gaussian's full width at half maximum being sqrt(8 ln 2) sigmas).
     blur_squared = max(width_px**2 - unblurred_width**2, 0.0) / (8.0 * np.log(2.0))
     curved = -blur_squared / (2.0 * np.median(edge_radii[valid]))
-    # A blur of the encoded frame that alone widens the edge to its width: the most the frame can have had.
-    widest = frame_blur_for_width(levels[0], levels[1], band, width_px, light_grid, value_grid)
     if np.isnan(out[0]):
         # The noise does not tell which blur widened the edge: the shift halfway between a blur of the light (none)
-        # and one of the encoded frame as wide (all of it), uncertain by half of it either way.
+        # and one of the encoded frame that alone widens the edge to its width (all of it, the most the frame can
+        # have had), uncertain by half of it either way.
+        widest = frame_blur_for_width(levels[0], levels[1], band, width_px, light_grid, value_grid)
         half = 0.5 * frame_blur_shift(levels[0], levels[1], band, widest, light_grid, value_grid)
         out[2] = half + curved
         out[3] = np.hypot(half, _CURVED_MODEL * curved)
@@ -1288,7 +1288,9 @@ def _encoded_blur(
     shift = spread = 0.0  # white noise: no blur of the encoded frame (one under some 0.4 px is not told from none)
     if out[0] > 0.0:
         # The noise's blur, no wider than the edge allows; uncertain by a quarter of the shifts' range over blurs
-        # within two of the noise's sigmas and that bound.
+        # within two of the noise's sigmas and that bound (white noise needs no bound: bisecting it is a tenth of
+        # a tracked frame at 2048 px).
+        widest = frame_blur_for_width(levels[0], levels[1], band, width_px, light_grid, value_grid)
         high = min(out[0] + 2.0 * out[1], widest)
         low = min(max(out[0] - 2.0 * out[1], 0.0), high)
         shift = seen_edge(levels[0], levels[1], band, min(out[0], high), light_grid, value_grid)[1]

@@ -58,7 +58,7 @@ _LAGS = 4  # second differences at lags 1 to this: 1 and 2 for blurs up to about
 _SHORT_PAIR_MAX_PX = 1.5  # lags 2 and 4 tell a blur up to this; past it lag 2 nears the rounding: lags 3 and 4
 _MAX_LONG_BLUR_PX = 2.5  # the longest lags tell a blur up to this; past it, blurred noise looks like texture
 _ROUNDING_SLACK = 0.1  # the shorter lags' variance may exceed the blurred noise's by this share of the rounding
-_BISECTIONS = 40
+_BISECTIONS = 24  # of the blur's range: to 4e-7 px
 
 
 @njit(cache=True)
