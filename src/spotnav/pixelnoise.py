@@ -111,6 +111,7 @@ def _trimmed_variance(values: np.ndarray) -> float:
     if len(values) == 0:
         return np.nan
     variance = np.mean(values * values)
+    kept = len(values)
     for _ in range(3):
         limit = max(_TRIM * math.sqrt(variance), _MIN_TRIM)
         total, count = 0.0, 0
@@ -119,6 +120,9 @@ def _trimmed_variance(values: np.ndarray) -> float:
                 total += value * value
                 count += 1
         variance = total / max(count, 1)
+        if count == kept:  # the values within a limit: as many, the same ones, and the same variance again
+            break
+        kept = count
     return variance
 
 
