@@ -1,12 +1,18 @@
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.pixelnoise import CAMERA_NOISE_BLUR_PX, frame_blur_from_noise
+from spotnav.precise import localize_precise
+from spotnav.render import Renderer
 
 _CENTRE = np.array([100.0, 100.0])
 
@@ -82,3 +88,15 @@ def test_other_light_and_clipped_pixels_are_not_noise() -> None:
 
 def test_a_ring_off_the_frame_does_not_tell() -> None:
     assert np.isnan(frame_blur_from_noise(_noisy_background(3.0, 1), np.array([900.0, 900.0]), 10.0, 20.0, 255)).all()
+
+
+def test_a_ring_whose_lag_two_noise_is_the_rounding_alone_is_read_by_the_longest_lags() -> None:
+    # A 2 px blur of the encoded frame (1024 px, the helix's 9th of 25 tips, the fault study's seed) leaves the
+    # noise at lag 2 exactly the rounding's: its ratio divided by zero, and the frame raised ZeroDivisionError.
+    world = thesis_world(1024, 1)
+    world = replace(world, faults=replace(world.faults, frame_blur_px=2.0))
+    pose = poses_through_insertion(helix_tips(25)[8:9], world.instrument.insertion_in_eye)[0]
+    estimate = localize_precise(Renderer(world).render(pose, seed=24008), with_true_edge(world))
+    assert estimate.status in ("ok", "blurred")
+    if estimate.ok:
+        assert np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < 0.030

@@ -198,8 +198,11 @@ def frame_blur_from_noise(
     if not variances[_LAGS - 2] - rounding > _MIN_NOISE * rounding:
         return np.nan, np.nan
     lags = (2, _LAGS)
-    ratio, spread = _lag_ratio(variances, lags, independent)
-    if not variances[1] - rounding > _MIN_NOISE * rounding or _blur_of_ratio(ratio, lags) > _SHORT_PAIR_MAX_PX:
+    short_pair = variances[1] - rounding > _MIN_NOISE * rounding  # else lag 2's noise is the rounding's (or 0)
+    if short_pair:
+        ratio, spread = _lag_ratio(variances, lags, independent)
+        short_pair = _blur_of_ratio(ratio, lags) <= _SHORT_PAIR_MAX_PX
+    if not short_pair:
         # A blur that leaves lag 2 too near the rounding: the two longest lags.
         lags = (_LAGS - 1, _LAGS)
         ratio, spread = _lag_ratio(variances, lags, independent)
