@@ -128,12 +128,13 @@ RESPONSE_CANDIDATES: tuple[str | float, ...] = ("srgb", "agx")
 # 23-72 % better (the Cycles sets) and 84 % (spotnav's renderer); sRGB frames read as AgX agree worse.
 RESPONSE_MARGIN = 0.15
 # The soft bands tried where known frames' spots clip, as factors of the setup's (instrument.edge_band_deg, by default
-# 2 (beta - edge)), and how much better than the setup's a band's spots must agree to replace it. Measured on the
-# cycles-photometry frames (blend 0.1 against the setup's default 0.15, a shallow depth of field): the spots' RMS
-# offset fell from 0.047 px at the setup's band (0.69 deg) to 0.030 at 0.3 deg (one beam); the test frames' tips
-# from 0.0066 / 0.0163 mm to 0.0032 / 0.0060.
+# 2 (beta - edge)), and how much better than the setup's a band's spots must agree to replace it. Measured on
+# spotnav's renderer (768 px, +4.5 stops, blend 0.1 against the default 0.15): the spots' RMS offset 0.065 px at the
+# setup's band, 0.019 at 0.45 times it; helix tips 0.0028 / 0.0062 mm. On cycles-photometry the spread is a noisier
+# witness (docs/methods.md, calibration 9.).
 EDGE_BAND_FACTORS = (0.45, 0.65, 0.8, 1.0, 1.25, 1.6)
 EDGE_BAND_MARGIN = 0.15
+_WIDEST_BAND_DEG = 44.0  # instrument.edge_band_deg is under 45 deg
 
 
 @dataclass(frozen=True)
@@ -427,26 +428,39 @@ def _choose_response(
     """The calibration through the response whose spots agree best (the module's docstring), and each response's
     spread (:attr:`Calibration.responses`)."""
     fits: list[_GeometryFit | None] = []
-    spreads: list[float] = []
     for response in RESPONSE_CANDIDATES:
+        reading = replace(setup, camera=replace(setup.camera, response=response))
         try:
-            fitted = _fit_geometry(frames, replace(setup, camera=replace(setup.camera, response=response)), fit, fix)
-            fits.append(fitted)
-            ok = fitted.solution.inliers.mean() >= _MIN_INLIER_FRACTION
-            spreads.append(fitted.spot_spread_px() if ok else np.nan)
+            fits.append(_fit_geometry(frames, reading, fit, fix))
         except ValueError:  # no usable frames, or a geometry out of its allowed ranges: not this response
             if response == RESPONSE_CANDIDATES[0]:
                 raise  # the default reading's own reason
             fits.append(None)
-            spreads.append(np.nan)
-    best = int(np.nanargmin(spreads)) if np.any(np.isfinite(spreads)) else 0
-    if np.isfinite(spreads[0]) and not spreads[best] < (1.0 - RESPONSE_MARGIN) * spreads[0]:
-        best = 0
+    best, spreads = _most_agreeing(fits, RESPONSE_MARGIN)
     chosen = fits[best]
     assert chosen is not None
     if best == 0:  # not told apart from the default reading: the response stays unstated
         chosen = replace(chosen, setup=replace(chosen.setup, camera=replace(chosen.setup.camera, response=None)))
     return chosen, tuple((r, float(v)) for r, v in zip(RESPONSE_CANDIDATES, spreads, strict=True))
+
+
+def _most_agreeing(fits: Sequence[_GeometryFit | None], margin: float) -> tuple[int, list[float]]:
+    """Which of calibrations through other readings of the same frames (the first the setup's) to keep: the one
+    whose spots agree best (:meth:`_GeometryFit.spot_spread_px`) if it beats the first's by ``margin``, and each
+    one's spread (NaN where it failed or kept under half its points).
+
+    A reading may use fewer of the frames (a band under a pixel reads no flank): its spread is over those it read.
+    Required to read them all, the renderer's sharper beam (blend 0.1, 768 px) kept a band of 0.45 deg (0.0051 /
+    0.0227 mm on the helix) where 0.31 deg, with which two of its eight frames are left out, gives 0.0028 / 0.0062.
+    """
+    spreads = [
+        f.spot_spread_px() if f is not None and f.solution.inliers.mean() >= _MIN_INLIER_FRACTION else np.nan
+        for f in fits
+    ]
+    best = int(np.nanargmin(spreads)) if np.any(np.isfinite(spreads)) else 0
+    if np.isfinite(spreads[0]) and not spreads[best] < (1.0 - margin) * spreads[0]:
+        best = 0
+    return best, spreads
 
 
 def with_edge_band(setup: Setup) -> Setup:
@@ -456,7 +470,7 @@ def with_edge_band(setup: Setup) -> Setup:
     if instrument.edge_band_deg is not None:
         return setup
     band = 2.0 * max(instrument.beam_half_angle - edge_angle(setup), 0.0)
-    return replace(setup, instrument=replace(instrument, edge_band_deg=float(np.degrees(band))))
+    return replace(setup, instrument=replace(instrument, edge_band_deg=min(float(np.degrees(band)), _WIDEST_BAND_DEG)))
 
 
 def _choose_edge_band(
@@ -473,23 +487,18 @@ def _choose_edge_band(
     nominal = fitted.setup.instrument.edge_band_deg
     if not clipped or nominal is None or nominal == 0.0:
         return fitted, ()
-    bands = [nominal] + [factor * nominal for factor in EDGE_BAND_FACTORS if factor != 1.0]
+    # A band's inner side stays outside the beam's axis (under twice the edge angle).
+    widest = 0.99 * 2.0 * float(np.degrees(edge_angle(fitted.setup)))
+    bands = [nominal] + [min(factor * nominal, widest) for factor in EDGE_BAND_FACTORS if factor != 1.0]
     fits: list[_GeometryFit | None] = [fitted]
-    spreads = [fitted.spot_spread_px()]
     for band in bands[1:]:
+        # The fit's own starting setup (the response it read with, the insertion point its axes gave).
+        setup = replace(fitted.setup, instrument=replace(fitted.setup.instrument, edge_band_deg=band))
         try:
-            # The fit's own starting setup (the response it read with, the insertion point its axes gave).
-            setup = replace(fitted.setup, instrument=replace(fitted.setup.instrument, edge_band_deg=band))
-            other = _fit_geometry(frames, setup, fit, fix)
-        except ValueError:  # too few frames read with this band (a band under a pixel reads no flank)
+            fits.append(_fit_geometry(frames, setup, fit, fix))
+        except InputError:  # too few frames read with this band (a band under a pixel reads no flank)
             fits.append(None)
-            spreads.append(np.nan)
-            continue
-        fits.append(other)
-        spreads.append(other.spot_spread_px() if other.solution.inliers.mean() >= _MIN_INLIER_FRACTION else np.nan)
-    best = int(np.nanargmin(spreads)) if np.any(np.isfinite(spreads)) else 0
-    if np.isfinite(spreads[0]) and not spreads[best] < (1.0 - EDGE_BAND_MARGIN) * spreads[0]:
-        best = 0
+    best, spreads = _most_agreeing(fits, EDGE_BAND_MARGIN)
     chosen = fits[best]
     assert chosen is not None
     return chosen, tuple((float(b), float(s)) for b, s in zip(bands, spreads, strict=True))

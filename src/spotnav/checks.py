@@ -102,15 +102,18 @@ def _soft_band_share(setup: Setup, edge_angle: float) -> float:
     """The widest soft band the beam may have, as a share of the spot's radius (once per setup: every tracked frame
     asks).
 
-    ``2 (beta - edge) / beta``, with the edge as far inside as
+    ``2 (outer - edge) / beta``, the band's outer side ``beta`` (or the edge
+    plus half ``instrument.edge_band_deg``), with the edge as far inside as
     its uncertainty allows (``_EDGE_REACH`` sigma: a beam known to 0.3 deg may
     be that much softer), and at least the default edge model's (a
     calibrated edge may lie beyond beta).
     """
-    beta = setup.instrument.beam_half_angle
+    instrument = setup.instrument
+    beta = instrument.beam_half_angle
+    outer = beta if instrument.edge_band_deg is None else edge_angle + 0.5 * np.radians(instrument.edge_band_deg)
     (edge,) = PARAMETER_GROUPS["edge-angle"]
     inner = edge_angle - _EDGE_REACH * np.sqrt(geometry_covariance(setup)[edge, edge])
-    soft = max(beta - inner, beta - edge_angle_of_blend(beta, DEFAULT_BLEND))
+    soft = max(outer - inner, beta - edge_angle_of_blend(beta, DEFAULT_BLEND))
     return 2.0 * soft / beta
 
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from spotnav import __version__
 from spotnav.calibrate import (
+    EDGE_BAND_MARGIN,
     Calibration,
     KnownFrame,
     calibrate,
@@ -602,7 +603,8 @@ def _calibration_lines(result: Calibration) -> list[str]:
     band = result.setup.instrument.edge_band_deg
     if result.edge_bands:
         tried = ", ".join(f"{b:.3f} {spread:.4f}" for b, spread in result.edge_bands if np.isfinite(spread))
-        how = "fitted" if band != result.edge_bands[0][0] else "the setup's (no other agrees 15 % better)"
+        margin = f"{100 * EDGE_BAND_MARGIN:.0f} %"
+        how = "fitted" if band != result.edge_bands[0][0] else f"the setup's (no other agrees {margin} better)"
         lines.append(
             f"instrument.edge_band_deg = {band:.4g}: the light's soft band about the edge, {how}, from the spots "
             f"that clip (spots' RMS offset, px, by band in deg: {tried})"
@@ -610,7 +612,7 @@ def _calibration_lines(result: Calibration) -> list[str]:
     else:
         lines.append(
             f"instrument.edge_band_deg = {band:.4g}: the light's soft band, the setup's, written so that frames are "
-            "read as these were (no known frame's spot clips: the band is fitted only from spots that do)"
+            "read as these were (not fitted: no known frame's spot was read from its flank, where the band tells)"
         )
     return lines
 

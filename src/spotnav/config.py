@@ -402,7 +402,7 @@ class Instrument:
         ``light_radius_mm / tan(edge)`` behind the tip. 0: a point source.
     edge_band_deg : float or None
         The precise method's light model: the width in angle, degrees in
-        [0, 10), of the soft band over which the beam's light falls from full
+        [0, 45), of the soft band over which the beam's light falls from full
         to none, centred on the edge; a spot whose plateau clips is read from
         its flank by it. ``None``: ``2 (beta - edge)`` (0 where the edge lies
         at or beyond beta). ``spotnav calibrate`` fits it from known frames
@@ -445,7 +445,7 @@ class Instrument:
         _in_range(key, _number(key, self.light_radius_mm), 0.0, 1.0, high_open=True)
         if self.edge_band_deg is not None:
             key = "instrument.edge_band_deg"
-            _in_range(key, _number(key, self.edge_band_deg), 0.0, 10.0, high_open=True)
+            _in_range(key, _number(key, self.edge_band_deg), 0.0, 45.0, high_open=True)
         _in_range(
             "instrument.shaft_diameter_mm", _number("instrument.shaft_diameter_mm", self.shaft_diameter_mm), 0.0, 5.0
         )

@@ -1860,9 +1860,12 @@ def _read_edges(
             misshapen[:] = False
         misshapen = _long_runs(misshapen, judged, max(int(np.ceil(_MISSHAPEN_RUN_PX / spacing)), 2))
         valid &= ~misshapen
-        if misshapen.any():
+        rest = lit & ~misshapen
+        if misshapen.any() and rest.sum() >= _PROFILE_RAYS // 4:
             # A vessel along the edge narrows the median fall too: the edge's width is the other rays'.
-            measured = full_width_at_half_maximum(_median_profile(profiles, lit & ~misshapen, padded, scratch)[1])[1]
+            remeasured = full_width_at_half_maximum(_median_profile(profiles, rest, padded, scratch)[1])[1]
+            if np.isfinite(remeasured) and remeasured > 0.0:
+                measured = remeasured
     log_amplitude, blur, shift_sigma = np.nan, np.nan, 0.0
     if clipped > _REFIT_CLIPPED and len(light) == 0:
         valid &= ~clipped_rays  # no model of the light to read a clipped ray with

@@ -566,8 +566,8 @@ class EdgeLight:
         The camera's compiled model (:func:`spotnav.camera.camera_model`).
     light : ndarray, shape (9,)
         The edge cone's apex (3, eye frame, mm: the tip, or behind it for a light of finite size), the beam's
-        axis (3, unit), the band's inner and outer angles from the axis (radians: ``2 edge - beta`` and
-        ``beta``), and the eye's radius (mm).
+        axis (3, unit), the band's inner and outer angles from the axis (radians: the edge less and plus half
+        ``instrument.edge_band_deg``; by default ``2 edge - beta`` and ``beta``), and the eye's radius (mm).
     """
 
     model: np.ndarray

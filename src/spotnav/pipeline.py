@@ -18,7 +18,7 @@ its reason.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -172,7 +172,7 @@ def read_light(
             return PoseEstimate("unreliable", spots=len(plan.fans), detail=detail)
         verdict = judge_edge(edge, setup, radius_px, angle)
         if isinstance(verdict, PoseEstimate):
-            return PoseEstimate(verdict.status, spots=len(plan.fans), detail=verdict.detail)
+            return replace(verdict, spots=len(plan.fans))
         edges.append(edge)
         sigmas.append(verdict)
     return LightReading(tuple(edges), tuple(sigmas), plan.beams)
