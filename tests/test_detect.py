@@ -38,6 +38,7 @@ from spotnav.detect import (
 )
 from spotnav.geometry import InstrumentPose, angles_between, edge_angle_of_blend
 from spotnav.photometry import edge_light
+from spotnav.pixelnoise import new_noise_pool
 from spotnav.render import Renderer
 
 
@@ -437,6 +438,9 @@ def test_rays_must_be_finite_and_one_per_radius() -> None:
             detect_edge_along_rays(image, np.array(centre), angles, these, align=True)
     with pytest.raises(ValueError, match="centre must be"):
         detect_edge_along_rays(image, np.array([200.0, 200.0]), angles, radii[:-1])
+    for pool in (np.zeros((4, 2)), np.zeros((4, 2, 3)), new_noise_pool().astype(np.float32)):
+        with pytest.raises(ValueError, match="noise_pool"):
+            detect_edge_along_rays(image, np.array([200.0, 200.0]), angles, radii, noise_pool=pool)
     assert edge_window_px([10.0, 20.0]) == edge_window_px(np.array([10.0, 20.0])) == 0.15 * 15.0 + 8.0
 
 

@@ -10,7 +10,15 @@ from hypothesis import strategies as st
 
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.paths import helix_tips, poses_through_insertion
-from spotnav.pixelnoise import CAMERA_NOISE_BLUR_PX, frame_blur_from_noise
+from spotnav.pixelnoise import (
+    CAMERA_NOISE_BLUR_PX,
+    _ring_variances,
+    advance_noise_pool,
+    discard_noise_reading,
+    frame_blur_from_noise,
+    new_noise_pool,
+    pooled_frame_blur,
+)
 from spotnav.precise import localize_precise
 from spotnav.render import Renderer
 
@@ -100,3 +108,65 @@ def test_a_ring_whose_lag_two_noise_is_the_rounding_alone_is_read_by_the_longest
     assert estimate.status in ("ok", "blurred")
     if estimate.ok:
         assert np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye) < 0.030
+
+
+def _pooled_blur(frames: list[np.ndarray], pool: np.ndarray, inner: float = 40.0) -> tuple[float, float]:
+    for codes in frames:
+        advance_noise_pool(pool)
+        blur, sigma = pooled_frame_blur(codes, 0, _CENTRE, inner, inner + 20.0, 255, pool)
+    return blur, sigma
+
+
+def test_a_pool_of_one_frame_reads_the_ring_whole() -> None:
+    codes = cv2.GaussianBlur(_noisy_background(6.0, 3), (0, 0), 1.0)
+    assert _pooled_blur([codes], new_noise_pool(1)) == _blur_of(codes)
+    assert _pooled_blur([codes], new_noise_pool()) == _blur_of(codes)  # a stream's first frame, alone
+
+
+@pytest.mark.parametrize("inner", [25.0, 40.0])
+def test_four_frames_read_a_quarter_each_of_what_one_frame_reads(inner: float) -> None:
+    # The same frame four times: the quarters tile the whole reading, so the pool holds the same differences and
+    # gives the same variances (to rounding) and the same blur.
+    codes = cv2.GaussianBlur(_noisy_background(6.0, 5), (0, 0), 1.2)
+    pool = new_noise_pool()
+    blur, sigma = _pooled_blur([codes] * 5, pool, inner)
+    whole, count = _ring_variances(codes, _CENTRE, inner, inner + 20.0, 255, 1024, 5)
+    assert pool[0, :, 0].tolist() == [4.0, 3.0, 2.0, 1.0]  # the quarters, the newest first (the whole one left)
+    assert pool[0, :, 1].sum() == count
+    pooled = (pool[0, :, 1] @ pool[0, :, 2:]) / count
+    np.testing.assert_allclose(pooled, whole, rtol=0.02)  # each quarter trims its own outliers
+    assert (blur, sigma) == pytest.approx(frame_blur_from_noise(codes, _CENTRE, inner, inner + 20.0, 255), rel=0.05)
+
+
+@pytest.mark.parametrize("true_px", [0.0, 1.0, 1.5])
+def test_a_stream_tells_its_blur_from_a_quarter_of_each_frame_ring(true_px: float) -> None:
+    # Ten frames of a stream, blurred alike after their encoding: the last four's quarters tell the blur within
+    # 0.1 px and 3 sigmas, with a sigma within 1.2 times one frame's whole ring.
+    frames = [_noisy_background(6.0, seed) for seed in range(10)]
+    if true_px > 0.0:
+        frames = [cv2.GaussianBlur(codes, (0, 0), true_px) for codes in frames]
+    blur, sigma = _pooled_blur(frames, new_noise_pool())
+    whole_sigma = _blur_of(frames[-1])[1]
+    assert abs(blur - true_px) < max(3.0 * sigma, 0.1)
+    assert sigma < 1.2 * whole_sigma
+
+
+def test_reading_a_frame_again_replaces_its_share_of_the_pool() -> None:
+    frames = [_noisy_background(6.0, seed) for seed in range(6)]
+    pool = new_noise_pool()
+    _pooled_blur(frames, pool)
+    once = pool.copy()
+    again = pooled_frame_blur(frames[-1], 0, _CENTRE, 40.0, 60.0, 255, pool)
+    np.testing.assert_array_equal(pool, once)
+    discard_noise_reading(pool)  # a reading left out: the next frame reads the quarter after the one before it
+    assert pool[0, 0].tolist() == [0.0] * 6
+    advance_noise_pool(pool)
+    pooled_frame_blur(frames[0], 0, _CENTRE, 40.0, 60.0, 255, pool)
+    assert pool[0, 0, 0] == once[0, 1, 0] % 4 + 1
+    assert again == pooled_frame_blur(frames[-1], 0, _CENTRE, 40.0, 60.0, 255, once)
+
+
+def test_a_noise_pool_has_one_or_four_frames() -> None:
+    for frames in (0, 2, 8):
+        with pytest.raises(ValueError, match="frames must be 1 or 4"):
+            new_noise_pool(frames)

@@ -71,7 +71,7 @@ def test_a_fit_refused_across_vessels_from_an_off_prediction_is_read_again_from_
     poses = poses_through_insertion(helix_tips(300)[156:158], setup.instrument.insertion_in_eye)
     image = Renderer(setup).render(poses[1], seed=157)
     predicted = PoseEstimate("ok", tip_in_eye=poses[0].tip_in_eye, axis=poses[0].axis)
-    first_pass = _track_once(image, setup, predicted, True, 128)[0]
+    first_pass = _track_once(image, setup, predicted, True, 128, None)[0]
     assert first_pass.status == "unreliable" and "RMS" in first_pass.detail
     tracked = track_frame(image, setup, predicted)
     assert tracked.ok, tracked.detail
@@ -233,7 +233,7 @@ import spotnav.reconstruct as r, spotnav.edgeblur as b, spotnav.pixelnoise as n
 import spotnav.track as t
 kernels = [t._predicted_rays, d._edge_on_rays, d.curve_rays,
            c._fit_recipe, c._at_box, c._frame_uncertainty,
-           b.seen_edge, b.frame_blur_for_width, b.frame_blur_shift, n.frame_blur_from_noise, k._fit_spread,
+           b.seen_edge, b.frame_blur_for_width, b.frame_blur_shift, n.pooled_frame_blur, k._fit_spread,
            g.cone_sphere_points, m._behind_segment,
            d._histograms, d.otsu_threshold,
            c._instrument_axis, r._fit_ellipse, c._start_frames, c._frame_starts, c._spot_rows, c._frame_order,
@@ -301,3 +301,25 @@ def test_a_frozen_heap_spares_a_full_collection_every_object_alive_before_it() -
             pass
         assert gc.get_freeze_count() >= outer > 0
     assert gc.get_freeze_count() == 0
+
+
+def test_a_tracker_reads_a_quarter_of_each_frame_noise_ring_and_keeps_only_accepted_readings() -> None:
+    # The noise beside the spot is pooled over the stream's last four frames (pixelnoise.pooled_frame_blur): the
+    # first tracked frame reads its ring whole, the next ones a quarter each in turn. Rehearsing keeps nothing; a
+    # frame whose tracking is refused (the spot gone) leaves its reading out.
+    setup = with_true_edge(thesis_world(1024, 1))
+    poses = poses_through_insertion(helix_tips(100)[:6], setup.instrument.insertion_in_eye)
+    renderer = Renderer(setup)
+    frames = [renderer.render(pose, seed=i) for i, pose in enumerate(poses)]
+    tracker = Tracker(setup)
+    assert [tracker.update(frame).mode for frame in frames] == ["acquired"] + ["tracked"] * 5
+    pool = tracker._noise_pools[0]
+    (channel,) = np.flatnonzero(pool[:, :, 1].sum(axis=1))  # the channel the spot's edge was read in
+    assert pool[channel, :, 0].tolist() == [4.0, 3.0, 2.0, 1.0]
+    kept = pool.copy()
+    for _ in range(4):
+        tracker.rehearse(frames[-1])
+    np.testing.assert_array_equal(pool, kept)
+    assert tracker.update(np.zeros_like(frames[-1])).mode == "lost"
+    np.testing.assert_array_equal(pool[:, 0], 0.0)
+    np.testing.assert_array_equal(pool[:, 1:], kept[:, :-1])

@@ -8,6 +8,7 @@ setup's geometry cannot back it (:func:`judge_fit`).
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
@@ -139,10 +140,11 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     radius times the edge angle. A clipped plateau is refused only where the
     photometric model did not read it.
     """
-    if np.isfinite(edge.contrast_to_noise) and not edge.contrast_to_noise >= _MIN_CONTRAST_TO_NOISE:
+    # Every tracked frame passes here: plain floats and math, and the reasons' text only where one is given.
+    if math.isfinite(edge.contrast_to_noise) and not edge.contrast_to_noise >= _MIN_CONTRAST_TO_NOISE:
         ratio = f"{edge.contrast_to_noise:.0f} times the noise, under {_MIN_CONTRAST_TO_NOISE:.0f}"
         return PoseEstimate("unreliable", detail=f"the edge's contrast is {ratio}")
-    if edge.clipped_fraction > _MAX_CLIPPED_FRACTION and not np.isfinite(edge.log_amplitude):
+    if edge.clipped_fraction > _MAX_CLIPPED_FRACTION and not math.isfinite(edge.log_amplitude):
         clipped = f"{100 * edge.clipped_fraction:.0f} %"
         return PoseEstimate(
             "unreliable",
@@ -153,28 +155,28 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
         left_out = f", {edge.dark_rays} left out (vessels, the shaft, glints)" if edge.dark_rays else ""
         found = f"{len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
         return PoseEstimate("unreliable", detail=f"too few edge points: {found}")
-    if np.isfinite(edge.frame_shift_sigma_px):
-        if np.isfinite(edge.log_amplitude) and edge.frame_blur_px > 0.0:  # the flank model has no such blur
-            return PoseEstimate(
-                "blurred",
-                detail=f"the frame was blurred after its encoding ({edge.frame_blur_px:.1f} px, from its noise), "
-                "which the clipped spot's flank model does not include",
-            )
-        if np.isfinite(edge.frame_blur_px):
-            shift = 2.0 * edge.frame_shift_sigma_px
-            why = f"the edge is {edge.width_px:.1f} px wide and the frame's blur after its encoding "
-            why += f"{edge.frame_blur_px:.1f} px (from its noise): that"
-        else:  # the edge was put halfway: it may lie half the shift either way
-            shift = edge.frame_shift_sigma_px
-            why = f"the edge is {edge.width_px:.1f} px wide, blurred: where the blur acted (the noise does not tell)"
-    else:
+    told = math.isfinite(edge.frame_shift_sigma_px)  # the noise beside the spot told the encoded frame's blur
+    if told and math.isfinite(edge.log_amplitude) and edge.frame_blur_px > 0.0:  # the flank model has no such blur
+        return PoseEstimate(
+            "blurred",
+            detail=f"the frame was blurred after its encoding ({edge.frame_blur_px:.1f} px, from its noise), "
+            "which the clipped spot's flank model does not include",
+        )
+    measured = told and math.isfinite(edge.frame_blur_px)  # else the edge was put halfway: half the shift either way
+    if not told:
         shift = blur_shift_px(edge, setup, radius_px, edge_angle)
-        why = f"the edge is {edge.width_px:.1f} px wide, blurred: where the blur acted"
-    height_mm = shift * _mm_per_px(setup) / (np.sin(edge_angle) * np.cos(edge_angle))
+    else:
+        shift = (2.0 if measured else 1.0) * edge.frame_shift_sigma_px
+    height_mm = shift * _mm_per_px(setup) / (math.sin(edge_angle) * math.cos(edge_angle))
     if height_mm > _MAX_BLUR_MM:
+        why = f"the edge is {edge.width_px:.1f} px wide"
+        if measured:
+            why += f" and the frame's blur after its encoding {edge.frame_blur_px:.1f} px (from its noise): that"
+        else:
+            why += ", blurred: where the blur acted" + (" (the noise does not tell)" if told else "")
         uncertain = f"{shift:.2f} px ({height_mm:.3f} mm of height) uncertain"
         return PoseEstimate("blurred", detail=f"{why} leaves it {uncertain}")
-    sigma = edge.frame_shift_sigma_px if np.isfinite(edge.frame_shift_sigma_px) else 0.5 * shift
+    sigma = edge.frame_shift_sigma_px if told else 0.5 * shift
     return float(np.hypot(sigma, edge.flank_shift_px)) * edge_angle / radius_px
 
 

@@ -480,6 +480,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         raise UsageError(f"--full-every must be at least 1, got {args.full_every}")
     if not (np.isfinite(args.memory_mb) and args.memory_mb >= 0):
         raise UsageError(f"--memory-mb must be a number >= 0, got {args.memory_mb}")
+    if args.passes < 1:
+        raise UsageError(f"--passes must be at least 1, got {args.passes}")
     if args.profile:
         if args.stress:
             raise UsageError("--profile and --stress are two different runs: give one of them")
@@ -491,7 +493,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         print(stress_markdown([run_stress(size, args.frames, args.hide_every, args.beams) for size in args.sizes]))
         return 0
     rows = run_bench(
-        args.sizes, frames=args.frames, beams=args.beams, full_every=args.full_every, memory_mb=args.memory_mb
+        args.sizes,
+        frames=args.frames,
+        beams=args.beams,
+        full_every=args.full_every,
+        memory_mb=args.memory_mb,
+        passes=args.passes,
     )
     print(bench_markdown(rows))
     return 0
@@ -835,6 +842,13 @@ def _parser() -> argparse.ArgumentParser:
         default=4096.0,
         help="keep this much of the rendered frames to track again (and time the full-frame methods on) from "
         "memory, as from a camera (default 4096)",
+    )
+    bench.add_argument(
+        "--passes",
+        type=int,
+        default=1,
+        help="track the frames in memory this many times, each frame timed by its fastest pass (a shared "
+        "machine's other work slows some; default 1)",
     )
     bench.add_argument(
         "--stress",

@@ -26,7 +26,7 @@ from spotnav.edgeblur import (
     seen_edge,
 )
 from spotnav.photometry import EdgeLight, fit_clipped_edges, ray_bands
-from spotnav.pixelnoise import frame_blur_from_noise
+from spotnav.pixelnoise import new_noise_pool, pooled_frame_blur
 
 __all__ = [
     "Spot",
@@ -863,7 +863,8 @@ class SpotEdge:
     frame_blur_px, frame_blur_sigma_px : float
         The blur of the encoded frame (a Gaussian's sigma, pixels) that the
         noise beside the spot shows, and its 1 sigma
-        (:func:`spotnav.pixelnoise.frame_blur_from_noise`): 0 for white noise;
+        (:func:`spotnav.pixelnoise.frame_blur_from_noise`; a tracked stream's
+        from its last frames, :func:`spotnav.pixelnoise.pooled_frame_blur`): 0 for white noise;
         NaN where the noise is too faint to tell.
     frame_shift_px, frame_shift_sigma_px : float
         How far that blur moved the half-light crossing (outward positive,
@@ -928,6 +929,7 @@ _FALL_REFERENCE_RAYS = 16  # the spot's soft band from about this many rays
 # rays left out were those the blur shaped, and the rest gave a tip 0.13 mm off at 5 sigma; at 1 px (1024 px) the
 # test still leaves out the rays a vessel shaped (88 % of 16 helix tips within 3 sigma, against 81 %).
 _MAX_FALL_TEST_BLUR_PX = 1.25
+_NOISE_POOL_SHAPE = new_noise_pool(1).shape
 
 
 def detect_edge_subpixel(
@@ -1026,6 +1028,7 @@ def detect_edge_along_rays(
     align: bool = False,
     response: str | float = "srgb",
     light: EdgeLight | None = None,
+    noise_pool: np.ndarray | None = None,
 ) -> SpotEdge:
     """Locate an edge to a fraction of a pixel on rays that cross it near ``radii``.
 
@@ -1067,6 +1070,14 @@ def detect_edge_along_rays(
         Find each ray's edge coarsely first (see above).
     response : str or float
         How the frame's values relate to light (``camera.response``).
+    light : EdgeLight, optional
+        The beam's light model (:func:`spotnav.photometry.edge_light`): a
+        clipped spot's rays are read from their flank with it.
+    noise_pool : ndarray, optional
+        A stream's noise beside this spot over its last frames
+        (:func:`spotnav.pixelnoise.new_noise_pool`, advanced for each new
+        frame): the blur of the encoded frame is told from them together and
+        this frame reads a share of its ring. Without it, the ring is read whole.
 
     Returns
     -------
@@ -1076,7 +1087,7 @@ def detect_edge_along_rays(
     ------
     ValueError
         If ``centre`` is not a finite (2,), or the angles and radii are not
-        finite arrays of one length.
+        finite arrays of one length, or ``noise_pool`` is not a pool.
     """
     # Own copies: the compiled call then always sees writable, contiguous arrays (one signature).
     angles, radii = np.array(ray_angles, dtype=float), np.array(radii, dtype=float)
@@ -1085,6 +1096,17 @@ def detect_edge_along_rays(
         raise ValueError(
             f"centre must be (2,), ray_angles and radii (R,), got {centre.shape}, {angles.shape}, {radii.shape}"
         )
+    if noise_pool is None:
+        noise_pool = new_noise_pool(1)
+    elif not (
+        noise_pool.ndim == 3
+        and noise_pool.shape[::2] == _NOISE_POOL_SHAPE[::2]
+        and noise_pool.shape[1] >= 1
+        and noise_pool.dtype == np.float64
+        and noise_pool.flags.c_contiguous
+        and noise_pool.flags.writeable
+    ):
+        raise ValueError(f"noise_pool must come from new_noise_pool, got {noise_pool.dtype} {noise_pool.shape}")
     lut, full_scale = _decoding(image, response)
     channels = image if image.ndim == 3 else image[:, :, None]
     (
@@ -1113,6 +1135,7 @@ def detect_edge_along_rays(
         _NO_MODEL if light is None else light.model,
         _NO_LIGHT if light is None else light.light,
         response_curve(response),
+        noise_pool,
     )
     return SpotEdge(
         pixels,
@@ -1145,14 +1168,16 @@ def _edge_on_rays(
     model: np.ndarray,
     light: np.ndarray,
     response: tuple[np.ndarray, np.ndarray],
+    noise_pool: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, float, bool, float, float, float, float, int, int, float, float, float, np.ndarray]:
     """:func:`detect_edge_along_rays` on ``image`` (H, W, C), compiled: one call per spot.
 
     ``lut`` (codes,) is the light of each code and ``full_scale`` the first
     code at full scale (:func:`_decoding`); ``centre`` (2,) pixels, ``angles``
     (R,) radians, ``radii`` (R,) pixels; ``response`` the light and its
-    encoded values (:func:`spotnav.edgeblur.response_curve`). Returns, in
-    order: the edge points (N, 2) in pixels, the rays (N,) that gave them
+    encoded values (:func:`spotnav.edgeblur.response_curve`); ``noise_pool``
+    the stream's ring noise (:func:`spotnav.pixelnoise.pooled_frame_blur`).
+    Returns, in order: the edge points (N, 2) in pixels, the rays (N,) that gave them
     (indices), the edge's width in samples, whether any channel clipped,
     :func:`_read_edges`' contrast to noise, clipped fraction, plateau,
     background, rays left out and misshapen, log amplitude, blur and flank shift, and
@@ -1178,7 +1203,7 @@ def _edge_on_rays(
     # frame; its shift is taken out of the rays the half level read (a clipped spot's are judged on it).
     encoded = _encoded_blur(
         image, channel, full_scale, centre, angles, edge_radii, valid, width * _STEP_PX,
-        (plateau, background), model, light, response,
+        (plateau, background), model, light, response, noise_pool,
     )  # fmt: skip
     if np.isnan(amplitude) and np.isfinite(encoded[2]):
         edge_radii = edge_radii - encoded[2]
@@ -1225,16 +1250,18 @@ def _encoded_blur(
     model: np.ndarray,
     light: np.ndarray,
     response: tuple[np.ndarray, np.ndarray],
+    noise_pool: np.ndarray,
 ) -> np.ndarray:
     """The blur of the encoded frame about a spot and the shift it gave the edge's half-light crossing.
 
-    The blur comes from the noise in a ring beside the spot
-    (:func:`spotnav.pixelnoise.frame_blur_from_noise`) in the edge's
+    The blur comes from the noise in a ring beside the spot, pooled with the
+    stream's last frames' in ``noise_pool``
+    (:func:`spotnav.pixelnoise.pooled_frame_blur`) in the edge's
     ``channel`` of the whole frame ``image`` (H, W, C); where that channel's
     background is too dark for its noise to tell (a clipped spot read in its
     least bright channel), in the channel whose noise tells it best. The
     shift comes from the edge model at the spot's ``levels`` (plateau,
-    background; linear light) and the beam's band on the ``valid`` rays
+    background; linear light) and the beam's band on some of the ``valid`` rays (:func:`_reference_rays`)
     (:func:`spotnav.photometry.ray_bands`, the camera ``model`` and the
     beam's ``light``; :func:`spotnav.edgeblur.seen_edge`) for the noise's
     blur, or the widest the edge's width allows where that is less.
@@ -1255,17 +1282,18 @@ def _encoded_blur(
     if np.isfinite(lit) and levels[0] > levels[1]:
         ceiling = min(int(np.interp(lit, light_grid, value_grid) * full_scale) + 1, full_scale)
     outer = inner + _NOISE_RING_PX
-    out[0], out[1] = frame_blur_from_noise(image[:, :, channel], centre, inner, outer, ceiling)
+    out[0], out[1] = pooled_frame_blur(image[:, :, channel], channel, centre, inner, outer, ceiling, noise_pool)
     if np.isnan(out[0]):
         best = np.inf  # the channel whose noise tells the blur best; its ceiling is its full scale
         for other in range(image.shape[2]):
             if other != channel:
-                blur, sigma = frame_blur_from_noise(image[:, :, other], centre, inner, outer, full_scale)
+                blur, sigma = pooled_frame_blur(image[:, :, other], other, centre, inner, outer, full_scale, noise_pool)
                 if np.isfinite(blur) and sigma < best:
                     out[0], out[1], best = blur, sigma, sigma
     if len(light) == 0 or not levels[0] > levels[1]:
         return out
-    bands = ray_bands(model, light, centre, angles[valid], edge_radii[valid])
+    some = _reference_rays(valid)  # the band varies slowly around the spot
+    bands = ray_bands(model, light, centre, angles[some], edge_radii[some])
     bands = bands[np.isfinite(bands)]
     if len(bands) == 0:
         return out
@@ -1563,23 +1591,29 @@ def _line_deviation(values: np.ndarray, line: tuple[float, float], start: float,
 
 @njit(cache=True)
 def _median_profile(
-    profiles: np.ndarray, rays: np.ndarray, padded: np.ndarray, scratch: np.ndarray
+    profiles: np.ndarray, rays: np.ndarray, padded: np.ndarray, scratch: np.ndarray, start: int, stop: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """The median over about ``_PROFILE_RAYS`` of the ``rays`` (R,) of their ``profiles`` (R, S), smoothed (S,),
-    and minus its gradient (S,: central differences, one-sided at the ends)."""
+    and minus its gradient (S,: central differences, one-sided at the ends), at samples ``start`` to ``stop``
+    (exclusive; NaN elsewhere, and the gradient at a range's end inside the profile)."""
     count = profiles.shape[1]
+    start, stop = max(start, 0), min(stop, count)
+    half = len(_SMOOTHING) // 2
     chosen = _every_nth(rays, 1 + rays.sum() // _PROFILE_RAYS)
     column = np.empty(len(chosen))
-    profile = np.empty(count)
-    for s in range(count):
+    profile = np.full(count, np.nan)
+    for s in range(max(start - half, 0), min(stop + half, count)):  # the samples the smoothing reads
         for j in range(len(chosen)):
             column[j] = profiles[chosen[j], s]
         profile[s] = _median(column, scratch)
-    smooth = _smooth(profile, _SMOOTHING, 0, count, padded, np.empty(count))
-    slope = np.empty(count)
-    for s in range(1, count - 1):
+    smooth = _smooth(profile, _SMOOTHING, start, stop, padded, np.empty(count))
+    slope = np.full(count, np.nan)
+    for s in range(start + 1, stop - 1):
         slope[s] = 0.5 * (smooth[s - 1] - smooth[s + 1])
-    slope[0], slope[-1] = smooth[0] - smooth[1], smooth[-2] - smooth[-1]
+    if start == 0:
+        slope[0] = smooth[0] - smooth[1]
+    if stop == count:
+        slope[-1] = smooth[-2] - smooth[-1]
     return smooth, slope
 
 
@@ -1622,12 +1656,18 @@ def _typical_fall(shares: np.ndarray, wheres: np.ndarray, rays: np.ndarray, reac
 
 
 @njit(cache=True)
-def _fall_distance(seen: np.ndarray, typical: np.ndarray) -> float:
-    """The largest distance of one ray's fall ``seen`` (O,) from the spot's ``typical`` (O,), where both are known."""
+def _fall_distance(shares: np.ndarray, where: float, stretch: float, typical: np.ndarray) -> float:
+    """The largest distance of one ray's :func:`_aligned_fall` (of ``typical``'s length, without building it) from
+    the spot's ``typical`` (O,), where both are known."""
+    count, reach = len(shares), len(typical) // 2
     largest = 0.0
-    for o in range(len(typical)):
-        if np.isfinite(typical[o]) and np.isfinite(seen[o]):
-            largest = max(largest, abs(seen[o] - typical[o]))
+    for o in range(-reach, reach + 1):
+        at = where + o * stretch
+        k = int(np.floor(at))
+        if 0 <= k < count - 1 and np.isfinite(typical[o + reach]):
+            seen = shares[k] + (at - k) * (shares[k + 1] - shares[k])
+            if np.isfinite(seen):
+                largest = max(largest, abs(seen - typical[o + reach]))
     return largest
 
 
@@ -1667,7 +1707,7 @@ def _misshapen_falls(
     kept = np.flatnonzero(valid)
     if len(light) == 0 or len(kept) == 0:
         return odd
-    reference = _every_nth(valid, max(len(kept) // _FALL_REFERENCE_RAYS, 1))
+    reference = _reference_rays(valid)
     ray_bands_at = ray_bands(model, light, centre, ray_angles[reference], edge_radii[reference])
     bands = ray_bands_at[np.isfinite(ray_bands_at)]
     if len(bands) == 0:
@@ -1678,7 +1718,7 @@ def _misshapen_falls(
     typical = _typical_fall(shares, wheres, _every_nth(valid, 1 + len(kept) // _PROFILE_RAYS), reach)
     shared = max(measured - spot_band, 1.0 / 12.0 + EDGE_SMOOTHING_PX**2)
     for r in kept:
-        odd[r] = _fall_distance(_aligned_fall(shares[r], wheres[r], 1.0, reach), typical) > allowed[r]
+        odd[r] = _fall_distance(shares[r], wheres[r], 1.0, typical) > allowed[r]
         if not odd[r]:
             continue
         band, apart = np.nan, rays  # the nearest reference ray's, around the spot: the band varies slowly along it
@@ -1689,8 +1729,16 @@ def _misshapen_falls(
                 band, apart = ray_bands_at[j], gap
         if np.isfinite(band):
             stretch = np.sqrt((band**2 / 20.0 + shared) / (spot_band + shared))
-            odd[r] = _fall_distance(_aligned_fall(shares[r], wheres[r], stretch, reach), typical) > allowed[r]
+            odd[r] = _fall_distance(shares[r], wheres[r], stretch, typical) > allowed[r]
     return odd
+
+
+@njit(cache=True)
+def _reference_rays(valid: np.ndarray) -> np.ndarray:
+    """About ``_FALL_REFERENCE_RAYS`` of the ``valid`` rays (R,), spread around the spot (indices; all of them where
+    that spacing meets none)."""
+    chosen = _every_nth(valid, max(int(valid.sum()) // _FALL_REFERENCE_RAYS, 1))
+    return chosen if len(chosen) else np.flatnonzero(valid)
 
 
 @njit(cache=True)
@@ -1773,7 +1821,7 @@ def _read_edges(
             inner[r] = _median(profiles[r, : count // 2], scratch)
     lit = finite & (inner >= _LIT * np.nanpercentile(inner, 90.0))
     padded, smooth_buffer = np.empty(count + len(_SMOOTHING)), np.empty(count)
-    mean_smooth, mean_slope = _median_profile(profiles, lit, padded, scratch)
+    mean_smooth, mean_slope = _median_profile(profiles, lit, padded, scratch, 0, count)
     counted, measured = full_width_at_half_maximum(mean_slope)
     width = max(counted, 3.0)  # samples
     middle = int(np.argmax(mean_slope))
@@ -1863,7 +1911,14 @@ def _read_edges(
         rest = lit & ~misshapen
         if misshapen.any() and rest.sum() >= _PROFILE_RAYS // 4:
             # A vessel along the edge narrows the median fall too: the edge's width is the other rays'.
-            remeasured = full_width_at_half_maximum(_median_profile(profiles, rest, padded, scratch)[1])[1]
+            # Only about the edge (the whole profile where the fall reaches that far): it is about a width wide.
+            first, last = max(int(middle - 1.5 * width), 0), min(int(middle + 1.5 * width) + 2, count)
+            slope = _median_profile(profiles, rest, padded, scratch, first, last)[1]
+            near = slope[first + (first > 0) : last - (last < count)]
+            peak = int(np.argmax(near))
+            if peak in (0, len(near) - 1) or max(near[0], near[-1]) >= 0.5 * near[peak]:  # the fall reaches past it
+                near = _median_profile(profiles, rest, padded, scratch, 0, count)[1]
+            remeasured = full_width_at_half_maximum(near)[1]
             if np.isfinite(remeasured) and remeasured > 0.0:
                 measured = remeasured
     log_amplitude, blur, shift_sigma = np.nan, np.nan, 0.0

@@ -590,5 +590,5 @@ def edge_light(setup: Setup, tip_in_eye: np.ndarray, beam_axis: np.ndarray) -> E
         outer = edge + 0.5 * math.radians(instrument.edge_band_deg)
     axis = np.asarray(beam_axis, dtype=float)
     apex = np.asarray(tip_in_eye, dtype=float) - axis * instrument.light_radius_mm / np.tan(edge)
-    light = np.array([*apex, *axis, 2.0 * edge - outer, outer, setup.eye.radius_mm])
+    light = np.concatenate((apex, axis, (2.0 * edge - outer, outer, setup.eye.radius_mm)))
     return EdgeLight(camera_model(setup.camera), light)

@@ -139,7 +139,12 @@ def plan_found_spots(
 
 
 def read_light(
-    image: np.ndarray, setup: Setup, plan: SpotPlan, *, min_edge_fraction: float = 0.0
+    image: np.ndarray,
+    setup: Setup,
+    plan: SpotPlan,
+    *,
+    min_edge_fraction: float = 0.0,
+    noise_pools: Sequence[np.ndarray] | None = None,
 ) -> LightReading | PoseEstimate:
     """Read each planned spot's edge and judge it.
 
@@ -152,6 +157,10 @@ def read_light(
     min_edge_fraction : float
         Where the spot was predicted, not found: a spot whose edge (read or
         misshapen by a vessel) is on fewer of its rays than this is not there.
+    noise_pools : sequence of ndarray, optional
+        A stream's noise beside each beam's spot over its last frames, by beam
+        (:func:`spotnav.pixelnoise.new_noise_pool`; see
+        :func:`spotnav.detect.detect_edge_along_rays`).
 
     Returns
     -------
@@ -163,8 +172,16 @@ def read_light(
     edges, sigmas = [], []
     for fan, beam, radius_px in zip(plan.fans, plan.beams, plan.radii_px, strict=True):
         light = edge_light(setup, plan.tip_in_eye, plan.beam_axes_in_eye[beam])
+        pool = None if noise_pools is None else noise_pools[beam]
         edge = detect_edge_along_rays(
-            image, fan.centre_px, fan.ray_angles, fan.radii_px, align=fan.align, response=response, light=light
+            image,
+            fan.centre_px,
+            fan.ray_angles,
+            fan.radii_px,
+            align=fan.align,
+            response=response,
+            light=light,
+            noise_pool=pool,
         )
         found = (len(edge.pixels) + edge.misshapen_rays) / edge.rays
         if found < min_edge_fraction:

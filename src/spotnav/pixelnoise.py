@@ -37,7 +37,15 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["CAMERA_NOISE_BLUR_PX", "frame_blur_from_noise"]
+__all__ = [
+    "CAMERA_NOISE_BLUR_PX",
+    "NOISE_POOL_FRAMES",
+    "advance_noise_pool",
+    "discard_noise_reading",
+    "frame_blur_from_noise",
+    "new_noise_pool",
+    "pooled_frame_blur",
+]
 
 _ROUNDING = 1.0 / 12.0  # variance of the encoding's rounding, codes squared
 # The noise must add this share of the rounding's variance at lag 1: measured on the built-in renderer's frames
@@ -59,6 +67,11 @@ _SHORT_PAIR_MAX_PX = 1.5  # lags 2 and 4 tell a blur up to this; past it lag 2 n
 _MAX_LONG_BLUR_PX = 2.5  # the longest lags tell a blur up to this; past it, blurred noise looks like texture
 _ROUNDING_SLACK = 0.1  # the shorter lags' variance may exceed the blurred noise's by this share of the rounding
 _BISECTIONS = 24  # of the blur's range: to 4e-7 px
+# A stream's ring is read over this many frames, a quarter of it each (a tracked frame at 2048 px spent a tenth of
+# its time reading one ring whole); four, to tile the ring's grid.
+NOISE_POOL_FRAMES = 4
+_POOL_CHANNELS = 4  # the channels a pool holds (RGBA)
+_WHOLE_RING = NOISE_POOL_FRAMES + 1  # a pool's mark of a frame that read the whole ring
 
 
 @njit(cache=True)
@@ -84,7 +97,26 @@ def _lag_weights(blur_px: float, lag: int) -> float:
 
 @njit(cache=True)
 def _ratio(blur_px: float, lags: tuple[int, int]) -> float:
-    return _lag_weights(blur_px, lags[1]) / _lag_weights(blur_px, lags[0])
+    """``A_lags[1] / A_lags[0]`` (:func:`_lag_weights`), the blur's weights computed once for the four
+    correlations (the same sums, term by term)."""
+    if blur_px <= 0.0:
+        return 1.0
+    reach = math.ceil(4.0 * blur_px) + 1
+    longest = 2 * max(lags[0], lags[1])
+    weights = np.empty(2 * reach + 1 + longest)  # weights[reach + i]: the Gaussian's at i, from -reach
+    for i in range(-reach, reach + 1 + longest):
+        weights[reach + i] = math.exp(-0.5 * (i / blur_px) ** 2)
+    total = 0.0
+    for i in range(2 * reach + 1):
+        total += weights[i] * weights[i]
+    lag_weights = np.empty(2)
+    for j in range(2):
+        once = twice = 0.0  # the correlations at the lag and at twice it, times total
+        for i in range(2 * reach + 1):
+            once += weights[i] * weights[i + lags[j]]
+            twice += weights[i] * weights[i + 2 * lags[j]]
+        lag_weights[j] = 6.0 - 8.0 * once / total + 2.0 * twice / total
+    return lag_weights[1] / lag_weights[0]
 
 
 @njit(cache=True)
@@ -153,20 +185,132 @@ def frame_blur_from_noise(
         and NaN where the noise is no larger than the rounding's (``_MIN_NOISE``) at any lag, where the lags
         disagree with a blurred noise (texture), or where the ring is off the frame.
     """
+    variances, count = _ring_variances(codes, centre, inner_px, outer_px, ceiling, _MAX_SAMPLES, _WHOLE_RING)
+    return _blur_of_variances(variances, count)
+
+
+def new_noise_pool(frames: int = NOISE_POOL_FRAMES) -> np.ndarray:
+    """An empty pool of the noise beside a spot over a stream's last ``frames`` frames (:func:`pooled_frame_blur`).
+
+    Parameters
+    ----------
+    frames : int
+        :data:`NOISE_POOL_FRAMES` (each frame reads a quarter of the ring), or 1 (each reads it whole).
+
+    Returns
+    -------
+    ndarray, shape (4, frames, 6)
+        Per channel (RGBA) and frame, the newest first: which part of the ring it read (0: none; 1 to 4: a
+        quarter; 5: all of it), how many differences that gave, and their variances at lags 1 to 4.
+
+    Raises
+    ------
+    ValueError
+        If ``frames`` is neither.
+    """
+    if frames not in (1, NOISE_POOL_FRAMES):
+        raise ValueError(f"frames must be 1 or {NOISE_POOL_FRAMES}, got {frames}")
+    return np.zeros((_POOL_CHANNELS, frames, 2 + _LAGS))
+
+
+def advance_noise_pool(pool: np.ndarray) -> None:
+    """Make room in ``pool`` (:func:`new_noise_pool`) for a new frame's reading: its oldest frame's leaves."""
+    pool[:, 1:] = pool[:, :-1]
+    pool[:, 0] = 0.0
+
+
+def discard_noise_reading(pool: np.ndarray) -> None:
+    """Leave the newest frame's reading out of ``pool``: the ring was read about a spot the frame did not hold."""
+    pool[:, 0] = 0.0
+
+
+@njit(cache=True)
+def pooled_frame_blur(
+    codes: np.ndarray,
+    channel: int,
+    centre: np.ndarray,
+    inner_px: float,
+    outer_px: float,
+    ceiling: int,
+    pool: np.ndarray,
+) -> tuple[float, float]:
+    """:func:`frame_blur_from_noise` from this frame's ring and the last frames' in ``pool``.
+
+    A stream's encoding blurs every frame alike, so the noise of its last
+    frames tells the blur together. The pixels :func:`frame_blur_from_noise`
+    reads lie on a grid; a pool of :data:`NOISE_POOL_FRAMES` frames has each
+    frame read one of the grid's four quarters (every other row and column,
+    at one of four offsets) in turn, so that its last four frames read the
+    whole grid once; a frame after none read reads it whole.
+
+    Parameters
+    ----------
+    codes, centre, inner_px, outer_px, ceiling
+        As :func:`frame_blur_from_noise`.
+    channel : int
+        ``codes``' channel in the frame: each channel has its own pool (one
+        past the pool's four is read whole, alone).
+    pool : ndarray, shape (4, frames, 6)
+        :func:`new_noise_pool`, advanced once for each new frame
+        (:func:`advance_noise_pool`). This frame's reading goes in its newest
+        row (replacing what an earlier reading of the same frame put there).
+
+    Returns
+    -------
+    blur_px, sigma_px : float
+        As :func:`frame_blur_from_noise`, from every difference in the pool; a pool of one frame gives its answer.
+    """
+    if channel >= pool.shape[0]:
+        return frame_blur_from_noise(codes, centre, inner_px, outer_px, ceiling)
+    rows = pool[channel]
+    part = _WHOLE_RING  # after none read (or in a pool of one frame), the whole ring
+    for k in range(1, rows.shape[0]):
+        if rows[k, 0] != 0.0:  # the quarter after the latest reading's (the first after a whole one)
+            part = 1 if rows[k, 0] == _WHOLE_RING else int(rows[k, 0]) % NOISE_POOL_FRAMES + 1
+            break
+    variances, count = _ring_variances(codes, centre, inner_px, outer_px, ceiling, _MAX_SAMPLES, part)
+    rows[0, 0], rows[0, 1] = part, count
+    for lag in range(_LAGS):
+        rows[0, 2 + lag] = variances[lag] if count > 0 else 0.0
+    total = 0.0
+    for k in range(rows.shape[0]):
+        total += rows[k, 1]
+    if total == count:  # this frame's alone: its own variances, to the last digit
+        return _blur_of_variances(variances, count)
+    pooled = np.zeros(_LAGS)  # the variances over all the pool's differences
+    for k in range(rows.shape[0]):
+        for lag in range(_LAGS):
+            pooled[lag] += rows[k, 1] * rows[k, 2 + lag] / total
+    return _blur_of_variances(pooled, int(total))
+
+
+@njit(cache=True)
+def _ring_variances(
+    codes: np.ndarray, centre: np.ndarray, inner_px: float, outer_px: float, ceiling: int, samples: int, part: int
+) -> tuple[np.ndarray, int]:
+    """The variances (_LAGS,) of the second differences at lags 1 to ``_LAGS`` over a grid of about ``samples``
+    pixels of the ring (:func:`frame_blur_from_noise`), or over one of its quarters (``part`` 1 to 4; all of it:
+    ``_WHOLE_RING``), trimmed of outliers, and how many differences (two a pixel) gave them."""
     height, width = codes.shape
     ring = math.pi * (outer_px**2 - inner_px**2)
-    stride = max(int(math.sqrt(ring / _MAX_SAMPLES)), 1)
+    stride = max(int(math.sqrt(ring / samples)), 1)
     size = 2 * int(ring / stride**2 + 4.0 * outer_px / stride + 8)
+    shift_u = shift_v = 0  # a quarter: every other row and column of the grid, from one of four offsets
+    if part != _WHOLE_RING:
+        shift_u, shift_v = stride * ((part - 1) % 2), stride * ((part - 1) // 2)
+        stride *= 2
     differences = np.empty((_LAGS, size))  # second differences at lags 1 to _LAGS
     count = 0
     taps = np.empty(2 * _LAGS + 1)
-    for v in range(max(int(centre[1] - outer_px), _LAGS), min(int(centre[1] + outer_px) + 1, height - _LAGS), stride):
+    first_v, last_v = max(int(centre[1] - outer_px), _LAGS), min(int(centre[1] + outer_px) + 1, height - _LAGS)
+    for v in range(first_v + shift_v, last_v, stride):
         across = v - centre[1]
         if abs(across) > outer_px:
             continue
         reach = math.sqrt(outer_px**2 - across**2)
         gap = math.sqrt(inner_px**2 - across**2) if abs(across) < inner_px else -1.0
-        for u in range(max(int(centre[0] - reach), _LAGS), min(int(centre[0] + reach) + 1, width - _LAGS), stride):
+        first_u, last_u = max(int(centre[0] - reach), _LAGS), min(int(centre[0] + reach) + 1, width - _LAGS)
+        for u in range(first_u + shift_u, last_u, stride):
             if abs(u - centre[0]) < gap or count + 2 > size:
                 continue
             for du, dv in ((1, 0), (0, 1)):
@@ -179,17 +323,23 @@ def frame_blur_from_noise(
                     for lag in range(1, _LAGS + 1):
                         differences[lag - 1, count] = taps[_LAGS - lag] - 2.0 * taps[_LAGS] + taps[_LAGS + lag]
                     count += 1
-    if count < 64:
-        return np.nan, np.nan
     variances = np.empty(_LAGS)
     for lag in range(_LAGS):
         variances[lag] = _trimmed_variance(differences[lag, :count])
+    return variances, count
+
+
+@njit(cache=True)
+def _blur_of_variances(variances: np.ndarray, count: int) -> tuple[float, float]:
+    """:func:`frame_blur_from_noise`'s answer from the ring's variances (_LAGS,) of ``count`` differences."""
+    if count < 64:
+        return np.nan, np.nan
     rounding = 6.0 * _ROUNDING
     independent = _EFFECTIVE_SHARE * count
     if variances[0] - rounding > _MIN_NOISE * rounding:
         ratio, spread = _lag_ratio(variances, (1, 2), independent)
         upper = _blur_of_ratio(ratio + spread)
-        if _blur_of_ratio(ratio - _WHITE_SIGMAS * spread) <= CAMERA_NOISE_BLUR_PX:
+        if ratio - _WHITE_SIGMAS * spread <= _ratio(CAMERA_NOISE_BLUR_PX, (1, 2)):  # the ratio grows with the blur
             return 0.0, upper  # the camera's own, or as white as the noise can tell: none, up to its 1-sigma upper end
         return _blur_of_ratio(ratio), 0.5 * (upper - _blur_of_ratio(ratio - spread))
     # The noise is lost in the rounding at lag 1: a blur of the encoded frame of a pixel or more (or a camera with
@@ -207,7 +357,7 @@ def frame_blur_from_noise(
         lags = (_LAGS - 1, _LAGS)
         ratio, spread = _lag_ratio(variances, lags, independent)
     blur = _blur_of_ratio(ratio, lags)
-    if _blur_of_ratio(ratio - _WHITE_SIGMAS * spread, lags) <= CAMERA_NOISE_BLUR_PX or blur > _MAX_LONG_BLUR_PX:
+    if ratio - _WHITE_SIGMAS * spread <= _ratio(CAMERA_NOISE_BLUR_PX, lags) or blur > _MAX_LONG_BLUR_PX:
         return np.nan, np.nan  # white at long lags but not at lag 1, or texture: not a blurred noise
     # The other lags must not see more than the blurred noise leaves them (texture would add to them); they may see
     # less: a field smoother than a code from pixel to pixel rounds to less than the uniform rounding.

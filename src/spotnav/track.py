@@ -19,7 +19,7 @@ then on the whole image.
 from __future__ import annotations
 
 import gc
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
@@ -36,7 +36,7 @@ from spotnav.edgeblur import frame_blur_for_width, frame_blur_shift, response_cu
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import beam_axes, cone_sphere_curve, cone_sphere_points, normalize
 from spotnav.pipeline import LightReading, RayFan, SpotPlan, fit_visible, fitted_edges_px, pose_problem, read_light
-from spotnav.pixelnoise import frame_blur_from_noise
+from spotnav.pixelnoise import advance_noise_pool, discard_noise_reading, new_noise_pool, pooled_frame_blur
 from spotnav.precise import localize_precise, localize_precise_with_edges
 from spotnav.reconstruct import fit_ellipse
 from spotnav.shaft import hidden_by_shaft
@@ -124,17 +124,23 @@ def track_frame(
 
 
 def _track_with_edges(
-    image: np.ndarray, setup: Setup, predicted: PoseEstimate, through_insertion: bool, max_rays: int
+    image: np.ndarray,
+    setup: Setup,
+    predicted: PoseEstimate,
+    through_insertion: bool,
+    max_rays: int,
+    noise_pools: Sequence[np.ndarray] | None = None,
 ) -> tuple[PoseEstimate, tuple[np.ndarray, ...]]:
-    """:func:`track_frame`, and the edge points its fit used (empty when none ran)."""
+    """:func:`track_frame`, and the edge points its fit used (empty when none ran); with the stream's
+    ``noise_pools`` (:func:`spotnav.pipeline.read_light`)."""
     wrong = check_image_size(image, setup)
     if wrong is not None:
         return wrong, ()
-    estimate, edges, fit = _track_once(image, setup, predicted, through_insertion, max_rays)
+    estimate, edges, fit = _track_once(image, setup, predicted, through_insertion, max_rays, noise_pools)
     if fit is not None and _worth_reading(estimate, fit, predicted, setup):
         # The rays crossed the edge aslant, from a centre that was off: read them again across the fitted edge.
         fitted = PoseEstimate("ok", tip_in_eye=fit.tip(), axis=fit.axis(), roll=fit.roll())
-        estimate, edges, _ = _track_once(image, setup, fitted, through_insertion, max_rays)
+        estimate, edges, _ = _track_once(image, setup, fitted, through_insertion, max_rays, noise_pools)
     return estimate, edges
 
 
@@ -150,25 +156,34 @@ def _worth_reading(estimate: PoseEstimate, fit: ConeSolution, predicted: PoseEst
 
 
 def _track_once(
-    image: np.ndarray, setup: Setup, predicted: PoseEstimate, through_insertion: bool, max_rays: int
+    image: np.ndarray,
+    setup: Setup,
+    predicted: PoseEstimate,
+    through_insertion: bool,
+    max_rays: int,
+    noise_pools: Sequence[np.ndarray] | None,
 ) -> tuple[PoseEstimate, tuple[np.ndarray, ...], ConeSolution | None]:
     """One pass of :func:`track_frame`: the edges along rays across the predicted edge curves, and the fit (None
     when none ran)."""
-    read = _read_predicted_edges(image, setup, predicted, max_rays)
+    read = _read_predicted_edges(image, setup, predicted, max_rays, noise_pools)
     if isinstance(read, PoseEstimate):
         return read, (), None
     return _fit_read_edges(setup, predicted, read, through_insertion)
 
 
 def _read_predicted_edges(
-    image: np.ndarray, setup: Setup, predicted: PoseEstimate, max_rays: int
+    image: np.ndarray,
+    setup: Setup,
+    predicted: PoseEstimate,
+    max_rays: int,
+    noise_pools: Sequence[np.ndarray] | None = None,
 ) -> LightReading | PoseEstimate:
     """The find stage from a prediction (:func:`_plan_predicted`), then each beam's light read where it was
     predicted; or why it cannot be read or used."""
     plan = _plan_predicted(setup, predicted, max_rays)
     if isinstance(plan, PoseEstimate):
         return plan
-    return read_light(image, setup, plan, min_edge_fraction=_MIN_EDGE_RAY_FRACTION)
+    return read_light(image, setup, plan, min_edge_fraction=_MIN_EDGE_RAY_FRACTION, noise_pools=noise_pools)
 
 
 def _plan_predicted(setup: Setup, predicted: PoseEstimate, max_rays: int) -> SpotPlan | PoseEstimate:
@@ -286,7 +301,7 @@ def prepare_kernels(setup: Setup) -> None:
     light_grid, value_grid = response_curve(setup.camera.pixel_response)  # the edge model's kernels
     blur = frame_blur_for_width(0.5, 0.01, 3.0, 6.0, light_grid, value_grid)
     frame_blur_shift(0.5, 0.01, 3.0, blur, light_grid, value_grid)
-    frame_blur_from_noise(image[:, :, 0], np.array([48.0, 48.0]), 26.0, 40.0, 255)  # as the edge reader calls it
+    pooled_frame_blur(image[:, :, 0], 0, np.array([48.0, 48.0]), 26.0, 40.0, 255, new_noise_pool())  # as read
     fit_ellipse(curve_px)  # the whole-frame method's start, warmed even where the frame below cannot show a spot
     instrument, eye = setup.instrument, setup.eye
     tip_in_eye = eye.center_in_eye - np.array([0.0, 0.0, eye.radius_mm - 3.0])  # 3 mm above the pole: a whole spot
@@ -367,6 +382,7 @@ class Tracker:
     _change: np.ndarray | None = field(default=None, init=False, repr=False)
     _steady: bool = field(default=False, init=False, repr=False)
     _rehearsal: LightReading | None = field(default=None, init=False, repr=False)
+    _noise_pools: list[np.ndarray] = field(default_factory=list, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.max_jump_mm) and self.max_jump_mm > 0):
@@ -374,6 +390,8 @@ class Tracker:
         if self.max_rays < 64:
             raise ValueError(f"max_rays must be at least 64, got {self.max_rays}")
         prepare_kernels(self.setup)
+        # The noise beside each beam's spot over the last frames: the stream's encoding blurs them alike.
+        self._noise_pools = [new_noise_pool() for _ in range(self.setup.instrument.beam_count)]
 
     def update(self, image: np.ndarray) -> TrackedFrame:
         """Localize the next frame.
@@ -384,14 +402,21 @@ class Tracker:
             The frame, sRGB-encoded, 8 or 16 bits, the camera's size.
         """
         self._rehearsal = None
+        for pool in self._noise_pools:
+            advance_noise_pool(pool)
         predicted = self._predict()
         estimate, mode = None, "acquired"
         start, found = (predicted, "tracked") if predicted is not None else (self._last_seen, "reacquired")
         edges: tuple[np.ndarray, ...] = ()
         if start is not None:
-            tracked, edges = _track_with_edges(image, self.setup, start, self.through_insertion, self.max_rays)
+            tracked, edges = _track_with_edges(
+                image, self.setup, start, self.through_insertion, self.max_rays, self._noise_pools
+            )
             if tracked.ok and np.linalg.norm(tracked.pose()[0] - start.pose()[0]) <= self.max_jump_mm:
                 estimate, mode = tracked, found
+            else:  # the noise was read beside a spot the frame may not hold there
+                for pool in self._noise_pools:
+                    discard_noise_reading(pool)
         if estimate is None:
             result = localize_precise_with_edges(image, self.setup, through_insertion=self.through_insertion)
             estimate, edges = result.estimate, result.fitted_edges_px
@@ -418,7 +443,10 @@ class Tracker:
         if self._last is None:
             return
         if self._rehearsal is None:
-            read = _read_predicted_edges(image, self.setup, self._last, _REHEARSAL_RAYS)
+            pools = [pool.copy() for pool in self._noise_pools]  # as a tracked frame reads, keeping nothing
+            for pool in pools:
+                advance_noise_pool(pool)
+            read = _read_predicted_edges(image, self.setup, self._last, _REHEARSAL_RAYS, pools)
             self._rehearsal = None if isinstance(read, PoseEstimate) else read
         else:
             _fit_read_edges(self.setup, self._last, self._rehearsal, self.through_insertion)
