@@ -1288,24 +1288,23 @@ def _encoded_blur(
         ceiling = min(int(np.interp(lit, light_grid, value_grid) * full_scale) + 1, full_scale)
     outer = inner + _NOISE_RING_PX
     out[0], out[1] = pooled_frame_blur(image[:, :, channel], channel, centre, inner, outer, ceiling, noise_pool)
-    if np.isnan(out[0]):
-        best = np.inf  # the channel whose noise tells the blur best; its ceiling is its full scale
+    told = np.isfinite(out[0])
+    if not told or (out[0] > 0.0 and out[1] > _UNCERTAIN_BLUR_PX):
+        # Not told: the channel whose noise tells the blur best. Told uncertainly: the encoding blurs every channel
+        # alike, and the blurs the other channels' noise shows that agree (within 3 sigmas; a codec that blurs its
+        # colour more does not) are averaged in, each by its information. Their ceiling is their full scale.
+        best, weights, total = np.inf, 1.0 / out[1] ** 2, out[0] / out[1] ** 2
         for other in range(image.shape[2]):
-            if other != channel:
-                blur, sigma = pooled_frame_blur(image[:, :, other], other, centre, inner, outer, full_scale, noise_pool)
-                if np.isfinite(blur) and sigma < best:
-                    out[0], out[1], best = blur, sigma, sigma
-    elif out[0] > 0.0 and out[1] > _UNCERTAIN_BLUR_PX:
-        # The encoding blurs every channel alike: the blurs the other channels' noise shows and that agree (within 3
-        # sigmas; a codec that blurs its colour more does not) are averaged in, each by its information.
-        weights, total = 1.0 / out[1] ** 2, out[0] / out[1] ** 2
-        for other in range(min(image.shape[2], 3)):
-            if other != channel:
-                blur, sigma = pooled_frame_blur(image[:, :, other], other, centre, inner, outer, full_scale, noise_pool)
-                if blur > 0.0 and sigma > 0.0 and abs(blur - out[0]) < 3.0 * np.hypot(sigma, out[1]):
-                    weights += 1.0 / sigma**2
-                    total += blur / sigma**2
-        out[0], out[1] = total / weights, 1.0 / np.sqrt(weights)
+            if other == channel:
+                continue
+            blur, sigma = pooled_frame_blur(image[:, :, other], other, centre, inner, outer, full_scale, noise_pool)
+            if not told and np.isfinite(blur) and sigma < best:
+                out[0], out[1], best = blur, sigma, sigma
+            elif told and blur > 0.0 and sigma > 0.0 and abs(blur - out[0]) < 3.0 * np.hypot(sigma, out[1]):
+                weights += 1.0 / sigma**2
+                total += blur / sigma**2
+        if told:
+            out[0], out[1] = total / weights, 1.0 / np.sqrt(weights)
     if len(light) == 0 or not levels[0] > levels[1]:
         return out
     some = _reference_rays(valid)  # the band varies slowly around the spot
