@@ -131,9 +131,9 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     ``_MAX_BLUR_MM`` of tip height (:func:`blur_shift_px`), whatever the
     spot's size; where the noise beside the spot told the blur of the encoded
     frame (:attr:`~spotnav.detect.SpotEdge.frame_shift_sigma_px`), its shift
-    was taken out and only its uncertainty counts (twice its sigma), and a
-    clipped spot in a frame the noise shows blurred after its encoding is
-    ``blurred``. A trusted edge's sigma is half the shift that blur may have
+    was taken out and only its uncertainty counts (twice its sigma; a
+    clipped spot's flank was read with that blur in its model, and only the
+    edge's curvature moved it). A trusted edge's sigma is half the shift that blur may have
     caused and, where the plateau clips, the shift the fitted amplitude's
     uncertainty leaves (:attr:`~spotnav.detect.SpotEdge.flank_shift_px`): a
     uniform shift of ``s`` pixels is an angle of about ``s`` over the spot's
@@ -156,12 +156,6 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
         found = f"{len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
         return PoseEstimate("unreliable", detail=f"too few edge points: {found}")
     told = math.isfinite(edge.frame_shift_sigma_px)  # the noise beside the spot told the encoded frame's blur
-    if told and math.isfinite(edge.log_amplitude) and edge.frame_blur_px > 0.0:  # the flank model has no such blur
-        return PoseEstimate(
-            "blurred",
-            detail=f"the frame was blurred after its encoding ({edge.frame_blur_px:.1f} px, from its noise), "
-            "which the clipped spot's flank model does not include",
-        )
     measured = told and math.isfinite(edge.frame_blur_px)  # else the edge was put halfway: half the shift either way
     if not told:
         shift = blur_shift_px(edge, setup, radius_px, edge_angle)

@@ -870,7 +870,10 @@ class SpotEdge:
         How far that blur moved the half-light crossing (outward positive,
         pixels; :func:`spotnav.edgeblur.frame_blur_shift`), taken out of the
         edge's points where the half level read them, and its 1 sigma; NaN
-        where the blur or the beam's band is not known.
+        where the blur or the beam's band is not known. A clipped spot's
+        flank is read with the blur in its model
+        (:func:`spotnav.photometry.fit_clipped_edges`): there, the shift of
+        the edge's curvature alone.
     """
 
     pixels: np.ndarray
@@ -932,6 +935,12 @@ _MAX_FALL_TEST_BLUR_PX = 1.25
 # A blur the noise tells this uncertainly (1 sigma) is read in the other channels too: on a dark fundus, a 2 px blur
 # left the spot's channel's estimate 0.4-0.6 px uncertain.
 _UNCERTAIN_BLUR_PX = 0.2
+# A clipped flank read with the frame's blur: its window grows by this many of the blur's sigmas (2 px, thesis's
+# exposure, 1024 px: tips 0.020-0.027 mm off, against 0.022-0.036 in the unblurred flank's window).
+_FRAME_BLUR_WINDOW = 4.0
+# ... and its blur may be off by this share of itself beside the noise's sigma: the noise's blur runs high where the
+# long lags see texture (1.6-1.8 px told for 1.5), and the model along the ray leaves the edge outward as it grows.
+_FRAME_BLUR_MODEL = 0.15
 _NOISE_POOL_SHAPE = new_noise_pool(1).shape
 
 
@@ -1197,18 +1206,29 @@ def _edge_on_rays(
         steps = _window_steps(wide, 2.0 * wide / _COARSE_SAMPLES)
         radii = _aligned_radii(pixels, lut, offset, angles, radii, steps, wide - window)
         window = _window_px(radii, False)  # about the edge found
-    (edge_radii, valid, width, ratio, clipped, plateau, background, left_out, misshapen, amplitude, blur, shift) = (
-        _read_edges(
-            pixels, lut, offset, angles, radii, _window_steps(window, _STEP_PX), lut[full_scale], centre, model, light
-        )
-    )
+    steps, top = _window_steps(window, _STEP_PX), lut[full_scale]
+    read = _read_edges(pixels, lut, offset, angles, radii, steps, top, centre, model, light, (0.0, 0.0), response)
     # The noise beside the spot, out to _NOISE_RING_PX past its edge's outer side, tells a blur of the encoded
-    # frame; its shift is taken out of the rays the half level read (a clipped spot's are judged on it).
+    # frame; its shift is taken out of the rays the half level read.
     encoded = _encoded_blur(
-        image, channel, full_scale, centre, angles, edge_radii, valid, width * _STEP_PX,
-        (plateau, background), model, light, response, noise_pool,
+        image, channel, full_scale, centre, angles, read[0], read[1], read[2] * _STEP_PX, (read[5], read[6]),
+        model, light, response, noise_pool,
     )  # fmt: skip
-    if np.isnan(amplitude) and np.isfinite(encoded[2]):
+    reread = np.isfinite(read[9]) and np.isfinite(encoded[1]) and encoded[0] > 0.0 and read[1].any()
+    if reread:
+        # A clipped spot, the frame blurred after its encoding: the flank read again with that blur in its model.
+        # The window grows with the blur: the flank's tail and the background past it.
+        frame_blur = (encoded[0], np.hypot(encoded[1], _FRAME_BLUR_MODEL * encoded[0]))
+        steps = _window_steps(window + _FRAME_BLUR_WINDOW * encoded[0], _STEP_PX)
+        read = _read_edges(pixels, lut, offset, angles, radii, steps, top, centre, model, light, frame_blur, response)
+    (edge_radii, valid, width, ratio, clipped, plateau, background, left_out, misshapen, amplitude, blur, shift) = read
+    if reread and valid.any():
+        # Blurred in two dimensions, a curved edge's levels move inward by the blur's square over twice its
+        # radius, which the model along each ray leaves out: that is taken out as for the half level.
+        curved = -(encoded[0] ** 2) / (2.0 * np.median(edge_radii[valid]))
+        encoded[2], encoded[3] = curved, _CURVED_MODEL * abs(curved)
+        edge_radii = edge_radii - curved
+    elif np.isnan(amplitude) and np.isfinite(encoded[2]):
         edge_radii = edge_radii - encoded[2]
     if encoded[0] > _MAX_FALL_TEST_BLUR_PX:
         # Blurred after the encoding: the blur, not a structure, shaped the falls that differ (and smeared what a
@@ -1796,6 +1816,8 @@ def _read_edges(
     centre: np.ndarray,
     model: np.ndarray,
     light: np.ndarray,
+    frame_blur: tuple[float, float],
+    response: tuple[np.ndarray, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray, float, float, float, float, float, int, np.ndarray, float, float, float]:
     """The fine pass of :func:`detect_edge_along_rays` on rays sampled at ``steps`` (S,) around ``radii`` (R,).
 
@@ -1814,7 +1836,9 @@ def _read_edges(
     (:func:`spotnav.photometry.fit_clipped_edges`): the soft band's width on
     each ray comes from the camera ``model`` and the beam's ``light``
     (:class:`spotnav.photometry.EdgeLight`; without them, empty, clipped rays
-    are left out) and the rays' origin ``centre`` in the frame. Then the
+    are left out), the rays' origin ``centre`` in the frame, and the encoded
+    frame's blur and its sigma (``frame_blur``, pixels; 0: none) under the
+    ``response`` (:func:`spotnav.edgeblur.response_curve`). Then the
     spot's log amplitude over full scale and blur (pixels) are returned last
     but one, and last how far its edge may lie off as a whole, pixels (1
     sigma: how well the flank pins the amplitude, times the share of the
@@ -1951,7 +1975,7 @@ def _read_edges(
                     sample_radii[r, s] = radii[r] + steps[s]
             fitted, flank, log_amplitude, blur, shift_sigma = fit_clipped_edges(
                 (pixels.shape[0], pixels.shape[1]), offset, ray_angles, sample_radii, profiles, edge_radii, read,
-                ray_backgrounds, full_scale, bands, noise,
+                ray_backgrounds, full_scale, bands, noise, frame_blur, response,
             )  # fmt: skip
             for r in range(rays):
                 if valid[r] and clipped_rays[r]:

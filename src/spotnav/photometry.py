@@ -24,7 +24,10 @@ amplitude (how far over full scale it is) is fitted from the flank of all
 its clipped rays at once, each ray's edge from its own samples
 (:func:`fit_clipped_edges`). Rays whose plateau does not clip keep the half
 level (:func:`spotnav.detect.detect_edge_along_rays`), which the fundus's
-albedo under each ray does not move.
+albedo under each ray does not move. Where the noise beside the spot shows
+the encoded frame blurred, each pixel's clipped light is encoded by the
+camera's response, blurred across the edge and decoded (:func:`_pixel_model`),
+and the blur's uncertainty moves the edges with it.
 """
 
 from __future__ import annotations
@@ -48,6 +51,10 @@ _AMPLITUDE_GRID = 36  # ... from the step's (a plateau just at full scale) to 80
 # The blur beyond the pixels' own box (sigma, pixels). One value: searched with the amplitude (0.03 to 2 px), a blur
 # and a brighter light traded for each other along the flank and tips erred by up to 0.13 mm at +6 stops (1024 px).
 _BLUR_PX = 0.03
+# The encoded frame's blur across a ray, a Gaussian, summed at this spacing out to this many sigmas. Gauss-Hermite
+# nodes (9) missed the clip's kink: a clipped flank 2 px blurred was modelled 0.04 of full scale off, tips 0.05 mm.
+_FRAME_BLUR_STEP_PX = 0.5
+_FRAME_BLUR_REACH = 3.0
 _RAY_STEPS = 3  # Gauss-Newton steps of a ray's edge at each amplitude and blur
 # About this many rays choose the amplitude, coarse then fine. Fewer for the coarse search (8) found the flank's cost
 # flat from 1 to 100 times full scale and chose an amplitude 60 times too high (a tip 0.043 mm off at 0.5 W).
@@ -186,6 +193,62 @@ def _pixel_light_rate(x: float, band: float, cos: float, sin: float, blur: float
 
 
 @njit(cache=True)
+def _on_curve(x: float, grid: np.ndarray, values: np.ndarray) -> tuple[float, float]:
+    """The piecewise-linear curve through ``(grid, values)`` (increasing) at ``x``, and its slope there."""
+    i = min(max(np.searchsorted(grid, x) - 1, 0), len(grid) - 2)
+    slope = (values[i + 1] - values[i]) / (grid[i + 1] - grid[i])
+    return values[i] + slope * (x - grid[i]), slope
+
+
+@njit(cache=True)
+def _pixel_model(
+    x: float,
+    cos: float,
+    sin: float,
+    edge: float,
+    amplitude: float,
+    band: float,
+    blur: tuple[float, float],
+    background: tuple[float, float, float],
+    full_scale: float,
+    response: tuple[np.ndarray, np.ndarray],
+) -> tuple[float, float]:
+    """The model's light at a pixel whose centre lies ``x`` pixels along a ray, and its rate by the ray's edge.
+
+    ``blur`` is the light's blur beyond the pixel's square and the encoded
+    frame's (sigmas, pixels). The light is clipped at ``full_scale``; where
+    the encoded frame was blurred, the clipped light is encoded by
+    ``response`` (:func:`spotnav.edgeblur.response_curve`), blurred across
+    the edge (along the ray, every ``_FRAME_BLUR_STEP_PX``) and decoded.
+    """
+    if blur[1] == 0.0:
+        base = max(background[0] + background[1] * (x - background[2]), 0.0)
+        level = amplitude * pixel_light(x - edge, band, cos, sin, blur[0]) + base
+        if level >= full_scale:
+            return full_scale, 0.0
+        return level, -amplitude * _pixel_light_rate(x - edge, band, cos, sin, blur[0])
+    light_grid, value_grid = response
+    top = _on_curve(full_scale, light_grid, value_grid)[0]
+    reach = math.ceil(_FRAME_BLUR_REACH * blur[1] / _FRAME_BLUR_STEP_PX)
+    code = code_rate = weights = 0.0
+    for k in range(-reach, reach + 1):
+        offset = k * _FRAME_BLUR_STEP_PX
+        weight = math.exp(-0.5 * (offset / blur[1]) ** 2)
+        weights += weight
+        at = x + offset
+        base = max(background[0] + background[1] * (at - background[2]), 0.0)
+        level = amplitude * pixel_light(at - edge, band, cos, sin, blur[0]) + base
+        if level >= full_scale:
+            code += weight * top
+            continue
+        encoded, slope = _on_curve(level, light_grid, value_grid)
+        code += weight * encoded
+        code_rate -= weight * slope * amplitude * _pixel_light_rate(at - edge, band, cos, sin, blur[0])
+    light, slope = _on_curve(code / weights, value_grid, light_grid)
+    return light, slope * code_rate / weights
+
+
+@njit(cache=True)
 def _sample_model(
     offset: np.ndarray,
     cos: float,
@@ -196,14 +259,15 @@ def _sample_model(
     edge: float,
     amplitude: float,
     band: float,
-    blur: float,
+    blur: tuple[float, float],
     background: tuple[float, float, float],
     full_scale: float,
+    response: tuple[np.ndarray, np.ndarray],
 ) -> tuple[float, float]:
     """The model's bilinear sample at ``position`` pixels along a ray, and its rate by the ray's edge.
 
     The four pixels the sample reads are modelled at their centres (their
-    distance along the ray), clipped at ``full_scale``, and interpolated as
+    distance along the ray; :func:`_pixel_model`) and interpolated as
     :func:`spotnav.detect._sample_rays` interpolates the frame's.
     ``background`` is ``(level, slope, where)``: its light ``where`` pixels
     along the ray and its slope per pixel outward.
@@ -219,14 +283,9 @@ def _sample_model(
         if weight == 0.0:
             continue
         x = (iu + du - offset[0]) * cos + (iv + dv - offset[1]) * sin
-        light = pixel_light(x - edge, band, cos, sin, blur)
-        base = max(background[0] + background[1] * (x - background[2]), 0.0)
-        level = amplitude * light + base
-        if level >= full_scale:
-            value += weight * full_scale
-            continue
+        level, rate = _pixel_model(x, cos, sin, edge, amplitude, band, blur, background, full_scale, response)
         value += weight * level
-        rate_edge -= weight * amplitude * _pixel_light_rate(x - edge, band, cos, sin, blur)
+        rate_edge += weight * rate
     return value, rate_edge
 
 
@@ -242,9 +301,10 @@ def _ray_cost(
     edge: float,
     amplitude: float,
     band: float,
-    blur: float,
+    blur: tuple[float, float],
     background: tuple[float, float, float],
     full_scale: float,
+    response: tuple[np.ndarray, np.ndarray],
 ) -> float:
     """Sum of squared differences between a ray's samples ``first`` to ``last`` and the model's."""
     height, width = pixels_shape
@@ -252,8 +312,9 @@ def _ray_cost(
     total = 0.0
     for k in range(first, last + 1):
         model = _sample_model(
-            offset, cos, sin, sample_radii[k], width, height, edge, amplitude, band, blur, background, full_scale
-        )[0]
+            offset, cos, sin, sample_radii[k], width, height, edge, amplitude, band, blur, background, full_scale,
+            response,
+        )[0]  # fmt: skip
         total += (min(data[k], full_scale) - model) ** 2
     return total
 
@@ -315,9 +376,10 @@ def _ray_edge(
     edge: float,
     amplitude: float,
     band: float,
-    blur: float,
+    blur: tuple[float, float],
     background: tuple[float, float, float],
     full_scale: float,
+    response: tuple[np.ndarray, np.ndarray],
     steps: int,
 ) -> tuple[float, float]:
     """A ray's edge after ``steps`` Gauss-Newton steps from ``edge`` (the spot's amplitude and blur held), and its
@@ -330,14 +392,16 @@ def _ray_edge(
     height, width = shape
     cos, sin = math.cos(angle), math.sin(angle)
     cost = _ray_cost(
-        shape, offset, angle, sample_radii, data, first, last, edge, amplitude, band, blur, background, full_scale
-    )
+        shape, offset, angle, sample_radii, data, first, last, edge, amplitude, band, blur, background, full_scale,
+        response,
+    )  # fmt: skip
     for _ in range(steps):
         normal = gradient = 0.0
         for k in range(first, last + 1):
             model, rate = _sample_model(
-                offset, cos, sin, sample_radii[k], width, height, edge, amplitude, band, blur, background, full_scale
-            )
+                offset, cos, sin, sample_radii[k], width, height, edge, amplitude, band, blur, background, full_scale,
+                response,
+            )  # fmt: skip
             normal += rate * rate
             gradient += rate * (min(data[k], full_scale) - model)
         if not normal > 0.0:
@@ -346,7 +410,7 @@ def _ray_edge(
         for _ in range(_HALVINGS):
             tried = _ray_cost(
                 shape, offset, angle, sample_radii, data, first, last, edge + move, amplitude, band, blur,
-                background, full_scale,
+                background, full_scale, response,
             )  # fmt: skip
             if tried <= cost:
                 edge, cost = edge + move, tried
@@ -370,19 +434,24 @@ def _profile_cost(
     backgrounds: np.ndarray,
     full_scale: float,
     log_amplitude: float,
-    blur: float,
+    blur: tuple[float, float],
+    response: tuple[np.ndarray, np.ndarray],
     edges: np.ndarray,
 ) -> float:
-    """The spot's cost at an amplitude and blur, each of ``rays``' edges fitted (written into ``edges``)."""
+    """The spot's cost at an amplitude and blurs (:func:`_pixel_model`), each of ``rays``' edges fitted (written
+    into ``edges``)."""
     amplitude = math.exp(log_amplitude)
     total = 0.0
     for r in rays:
         background = (backgrounds[r, 0], backgrounds[r, 1], crossings[r])
         level = min(max(0.5 * (full_scale - backgrounds[r, 0]) / amplitude, 1e-9), 1.0 - 1e-9)
-        start = crossings[r] - _inverse_profile(level, bands[r], blur, math.cos(angles[r]), math.sin(angles[r]))
+        # The start: the light's fall with both blurs in it (the frame's as if in light: near enough to start from).
+        start = crossings[r] - _inverse_profile(
+            level, bands[r], math.hypot(blur[0], blur[1]), math.cos(angles[r]), math.sin(angles[r])
+        )
         edges[r], cost = _ray_edge(
             shape, offset, angles[r], sample_radii[r], profiles[r], firsts[r], lasts[r], start, amplitude, bands[r],
-            blur, background, full_scale, _RAY_STEPS,
+            blur, background, full_scale, response, _RAY_STEPS,
         )  # fmt: skip
         total += cost
     return total
@@ -401,6 +470,8 @@ def fit_clipped_edges(
     full_scale: float,
     bands: np.ndarray,
     noise: float,
+    frame_blur: tuple[float, float],
+    response: tuple[np.ndarray, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray, float, float, float]:
     """Each ray's edge (its half-light point) from the photometric model, where the spot's plateau clips.
 
@@ -414,7 +485,9 @@ def fit_clipped_edges(
     parabola about the best node; each ray's edge is then fitted at the
     optimum. How well the flank pins the amplitude (the parabola's curvature
     against the residuals' variance, and ``_FLANK_MODEL_SIGMA`` for the blur's
-    shape) is how far every edge may shift together.
+    shape) is how far every edge may shift together. A frame blurred after its
+    encoding by a known blur (``frame_blur``) is modelled so
+    (:func:`_pixel_model`), and the blur's uncertainty moves the edges too.
 
     Parameters
     ----------
@@ -442,6 +515,10 @@ def fit_clipped_edges(
         The soft band's width along each ray, pixels (:func:`ray_bands`).
     noise : float
         The samples' noise, linear light: flank samples lie this far from both ends.
+    frame_blur : (float, float)
+        The encoded frame's blur (a Gaussian's sigma, pixels; 0: none) and its 1 sigma.
+    response : (ndarray, ndarray)
+        Light and its encoded value (:func:`spotnav.edgeblur.response_curve`): where the frame's blur acts.
 
     Returns
     -------
@@ -455,7 +532,8 @@ def fit_clipped_edges(
     blur : float
         The spot's blur, pixels.
     shift_sigma : float
-        1-sigma of a shift of every edge together that the amplitude's uncertainty leaves, pixels.
+        1-sigma of a shift of every edge together that the amplitude's and the frame blur's uncertainties leave,
+        pixels.
     """
     rays, count = profiles.shape
     edges = np.full(rays, np.nan)
@@ -464,18 +542,23 @@ def fit_clipped_edges(
     if len(chosen) == 0:
         return edges, flank, np.nan, np.nan, np.nan
     step = sample_radii[chosen[0], 1] - sample_radii[chosen[0], 0]
+    spread = 3.0 * frame_blur[0]  # the frame's blur spreads the flank this much further each way
     firsts, lasts = np.zeros(rays, dtype=np.int64), np.zeros(rays, dtype=np.int64)
     for r in chosen:
         # From inside the band (the clipped plateau: the model must clip there too) to past the flank's tail.
-        firsts[r] = max(int((crossings[r] - 1.5 * bands[r] - 2.0 - sample_radii[r, 0]) / step), 0)
-        lasts[r] = min(int((crossings[r] + bands[r] + _BACKGROUND_REACH_PX - sample_radii[r, 0]) / step) + 1, count - 1)
+        firsts[r] = max(int((crossings[r] - 1.5 * bands[r] - 2.0 - spread - sample_radii[r, 0]) / step), 0)
+        lasts[r] = min(
+            int((crossings[r] + bands[r] + _BACKGROUND_REACH_PX + spread - sample_radii[r, 0]) / step) + 1, count - 1
+        )
         while firsts[r] < lasts[r] and np.isnan(profiles[r, firsts[r]]):
             firsts[r] += 1
         while lasts[r] > firsts[r] and np.isnan(profiles[r, lasts[r]]):
             lasts[r] -= 1
         # The background: the raw samples past the band and the pixels' reach (the detector's line was fitted to
         # smoothed samples, which the sharp flank of a clipped spot still lifts near its edge).
-        outside = min(max(int((crossings[r] + bands[r] + 2.0 - sample_radii[r, 0]) / step), firsts[r]), lasts[r])
+        outside = min(
+            max(int((crossings[r] + bands[r] + 2.0 + spread - sample_radii[r, 0]) / step), firsts[r]), lasts[r]
+        )
         backgrounds[r, 0] = np.median(profiles[r, outside : lasts[r] + 1])
         backgrounds[r, 1] = 0.0
         # Where the raw samples last fall through the level halfway between full scale and the background: the
@@ -489,16 +572,83 @@ def fit_clipped_edges(
         for k in range(firsts[r], lasts[r] + 1):
             if backgrounds[r, 0] + 4.0 * noise < profiles[r, k] < full_scale - max(noise, 1e-3):
                 flank[r] += 1
-    blur = _BLUR_PX
+    blur = (_BLUR_PX, frame_blur[0])
     grid_rays = chosen[:: max(len(chosen) // _GRID_RAYS, 1)]
     lowest = math.log(max(full_scale - np.median(backgrounds[chosen, 0]), 1e-6))
+    log_amplitude, costs, j, curvature = _search_amplitude(
+        shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands, backgrounds,
+        full_scale, lowest, blur, response, edges,
+    )  # fmt: skip
+    _profile_cost(
+        shape, offset, angles, sample_radii, profiles, crossings, chosen, firsts, lasts, bands, backgrounds,
+        full_scale, log_amplitude, blur, response, edges,
+    )  # fmt: skip
+    # The amplitude's variance from the profile cost's curvature and the residuals' variance; how far the edges
+    # move together per unit of log amplitude.
+    samples = 0
+    for r in grid_rays:
+        samples += lasts[r] - firsts[r] + 1
+    variance = max(costs[j] / max(samples - len(grid_rays) - 2, 1), noise * noise)
+    moved = edges.copy()
+    _profile_cost(
+        shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands, backgrounds,
+        full_scale, log_amplitude + _AMPLITUDE_STEP, blur, response, moved,
+    )  # fmt: skip
+    rate = _mean_move(edges, moved, grid_rays) / _AMPLITUDE_STEP
+    noise_variance = 2.0 * variance / curvature if curvature > 0.0 else _AMPLITUDE_STEP**2
+    # The flank's shape misleads an amplitude the more of the flank is clipped: least at full scale, where the whole
+    # band is seen.
+    share = min(max((log_amplitude - lowest) / _FLANK_MODEL_REACH, _FLANK_MODEL_FLOOR), 1.0)
+    model_sigma = _FLANK_MODEL_SIGMA * share
+    shift_sigma = abs(rate) * math.sqrt(noise_variance + model_sigma**2)
+    if frame_blur[0] > 0.0 and frame_blur[1] > 0.0:
+        # The frame's blur one sigma either way, the amplitude searched again: a wider blur takes a brighter light
+        # (with the amplitude held, a spot's shift was 0.11 px against 0.30: a tip 0.04 mm off at 6.5 sigma_mm), and
+        # the edges' move is not the same both ways (one way only, two tips of 16 were off by over 3 sigma_mm).
+        farthest = 0.0
+        for sign in (-1.0, 1.0):
+            other = (blur[0], max(frame_blur[0] + sign * frame_blur[1], 0.0))
+            other_amplitude = _search_amplitude(
+                shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
+                backgrounds, full_scale, lowest, other, response, moved,
+            )[0]  # fmt: skip
+            _profile_cost(
+                shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
+                backgrounds, full_scale, other_amplitude, other, response, moved,
+            )  # fmt: skip
+            farthest = max(farthest, abs(_mean_move(edges, moved, grid_rays)))
+        shift_sigma = math.hypot(shift_sigma, farthest)
+    return edges, flank, log_amplitude, blur[0], shift_sigma
+
+
+@njit(cache=True)
+def _search_amplitude(
+    shape: tuple[int, int],
+    offset: np.ndarray,
+    angles: np.ndarray,
+    sample_radii: np.ndarray,
+    profiles: np.ndarray,
+    crossings: np.ndarray,
+    rays: np.ndarray,
+    firsts: np.ndarray,
+    lasts: np.ndarray,
+    bands: np.ndarray,
+    backgrounds: np.ndarray,
+    full_scale: float,
+    lowest: float,
+    blur: tuple[float, float],
+    response: tuple[np.ndarray, np.ndarray],
+    edges: np.ndarray,
+) -> tuple[float, np.ndarray, int, float]:
+    """The spot's log amplitude that fits ``rays`` best (:func:`fit_clipped_edges`' search from ``lowest``), the
+    grid's costs, its best node and the cost's curvature there (per log amplitude squared)."""
     # Coarse to fine: every _COARSE_STRIDE-th amplitude, then every amplitude about the best of those, widened
     # while the best lies at the fine search's end.
     costs = np.full(_AMPLITUDE_GRID, np.inf)
     for j in range(0, _AMPLITUDE_GRID, _COARSE_STRIDE):
         costs[j] = _profile_cost(
-            shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
-            backgrounds, full_scale, lowest + _AMPLITUDE_STEP * j, blur, edges,
+            shape, offset, angles, sample_radii, profiles, crossings, rays, firsts, lasts, bands,
+            backgrounds, full_scale, lowest + _AMPLITUDE_STEP * j, blur, response, edges,
         )  # fmt: skip
     coarse = int(np.argmin(costs))
     low, high = max(coarse - _COARSE_STRIDE // 2, 0), min(coarse + _COARSE_STRIDE // 2, _AMPLITUDE_GRID - 1)
@@ -507,8 +657,8 @@ def fit_clipped_edges(
         for node in range(low, high + 1):
             if not np.isfinite(costs[node]):
                 costs[node] = _profile_cost(
-                    shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
-                    backgrounds, full_scale, lowest + _AMPLITUDE_STEP * node, blur, edges,
+                    shape, offset, angles, sample_radii, profiles, crossings, rays, firsts, lasts, bands,
+                    backgrounds, full_scale, lowest + _AMPLITUDE_STEP * node, blur, response, edges,
                 )  # fmt: skip
         j = int(np.argmin(costs))
         if j == low and low > 0:
@@ -528,32 +678,16 @@ def fit_clipped_edges(
     if middle == j and curvature > 0.0:
         where = 0.5 * (below - above) / (below - 2.0 * centre + above)
         log_amplitude += min(max(where, -0.5), 0.5) * _AMPLITUDE_STEP
-    _profile_cost(
-        shape, offset, angles, sample_radii, profiles, crossings, chosen, firsts, lasts, bands, backgrounds,
-        full_scale, log_amplitude, blur, edges,
-    )  # fmt: skip
-    # The amplitude's variance from the profile cost's curvature and the residuals' variance; how far the edges
-    # move together per unit of log amplitude.
-    samples = 0
-    for r in grid_rays:
-        samples += lasts[r] - firsts[r] + 1
-    variance = max(costs[j] / max(samples - len(grid_rays) - 2, 1), noise * noise)
-    moved = edges.copy()
-    _profile_cost(
-        shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands, backgrounds,
-        full_scale, log_amplitude + _AMPLITUDE_STEP, blur, moved,
-    )  # fmt: skip
-    rate = 0.0
-    for r in grid_rays:
-        rate += (moved[r] - edges[r]) / _AMPLITUDE_STEP
-    rate /= len(grid_rays)
-    noise_variance = 2.0 * variance / curvature if curvature > 0.0 else _AMPLITUDE_STEP**2
-    # The flank's shape misleads an amplitude the more of the flank is clipped: least at full scale, where the whole
-    # band is seen.
-    share = min(max((log_amplitude - lowest) / _FLANK_MODEL_REACH, _FLANK_MODEL_FLOOR), 1.0)
-    model_sigma = _FLANK_MODEL_SIGMA * share
-    shift_sigma = abs(rate) * math.sqrt(noise_variance + model_sigma**2)
-    return edges, flank, log_amplitude, blur, shift_sigma
+    return log_amplitude, costs, j, curvature
+
+
+@njit(cache=True)
+def _mean_move(edges: np.ndarray, moved: np.ndarray, rays: np.ndarray) -> float:
+    """The mean of ``moved - edges`` over ``rays``, pixels."""
+    total = 0.0
+    for r in rays:
+        total += moved[r] - edges[r]
+    return total / len(rays)
 
 
 @dataclass(frozen=True)
