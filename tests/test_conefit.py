@@ -278,6 +278,28 @@ def test_a_solution_pickles_and_its_frames_carry_its_covariance() -> None:
     np.testing.assert_allclose(second.tip_covariance(), fit.tip_covariance(1))
 
 
+def test_an_edge_shift_widens_the_tip_s_sigma_by_its_own_spots_and_by_the_edge_angle_they_share() -> None:
+    # A whole-edge shift, each spot's and all spots' together (an edge angle that much off), moves a 3-beam tip as
+    # a light that much wider does: 0.25 deg wider, some 0.04 mm on the helix at 1024 px (0.16 mm per deg).
+    setup = replace(EXACT, instrument=replace(EXACT.instrument, beam_count=3))
+    pose = InstrumentPose.through_insertion([0.5, 0.5, 5.0], setup.instrument.insertion_in_eye)
+    edges = [edge + np.random.default_rng(2).normal(0.0, 0.1, edge.shape) for edge in _edges_px(setup, pose)]
+    fit = fit_cones(_one_frame(setup, edges, pose.tip_in_eye, pose.axis, 0.0))
+    same = fit.with_edge_shift(0.0)
+    assert same.tip_sigma_mm() == pytest.approx(fit.tip_sigma_mm(), rel=1e-9)
+    wider = [fit.with_edge_shift(np.radians(d)).tip_sigma_mm() for d in (0.01, 0.05, 0.2)]
+    assert fit.tip_sigma_mm() < wider[0] < wider[1] < wider[2]
+    assert 0.004 < wider[1] < 0.016
+    np.testing.assert_array_equal(fit.with_edge_shift(0.01).tip(), fit.tip())  # the fit itself stays
+    # A joint fit's frame takes its block of the widened joint fit.
+    poses = [InstrumentPose.through_insertion(t, setup.instrument.insertion_in_eye) for t in ([0.5, -1, 4], [1, 1, 5])]
+    points = EdgePoints.of_frames([_edges_px(setup, p) for p in poses], [[0, 1, 2], [0, 1, 2]])
+    tips, axes = np.array([p.tip_in_eye for p in poses]), np.array([p.axis for p in poses])
+    joint = fit_cones(cone_problem(setup, points, tips, axes, [0.0, 0.0]), solver="levenberg-marquardt")
+    frame = joint.frame_solution(1)
+    assert frame.with_edge_shift(np.radians(0.05)).tip_sigma_mm() > 2 * frame.tip_sigma_mm()
+
+
 def test_a_problem_needs_one_axis_per_frame() -> None:
     points = EdgePoints.of_frames([[np.zeros((5, 2))], [np.zeros((5, 2))]], [[0], [0]])
     with pytest.raises(ValueError, match="one row per frame"):

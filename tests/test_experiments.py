@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ from spotnav.experiments import (
     approximation_rows,
     geometry,
     helix_tips,
+    mismatch,
     reproduce,
     run_frames,
     square_tips,
@@ -202,6 +204,26 @@ def test_geometry_study_smoke(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -
     assert all(float(r["error_mm"]) <= 3 * float(r["sigma_mm"]) for r in calibrated)
     assert np.mean(errors["after calibrate"]) < 0.2 * np.mean(errors["trusting the nominal geometry"])
     assert (tmp_path / "geometry.png").stat().st_size > 10000
+
+
+def test_mismatch_study_smoke(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Three beams 0.5 deg wider than the setup says, at a small size: the frames say so (mismatch), none is
+    # answered silently wrong, and calibrate on known frames answers them.
+    cases = [replace(c, beams=(3,)) for c in mismatch.MISMATCH_CASES if c.name == "beam half-angle +0.5 deg"]
+    monkeypatch.setattr(mismatch, "MISMATCH_CASES", tuple(cases))
+    monkeypatch.setattr(mismatch, "SEQUENCE_FRAMES", 6)
+    experiments = reproduce(tmp_path, size_px=512, poses=3, workers=1, only=["mismatch"], log=print)
+    assert experiments[0].summary.startswith("mismatch: 0 silent failures in 3 frames")
+    report = (tmp_path / "report.md").read_text()
+    single, sequence = [
+        [c.strip() for c in line.strip("|").split("|")]
+        for line in report.splitlines()
+        if line.startswith("| beam half-angle +0.5 deg | 3 |")
+    ]
+    assert single[2:6] == ["0/3", "0", "0", "mismatch 3"]  # the setup stated exactly: every frame says so
+    assert single[7] == "0"  # as a user writes it: none silent either
+    assert single[10] == "3/3" and float(single[11].split("/")[1]) < 0.03
+    assert sequence[2] == "0/6" and sequence[4:] == ["0", "0"]
 
 
 def test_profile_accounts_for_each_stage_time() -> None:

@@ -104,6 +104,18 @@ def test_a_pyigtl_client_receives_every_frame_as_poses_csv_holds_it(
     assert "TipToEye (TRANSFORM) and TipToEyeStatus (STRING) on 127.0.0.1" in err and "1 clients served" in err
 
 
+def test_a_mismatch_frame_s_status_says_what_of_the_setup_does_not_fit() -> None:
+    verdict = "the instrument's axes over 10 frames pass 0.52 mm from the setup's insertion point"
+    with PoseServer(0) as server, recording_client(server.port) as messages:
+        assert wait_for(lambda: server.connected)
+        server.send(pose(0), 0, time.time(), "tracked")
+        server.send(PoseEstimate("mismatch", spots=1, detail=verdict), 1, time.time(), "tracked")
+        assert wait_for(lambda: len(messages.of(DEFAULT_DEVICE + "Status")) == 2)
+    ok, flagged = (json.loads(m.string) for m in messages.of(DEFAULT_DEVICE + "Status"))
+    assert "detail" not in ok and flagged["status"] == "mismatch" and flagged["detail"] == verdict
+    assert messages.of(DEFAULT_DEVICE)[1].metadata["TransformStatus"] == "INVALID"
+
+
 def test_bad_clients_neither_stop_nor_starve_tracking(capsys: pytest.CaptureFixture[str]) -> None:
     # Issue 20: garbage, a half header and a clean close, a header claiming a 2^62-byte body, an idle
     # client that holds its connection, 200 connects and closes: the good client gets every message.

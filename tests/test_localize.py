@@ -199,11 +199,12 @@ def test_precise_refuses_a_pose_off_the_insertion_line_but_precise_free_finds_it
     setup = small_setup(1024, blend=0.15)
     pose = InstrumentPose([1.0, 1.0, 4.5], [0.25, 0.1, -1.0])
     one = Renderer(setup).render(pose, seed=3)
-    assert localize(one, setup, "precise").status in ("unreliable", "ambiguous")
+    # Forced through the insertion point, the cone bends the edge as no noise does: refused (issue 42: mismatch).
+    assert localize(one, setup, "precise").status in ("unreliable", "ambiguous", "mismatch")
     assert localize(one, setup, "precise-free").status == "ambiguous"
     three_setup = _three_beam(setup)
     three = Renderer(three_setup).render(pose, seed=3)
-    assert localize(three, three_setup, "precise").status in ("unreliable", "ambiguous")
+    assert localize(three, three_setup, "precise").status in ("unreliable", "ambiguous", "mismatch", "miscalibrated")
     free = localize(three, three_setup, "precise-free")
     assert free.ok, free.detail
     assert np.linalg.norm(free.tip_in_eye - pose.tip_in_eye) < 0.01
@@ -339,14 +340,13 @@ def test_a_refused_fit_is_not_repeated_with_a_wider_shaft_band_that_hides_no_mor
     pose = poses_through_insertion(helix_tips(300)[155:156], setup.instrument.insertion_in_eye)[0]
     image = Renderer(setup).render(pose, seed=155)
     fits: list[int] = []  # each fit's axis mode
-    fit_cones = precise.fit_cones
+    fit_cones = pipeline.fit_cones
 
     def counted(problem: ConeProblem, **options: object) -> ConeSolution:
         fits.append(int(problem.axis_mode[0]))
         return fit_cones(problem, **options)
 
-    monkeypatch.setattr(precise, "fit_cones", counted)  # the cross-check's
-    monkeypatch.setattr(pipeline, "fit_cones", counted)  # the fit stage's
+    monkeypatch.setattr(pipeline, "fit_cones", counted)  # the fit stage's and the cross-check's
     skipped = precise.localize_precise(image, setup)
     skipped_fits = len(fits)
     assert fits == [AXIS_MODES["insertion"]] * skipped_fits

@@ -88,4 +88,7 @@ def test_cycles_frames_in_a_wrong_geometry_before_calibration_are_never_silently
     errors = [np.linalg.norm(r.tip_in_eye - known[Path(r.image).name]) for r in rows if r.status == "ok"]
     assert not any(error > 0.1 for error in errors)
     assert not evaluation.counts.get("ok") or evaluation.within_3_sigma >= 0.9
-    assert all(r.status == "uncalibrated" for r in rows if r.status != "ok")
+    # Refused for the setup: its stated uncertainty (uncalibrated) or its misfit with the frame (mismatch: the
+    # camera 50 px off, its lens, the light's edge). Issue 42: the frame's own residuals say which.
+    refused = [r for r in rows if r.status != "ok"]
+    assert all(r.status in ("uncalibrated", "mismatch") for r in refused)

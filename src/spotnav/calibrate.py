@@ -882,9 +882,17 @@ class RadiusSelfCalibration:
 
 
 def prepare_self_calibration(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, EdgeFrame | None]:
-    """One frame's share of :func:`self_calibrate_radius`: its precise pose and its edges (None if unusable)."""
+    """One frame's share of :func:`self_calibrate_radius`: its precise pose and its edges (None if unusable).
+
+    A frame refused ``mismatch`` (its edges do not fit the setup's geometry,
+    which may be the radius the joint fit is about to find) is used too,
+    from its fit's pose.
+    """
     result = localize_precise_with_edges(image, setup, max_rays=_RAYS, find_radius_px=_FIND_RADIUS_PX)
-    estimate, prepared = result.estimate, result.edges
+    estimate, prepared, fit = result.estimate, result.edges, result.fit
+    if estimate.status == "mismatch" and fit is not None and prepared is not None:
+        start = PoseEstimate("ok", tip_in_eye=fit.tip(), axis=fit.axis(), roll=fit.roll(), spots=estimate.spots)
+        return start, prepared
     return estimate, prepared if estimate.ok else None
 
 

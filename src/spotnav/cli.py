@@ -255,6 +255,7 @@ class _TrackRun:
     latencies: list[float] = field(default_factory=list)
     wrong_size: int = 0  # frames of the wrong size in a row
     stop: str = ""  # why it stopped before the source ended
+    verdict: str = ""  # the sequence's test: what of the setup the frames contradict
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
@@ -359,6 +360,9 @@ def _track_frames(
             canvas = draw_overlay(frame.pixels, tracker.setup, tracked.estimate, spots=spots, label=label)
             overlay.write(frame.index, canvas)
         run.statuses[tracked.estimate.status] += 1
+        if tracker.sequence.verdict and not run.verdict:  # said once; every frame's row and status carry it
+            run.verdict = tracker.sequence.verdict
+            print(f"spotnav: warning: frame {frame.index}: {run.verdict}", file=sys.stderr)
         run.latencies.append(latency)
         bar.set_postfix_str(f"{1000 / max(np.median(run.latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")
         streamed = not frame.image  # a video's or a camera's frame, not a file of a batch

@@ -1073,6 +1073,35 @@ class ConeSolution:
             settled=self.settled,
         )
 
+    def with_edge_shift(self, sigma: float) -> ConeSolution:
+        """The same fit, each spot's whole edge, and every spot's together, uncertain by ``sigma`` more (radians,
+        added in quadrature).
+
+        Residuals that the points' noise does not explain are a model that
+        does not fit the edge: they do not average away over the points, so
+        they count as a shift of each spot's whole edge
+        (:func:`scatter_covariance`'s ``contour_sigma``) and, since a light
+        unlike the setup's moves every spot's edge alike, as that much
+        uncertainty of the edge angle (the fixed geometry's prior).
+
+        A joint fit's frame (:meth:`frame_solution`) takes its block of the
+        joint fit with every frame's edges so widened (a shared parameter the
+        other frames' edges also set comes out more uncertain than it is).
+        """
+        own = self.uncertainty_of
+        if not isinstance(own, partial) or own.func not in (_uncertainty, _block_uncertainty):
+            raise TypeError(f"a solution's uncertainty comes from _uncertainty or _block_uncertainty, not {own!r}")
+        if own.func is _block_uncertainty:
+            joint, index = own.args
+            return replace(self, uncertainty_of=partial(_block_uncertainty, joint.with_edge_shift(sigma), index))
+        points = self.problem.points
+        wider = replace(points, spot_sigma=np.hypot(points.spot_sigma, sigma))
+        prior = self.problem.prior.copy()
+        prior[_EDGE, _EDGE] += sigma**2
+        prior.setflags(write=False)  # as every problem's: one compiled signature
+        problem = replace(self.problem, points=wider, prior=prior)
+        return replace(self, problem=problem, uncertainty_of=partial(_uncertainty, problem, *own.args[1:]))
+
     def geometry_share(self, frame: int = 0) -> np.ndarray:
         """Each fixed geometry parameter's share of ``frame``'s tip variance (G,), mm^2, in ``geometry_ids`` order."""
         index = self._tip_index(frame)

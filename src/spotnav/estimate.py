@@ -28,6 +28,10 @@ Statuses
 ``miscalibrated``
     The edges contradict the setup's geometry (three beams: the axis they show
     misses the insertion point).
+``mismatch``
+    The fit leaves residuals that the edge's noise does not explain: the
+    setup's light or geometry is not the frame's (calibrate), or the spot is
+    disturbed as no model here says (see ``detail``).
 ``unreadable``
     The image file could not be read.
 """
@@ -52,6 +56,7 @@ STATUSES = (
     "blurred",
     "uncalibrated",
     "miscalibrated",
+    "mismatch",
     "unreadable",
 )
 
@@ -78,6 +83,9 @@ class PoseEstimate:
     rms_px : float
         RMS distance of the edge points from the fitted cones, pixels
         (approximate: the angular residual times the range over the pixel size).
+    fit_ratio : float
+        The fit's own test: its RMS residual over the one its points' noise
+        explains (about 1 where the model fits; precise method, NaN otherwise).
     other_axis : ndarray, shape (3,), or None
         The precise method's cross-check: the axis fitted without the insertion
         point (or with it, when the pose was fitted without).
@@ -93,6 +101,7 @@ class PoseEstimate:
     detail: str = ""
     sigma_mm: float = float("nan")
     rms_px: float = float("nan")
+    fit_ratio: float = float("nan")
     other_axis: np.ndarray | None = None
     roll: float = 0.0
 

@@ -68,7 +68,7 @@ __all__ = [
 
 POSES_COLUMNS = (
     *("image", "status", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z"),  # the contract's
-    *("spots", "sigma_mm", "rms_px", "other_dir_x", "other_dir_y", "other_dir_z", "time_ms", "detail"),
+    *("spots", "sigma_mm", "rms_px", "fit_ratio", "other_dir_x", "other_dir_y", "other_dir_z", "time_ms", "detail"),
 )
 
 
@@ -246,7 +246,8 @@ def pose_row(image: str, estimate: PoseEstimate, time_ms: float | None = None) -
         numbers = [_format(v) for v in np.concatenate(estimate.pose())]
     else:
         numbers = [""] * 6
-    quality = ["" if not np.isfinite(v) else _format(v) for v in (estimate.sigma_mm, estimate.rms_px)]
+    measured = (estimate.sigma_mm, estimate.rms_px, estimate.fit_ratio)
+    quality = ["" if not np.isfinite(v) else _format(v) for v in measured]
     other = [""] * 3 if estimate.other_axis is None else [_format(v) for v in estimate.other_axis]
     timing = "" if time_ms is None else f"{time_ms:.1f}"
     return [image, estimate.status, *numbers, str(estimate.spots), *quality, *other, timing, estimate.detail]
@@ -259,6 +260,7 @@ class PosesWriter:
     Lines end in LF. Use it as a context manager. The contract's columns come
     first; ``sigma_mm`` is the precise method's 1-sigma tip uncertainty,
     ``rms_px`` its edge points' RMS distance from the fitted cones,
+    ``fit_ratio`` that RMS over the one the points' noise explains,
     ``other_dir_*`` its cross-check axis (fitted without the insertion point,
     or with it for ``precise-free``); all empty for the thesis's method.
 
@@ -527,7 +529,7 @@ VIDEO_SUFFIXES = (".mkv", ".avi", ".mp4", ".mov")
 TRUTH_COLUMNS = ("frame", "image", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z")
 TRACK_COLUMNS = (
     *POSES_COLUMNS[:8],
-    *("frame", "mode", "latency_ms", "decode_ms", *POSES_COLUMNS[8:14], "detail", "timestamp_s"),
+    *("frame", "mode", "latency_ms", "decode_ms", *POSES_COLUMNS[8:15], "detail", "timestamp_s"),
 )
 
 

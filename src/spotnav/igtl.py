@@ -9,7 +9,9 @@ Every frame sends two messages to every connected client:
   ``TransformStatus`` = ``OK`` or ``INVALID`` as PLUS marks it; a frame without
   a pose repeats the last pose (identity before the first) as ``INVALID``.
 - a STRING named ``device + "Status"``: the frame's status as JSON
-  (``{"frame": 12, "status": "ok", "sigma_mm": 0.0021, "mode": "tracked"}``).
+  (``{"frame": 12, "status": "ok", "sigma_mm": 0.0021, "mode": "tracked"}``); a
+  ``mismatch`` frame adds its ``detail``: what of the setup the frame or the
+  sequence contradicts, and the command that calibrates it.
 
 Both carry the frame's capture time as their timestamp. The server is spotnav's
 own loop around pyigtl's message classes, on its own thread: it never reads
@@ -306,6 +308,8 @@ class PoseServer:
         status = {"frame": pose.frame, "status": estimate.status, "mode": pose.mode}
         if np.isfinite(estimate.sigma_mm):
             status["sigma_mm"] = round(float(estimate.sigma_mm), 6)
+        if estimate.status == "mismatch":  # what of the setup the frame, or the sequence, contradicts
+            status["detail"] = estimate.detail
         text = pyigtl.StringMessage(json.dumps(status), timestamp=stamp, device_name=self.device + _STATUS_SUFFIX)
         transform.header_version = 2
         transform.metadata = {"TransformStatus": "OK" if estimate.ok else "INVALID", "Status": estimate.status}

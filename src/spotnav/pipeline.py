@@ -40,6 +40,7 @@ __all__ = [
     "plan_found_spots",
     "pose_problem",
     "read_light",
+    "refit_free_axis",
 ]
 
 
@@ -249,6 +250,14 @@ def fit_visible(
         through_insertion=through_insertion,
         edge_sigmas=reading.sigmas,
     )
+    return fit_cones(problem, solver=solver)
+
+
+def refit_free_axis(setup: Setup, constrained: ConeSolution, solver: str = "gauss-newton") -> ConeSolution:
+    """The cross-check: a one-frame fit through the insertion point fitted again on its own points with the axis
+    free, from its pose (Gauss-Newton's few steps by default; ``levenberg-marquardt`` settles it)."""
+    tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
+    problem = cone_problem(setup, constrained.problem.points, tip[None], axis[None], np.array([roll]), axis="free")
     return fit_cones(problem, solver=solver)
 
 

@@ -20,12 +20,20 @@ import numpy as np
 
 from spotnav.camera import camera_depth_mm
 from spotnav.checks import check_image_size, judge_fit
-from spotnav.conefit import PARAMETER_GROUPS, ConeSolution, cone_problem, fit_cones
+from spotnav.conefit import PARAMETER_GROUPS, ConeSolution
 from spotnav.config import Setup
 from spotnav.detect import SpotDetection, detect_spots_otsu, group_fragments, outer_boundary
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import angles_between, assign_beams, normalize
-from spotnav.pipeline import LightReading, SpotPlan, fit_visible, fitted_edges_px, plan_found_spots, read_light
+from spotnav.pipeline import (
+    LightReading,
+    SpotPlan,
+    fit_visible,
+    fitted_edges_px,
+    plan_found_spots,
+    read_light,
+    refit_free_axis,
+)
 from spotnav.shaft import hidden_by_shaft, visible_edge_points
 from spotnav.thesis import ThesisSolution, solve_thesis
 
@@ -406,9 +414,7 @@ def _fit_precise(
     # Gauss-Newton's few steps from there: three beams' free axis within 0.005 deg of the converged fit; one beam's,
     # loose (its sigma some 0.3 deg), 0.04 deg from it on average and at most 1.2 of its sigmas (60 helix frames),
     # as far from the truth. precise-free answers with the free fit: Levenberg-Marquardt settles it.
-    tip, axis, roll = constrained.tip(), constrained.axis(), constrained.roll()
-    problem = cone_problem(setup, constrained.problem.points, tip[None], axis[None], np.array([roll]), axis="free")
-    free = fit_cones(problem, solver="gauss-newton" if through_insertion else "levenberg-marquardt")
+    free = refit_free_axis(setup, constrained, "gauss-newton" if through_insertion else "levenberg-marquardt")
     if through_insertion:
         return _check_insertion(replace(verdict, other_axis=free.axis()), constrained, free, setup), constrained
     return _fit_free(prepared, setup, constrained, free)

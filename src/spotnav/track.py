@@ -35,10 +35,20 @@ from spotnav.detect import curve_rays, detect_edge_along_rays, rays_through_curv
 from spotnav.edgeblur import frame_blur_for_width, frame_blur_shift, response_curve
 from spotnav.estimate import PoseEstimate
 from spotnav.geometry import beam_axes, cone_sphere_curve, cone_sphere_points, normalize
-from spotnav.pipeline import LightReading, RayFan, SpotPlan, fit_visible, fitted_edges_px, pose_problem, read_light
+from spotnav.pipeline import (
+    LightReading,
+    RayFan,
+    SpotPlan,
+    fit_visible,
+    fitted_edges_px,
+    pose_problem,
+    read_light,
+    refit_free_axis,
+)
 from spotnav.pixelnoise import advance_noise_pool, discard_noise_reading, new_noise_pool, pooled_frame_blur
 from spotnav.precise import localize_precise, localize_precise_with_edges
 from spotnav.reconstruct import fit_ellipse
+from spotnav.sequence import AxesMeeting, axis_line
 from spotnav.shaft import hidden_by_shaft
 
 __all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "frozen_heap", "prepare_kernels", "track_frame"]
@@ -48,6 +58,13 @@ _CURVE_POINTS = 90
 _BORDER_PX = 2.0
 _MAX_LOST_FRAMES = 10  # after this many frames without a pose the last one seen is too old to search from
 _REHEARSAL_RAYS = 64  # the fewest: a rehearsal is over soon after a frame arrives
+# The sequence's test hears every answered frame's axis at first, then one in so many (a free fit costs a quarter
+# of a tracked frame: 2048 px, one beam, 1.32 ms a frame against 1.00).
+_LISTEN_FRAMES = 100
+_LISTEN_EVERY = 10
+# The frames it hears: those answered, and those whose three beams showed an axis off the insertion line (their
+# fit is sound; it is the setup they contradict, which is what the test weighs).
+_HEARD = ("ok", "miscalibrated")
 _MIN_EDGE_RAY_FRACTION = 0.5  # fewer rays with an edge: the spot is not where it was predicted
 # A fit further than this from the prediction read its rays aslant (on the Cycles helix, 0.6 mm a frame, a
 # 0.2 mm miss biased the tip by 0.01 mm): its edges are read again from the fitted pose.
@@ -130,29 +147,35 @@ def _track_with_edges(
     through_insertion: bool,
     max_rays: int,
     noise_pools: Sequence[np.ndarray] | None = None,
-) -> tuple[PoseEstimate, tuple[np.ndarray, ...]]:
-    """:func:`track_frame`, and the edge points its fit used (empty when none ran); with the stream's
-    ``noise_pools`` (:func:`spotnav.pipeline.read_light`)."""
+) -> tuple[PoseEstimate, tuple[np.ndarray, ...], ConeSolution | None]:
+    """:func:`track_frame`, the edge points its fit used (empty when none ran) and the fit (None when none ran);
+    with the stream's ``noise_pools`` (:func:`spotnav.pipeline.read_light`)."""
     wrong = check_image_size(image, setup)
     if wrong is not None:
-        return wrong, ()
+        return wrong, (), None
     estimate, edges, fit = _track_once(image, setup, predicted, through_insertion, max_rays, noise_pools)
     if fit is not None and _worth_reading(estimate, fit, predicted, setup):
         # The rays crossed the edge aslant, from a centre that was off: read them again across the fitted edge.
         fitted = PoseEstimate("ok", tip_in_eye=fit.tip(), axis=fit.axis(), roll=fit.roll())
-        estimate, edges, _ = _track_once(image, setup, fitted, through_insertion, max_rays, noise_pools)
-    return estimate, edges
+        estimate, edges, fit = _track_once(image, setup, fitted, through_insertion, max_rays, noise_pools)
+    return estimate, edges, fit
+
+
+def _flagged(estimate: PoseEstimate, verdict: str) -> PoseEstimate:
+    """An ``ok`` estimate withheld as ``mismatch``: the sequence's test says the setup biases it."""
+    return replace(estimate, status="mismatch", tip_in_eye=None, axis=None, other_axis=None, detail=verdict)
 
 
 def _worth_reading(estimate: PoseEstimate, fit: ConeSolution, predicted: PoseEstimate, setup: Setup) -> bool:
     """Whether the rays are worth reading again from a fit's pose: one more than ``_REREAD_MM`` from the
-    prediction, accepted, or refused by its own checks (rays aslant across vessels misread its residuals) with its
-    tip settled inside the eye; not one the geometry's uncertainty refused, which no reading changes."""
+    prediction, accepted, or refused by its own checks or its residuals' test (rays aslant across vessels misread
+    its residuals) with its tip settled inside the eye; not one the geometry's uncertainty refused, which no
+    reading changes."""
     if np.linalg.norm(fit.tip() - predicted.pose()[0]) <= _REREAD_MM:
         return False
     if estimate.ok:
         return True
-    return estimate.status == "unreliable" and fit.settled and setup.contains_point(fit.tip())
+    return estimate.status in ("unreliable", "mismatch") and fit.settled and setup.contains_point(fit.tip())
 
 
 def _track_once(
@@ -324,7 +347,9 @@ def prepare_kernels(setup: Setup) -> None:
     )
     problem = pose_problem(setup, edges, list(range(instrument.beam_count)), tip_in_eye + 0.01, axis, 0.0)
     for solver in ("gauss-newton", "levenberg-marquardt"):  # tracking's and acquisition's fits, and their checks
-        judge_fit(fit_cones(problem, solver=solver), setup, spots=instrument.beam_count)
+        fit = fit_cones(problem, solver=solver)
+        judge_fit(fit, setup, spots=instrument.beam_count)
+    axis_line(refit_free_axis(setup, fit))  # the sequence's test's free axis
     hidden_by_shaft(setup, edges, tip_in_eye, axis)
     # The whole-frame method once, on a frame of the camera's size with those spots drawn: its tables and first
     # calls are ready before the first frame too.
@@ -369,6 +394,15 @@ class Tracker:
         from where it was last seen) is localized on the whole image instead.
     max_rays : int
         Most rays per spot in tracked frames.
+
+    Attributes
+    ----------
+    sequence : AxesMeeting
+        The running test of where the axes meet (method ``precise``: the
+        freed axis of each frame answered or ``miscalibrated``, every one of
+        the first ``_LISTEN_FRAMES``, then one in ``_LISTEN_EVERY``). Once its verdict
+        is given, every frame after it is ``mismatch`` (no pose) with that
+        verdict: a setup the sequence contradicts biases every pose.
     """
 
     setup: Setup
@@ -383,8 +417,11 @@ class Tracker:
     _steady: bool = field(default=False, init=False, repr=False)
     _rehearsal: LightReading | None = field(default=None, init=False, repr=False)
     _noise_pools: list[np.ndarray] = field(default_factory=list, init=False, repr=False)
+    sequence: AxesMeeting = field(init=False, repr=False)
+    _answered: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
+        self.sequence = AxesMeeting(self.setup)
         if not (np.isfinite(self.max_jump_mm) and self.max_jump_mm > 0):
             raise ValueError(f"max_jump_mm must be a finite number > 0, got {self.max_jump_mm}")
         if self.max_rays < 64:
@@ -408,8 +445,9 @@ class Tracker:
         estimate, mode = None, "acquired"
         start, found = (predicted, "tracked") if predicted is not None else (self._last_seen, "reacquired")
         edges: tuple[np.ndarray, ...] = ()
+        fit: ConeSolution | None = None
         if start is not None:
-            tracked, edges = _track_with_edges(
+            tracked, edges, fit = _track_with_edges(
                 image, self.setup, start, self.through_insertion, self.max_rays, self._noise_pools
             )
             if tracked.ok and np.linalg.norm(tracked.pose()[0] - start.pose()[0]) <= self.max_jump_mm:
@@ -419,12 +457,25 @@ class Tracker:
                     discard_noise_reading(pool)
         if estimate is None:
             result = localize_precise_with_edges(image, self.setup, through_insertion=self.through_insertion)
-            estimate, edges = result.estimate, result.fitted_edges_px
+            estimate, edges, fit = result.estimate, result.fitted_edges_px, result.fit
+        if fit is not None and estimate.status in _HEARD:
+            self._listen(fit)
         if not estimate.ok:
             self._forget()
             return TrackedFrame(estimate, "lost", edges)
         self._lost_frames = 0
-        return TrackedFrame(self._remember(estimate), mode, edges)
+        self._remember(estimate)
+        if self.sequence.verdict:
+            return TrackedFrame(_flagged(estimate, self.sequence.verdict), mode, edges)
+        return TrackedFrame(estimate, mode, edges)
+
+    def _listen(self, fit: ConeSolution) -> None:
+        """A frame's axis freed (method ``precise``) and fed to the sequence's test while it listens: every frame
+        of the first ``_LISTEN_FRAMES`` heard, then one in ``_LISTEN_EVERY``."""
+        self._answered += 1
+        listening = self._answered <= _LISTEN_FRAMES or self._answered % _LISTEN_EVERY == 0
+        if self.through_insertion and listening and not self.sequence.verdict:
+            self.sequence.add(axis_line(refit_free_axis(self.setup, fit)))
 
     def rehearse(self, image: np.ndarray) -> None:
         """Track the last frame again from the last pose, a step a call, with the fewest rays, keeping nothing.

@@ -19,6 +19,7 @@ from spotnav.experiments.core import THESIS_TABLE_4_1_UM, approximation_rows, ru
 from spotnav.experiments.faults import run_faults
 from spotnav.experiments.geometry import run_geometry
 from spotnav.experiments.light import run_light
+from spotnav.experiments.mismatch import run_mismatch
 from spotnav.experiments.paths import helix_tips, square_tips, working_volume_tips
 from spotnav.experiments.runner import ErrorSummary, FrameResult, FrameRunner, run_frames, summarize
 
@@ -48,7 +49,11 @@ EXPERIMENTS: dict[str, Callable[[Options], Experiment]] = {
     "faults": run_faults,
     "light": run_light,
     "geometry": run_geometry,
+    "mismatch": run_mismatch,
 }
+
+# Studies that run only when named (--only): the mismatch study renders some 3000 frames and calibrates 32 times.
+ON_REQUEST = frozenset({"mismatch"})
 
 
 def reproduce(
@@ -69,7 +74,7 @@ def reproduce(
     quick : bool
         1024 px and 25 poses per path instead of 5000 px and 100.
     only : sequence of str
-        Experiment names (default: all of :data:`EXPERIMENTS`, in its order).
+        Experiment names (default: all of :data:`EXPERIMENTS` but :data:`ON_REQUEST`, in its order).
     workers : int
         Processes for rendering and localizing.
     size_px, poses : int, optional
@@ -88,7 +93,7 @@ def reproduce(
     with FrameRunner(workers) as runner:
         options = Options(out, size_px, count, runner)
         for name, run in EXPERIMENTS.items():
-            if only and name not in only:
+            if (only and name not in only) or (not only and name in ON_REQUEST):
                 continue
             start = time.perf_counter()
             experiment = run(options)

@@ -43,7 +43,16 @@ from spotnav.experiments.runner import (
     summarize,
 )
 
-__all__ = ["GEOMETRY_CASES", "MAX_SIZE_PX", "GeometryCase", "run_geometry"]
+__all__ = [
+    "GEOMETRY_CASES",
+    "MAX_SIZE_PX",
+    "GeometryCase",
+    "change_beam",
+    "change_camera",
+    "change_eye_radius",
+    "run_geometry",
+    "shift_insertion",
+]
 
 MAX_SIZE_PX = 2048  # the study runs at the run's size up to this (the issue's 2048 px)
 CALIBRATION_FRAMES = 10
@@ -65,7 +74,9 @@ class GeometryCase:
     change: Callable[[Setup], Setup]
 
 
-def _insertion(*shift_mm: float) -> Callable[[Setup], Setup]:
+def shift_insertion(*shift_mm: float) -> Callable[[Setup], Setup]:
+    """A change that moves the insertion point by ``shift_mm`` (x, y, z), mm."""
+
     def change(world: Setup) -> Setup:
         point = tuple(float(v) for v in world.instrument.insertion_in_eye + np.array(shift_mm))
         return replace(world, instrument=replace(world.instrument, insertion_point_mm=point))
@@ -73,7 +84,7 @@ def _insertion(*shift_mm: float) -> Callable[[Setup], Setup]:
     return change
 
 
-def _camera(**values: float) -> Callable[[Setup], Setup]:
+def change_camera(**values: float) -> Callable[[Setup], Setup]:
     """A change of the camera: ``rotation_deg`` (about its y axis), ``centre_mm`` (x, y, z), ``focal``
     (relative), ``principal_px`` (u, at 2048 px; scaled to the size), ``k1``."""
 
@@ -90,33 +101,35 @@ def _camera(**values: float) -> Callable[[Setup], Setup]:
     return change
 
 
-def _eye(radius_mm: float) -> Callable[[Setup], Setup]:
+def change_eye_radius(radius_mm: float) -> Callable[[Setup], Setup]:
+    """A change that makes the true retina's radius ``radius_mm``, mm."""
     return lambda world: replace(world, world=World(eye_radius_mm=radius_mm))
 
 
-def _beam(half_angle_deg: float) -> Callable[[Setup], Setup]:
+def change_beam(half_angle_deg: float) -> Callable[[Setup], Setup]:
+    """A change that makes the beams' half-angle ``half_angle_deg``, degrees."""
     return lambda world: replace(world, instrument=replace(world.instrument, beam_half_angle_deg=half_angle_deg))
 
 
 GEOMETRY_CASES: tuple[GeometryCase, ...] = (
     GeometryCase("nothing", combine_changes()),
-    GeometryCase("insertion point 0.5 mm in x", _insertion(0.5, 0.0, 0.0)),
-    GeometryCase("insertion point 1 mm in z", _insertion(0.0, 0.0, 1.0)),
-    GeometryCase("camera 1 mm higher (1 %)", _camera(centre_mm=(0.0, 0.0, 1.0))),
-    GeometryCase("focal length 1 % longer", _camera(focal=0.01)),
-    GeometryCase("eye radius 12.7 mm, setup 12.5", _eye(12.7)),
-    GeometryCase("beam half-angle 9.3 deg, setup 9.0", _beam(9.3)),
-    GeometryCase("camera shifted 0.5 mm in x", _camera(centre_mm=(0.5, 0.0, 0.0))),
-    GeometryCase("camera tilted 0.5 deg", _camera(rotation_deg=0.5)),
-    GeometryCase("principal point 20 px off", _camera(principal_px=20.0)),
-    GeometryCase("radial distortion, k1 = -3", _camera(k1=-3.0)),
+    GeometryCase("insertion point 0.5 mm in x", shift_insertion(0.5, 0.0, 0.0)),
+    GeometryCase("insertion point 1 mm in z", shift_insertion(0.0, 0.0, 1.0)),
+    GeometryCase("camera 1 mm higher (1 %)", change_camera(centre_mm=(0.0, 0.0, 1.0))),
+    GeometryCase("focal length 1 % longer", change_camera(focal=0.01)),
+    GeometryCase("eye radius 12.7 mm, setup 12.5", change_eye_radius(12.7)),
+    GeometryCase("beam half-angle 9.3 deg, setup 9.0", change_beam(9.3)),
+    GeometryCase("camera shifted 0.5 mm in x", change_camera(centre_mm=(0.5, 0.0, 0.0))),
+    GeometryCase("camera tilted 0.5 deg", change_camera(rotation_deg=0.5)),
+    GeometryCase("principal point 20 px off", change_camera(principal_px=20.0)),
+    GeometryCase("radial distortion, k1 = -3", change_camera(k1=-3.0)),
     GeometryCase(
         "everything at once",
         combine_changes(
-            _insertion(0.5, 0.0, 1.0),
-            _camera(centre_mm=(0.5, 0.0, 1.0), rotation_deg=0.5, focal=0.01, principal_px=20.0, k1=-3.0),
-            _eye(12.7),
-            _beam(9.3),
+            shift_insertion(0.5, 0.0, 1.0),
+            change_camera(centre_mm=(0.5, 0.0, 1.0), rotation_deg=0.5, focal=0.01, principal_px=20.0, k1=-3.0),
+            change_eye_radius(12.7),
+            change_beam(9.3),
         ),
     ),
 )
