@@ -50,7 +50,7 @@ def test_axes_through_another_point_make_the_test_speak_once_and_name_it(seed: i
     assert meeting.verdict == said[spoken[0]] and "spotnav calibrate --fit insertion-point" in meeting.verdict
     where = [float(v) for v in meeting.verdict.split("(at [")[1].split("]")[0].split(",")]
     # Where the axes cross the plane through the setup's point: the true pivot, less its shift along the axes.
-    across = meeting._across()
+    across = meeting._crossing()[0]
     np.testing.assert_allclose(across.T @ np.array(where), across.T @ pivot, atol=0.1)
 
 

@@ -261,6 +261,19 @@ def _residuals_px(
 
 
 @njit(cache=True)
+def _harmonics(du: float, dv: float, out: np.ndarray) -> None:
+    """``1, cos a, sin a, ..., cos Ka, sin Ka`` (K = ``_HARMONICS``) of the angle ``a`` of the offset ``(du, dv)``
+    into ``out`` (1 + 2K,), compiled: by the angle-sum recurrence from ``cos a`` and ``sin a``."""
+    radius = np.hypot(du, dv)
+    cos_a, sin_a = (du / radius, dv / radius) if radius > 0.0 else (1.0, 0.0)
+    out[0] = 1.0
+    cos_m, sin_m = 1.0, 0.0
+    for m in range(1, _HARMONICS + 1):
+        cos_m, sin_m = cos_m * cos_a - sin_m * sin_a, sin_m * cos_a + cos_m * sin_a
+        out[2 * m - 1], out[2 * m] = cos_m, sin_m
+
+
+@njit(cache=True)
 def _fit_spread(
     points: np.ndarray,
     tip: np.ndarray,
@@ -297,17 +310,22 @@ def _fit_spread(
         first = last + 1
         if len(rows) < _MIN_NOISE_POINTS:
             continue
+        # The series's least squares by its normal equations (13 x 13), the harmonics by their recurrence.
         centre_u, centre_v = np.mean(pixels[rows, 0]), np.mean(pixels[rows, 1])
-        design = np.empty((len(rows), terms))
-        for j in range(len(rows)):
-            angle = np.arctan2(pixels[rows[j], 1] - centre_v, pixels[rows[j], 0] - centre_u)
-            design[j, 0] = 1.0
-            for m in range(1, _HARMONICS + 1):
-                design[j, 2 * m - 1] = np.cos(m * angle)
-                design[j, 2 * m] = np.sin(m * angle)
-        values = residuals[rows]
-        coefficients = np.linalg.lstsq(design, values)[0]
-        left += np.sum((values - design @ coefficients) ** 2)
+        normal, right, basis = np.zeros((terms, terms)), np.zeros(terms), np.empty(terms)
+        for n in rows:
+            _harmonics(pixels[n, 0] - centre_u, pixels[n, 1] - centre_v, basis)
+            for i in range(terms):
+                right[i] += basis[i] * residuals[n]
+                for j in range(i, terms):
+                    normal[i, j] += basis[i] * basis[j]
+        for i in range(terms):
+            for j in range(i):
+                normal[i, j] = normal[j, i]
+        coefficients = np.linalg.solve(normal, right)
+        for n in rows:
+            _harmonics(pixels[n, 0] - centre_u, pixels[n, 1] - centre_v, basis)
+            left += (residuals[n] - np.dot(basis, coefficients)) ** 2
         freedom += len(rows) - terms
     noise = np.sqrt(left / freedom) if freedom > 0 else np.nan
     return (

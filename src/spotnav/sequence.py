@@ -114,30 +114,29 @@ class AxesMeeting:
         Along their own direction the lines of an instrument that pivots by a
         few degrees barely fix where they meet; across it they do.
         """
+        across, shift, covariance = self._crossing()
+        return self.setup.instrument.insertion_in_eye + across @ shift, across @ covariance @ across.T
+
+    def _crossing(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The two directions across the lines (3, 2), the normal matrix's largest; the meeting point's shift from
+        the insertion point along them (2,), mm; and its covariance (2, 2), mm^2."""
         insertion = self.setup.instrument.insertion_in_eye
-        across = self._across()
+        across = np.linalg.eigh(self._normal)[1][:, 1:]
         normal = across.T @ self._normal @ across
         shift = np.linalg.solve(normal, across.T @ (self._right - self._normal @ insertion))
         point = insertion + across @ shift
         chi_square = self._square - 2.0 * point @ self._right + point @ self._normal @ point
         scale = max(chi_square / max(2 * self.lines - 2, 1), 1.0)
-        return point, across @ (scale * np.linalg.inv(normal)) @ across.T
-
-    def _across(self) -> np.ndarray:
-        """Two unit directions (3, 2) across the lines' mean direction: the normal matrix's two largest."""
-        _, vectors = np.linalg.eigh(self._normal)
-        return vectors[:, 1:]
+        return across, shift, scale * np.linalg.inv(normal)
 
     def _judge(self, insertion: np.ndarray) -> str:
         """The verdict (``""``: the lines fit the setup's insertion point)."""
-        point, covariance = self.meeting_point()
-        across = self._across()
-        miss = across.T @ (point - insertion)
-        sigmas = float(np.sqrt(miss @ np.linalg.solve(across.T @ covariance @ across, miss)))
-        distance = float(np.linalg.norm(miss))
+        across, shift, covariance = self._crossing()
+        sigmas = float(np.sqrt(shift @ np.linalg.solve(covariance, shift)))
+        distance = float(np.linalg.norm(shift))
         if sigmas <= MEETING_SIGMAS or distance <= _MIN_MISS_MM:
             return ""
-        where = ", ".join(f"{v:.2f}" for v in point)
+        where = ", ".join(f"{v:.2f}" for v in insertion + across @ shift)
         return (
             f"the instrument's axes over {self.lines} frames pass {distance:.2f} mm from the setup's insertion point "
             f"(at [{where}] mm, {sigmas:.0f} sigma): the insertion point or the camera is not where the setup says; "

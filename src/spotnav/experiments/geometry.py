@@ -68,10 +68,13 @@ class GeometryCase:
     name : str
     change : callable
         Turns the nominal world (at the study's size) into the true one.
+    beams : tuple of int
+        The beam counts the case runs with.
     """
 
     name: str
     change: Callable[[Setup], Setup]
+    beams: tuple[int, ...] = (1, 3)
 
 
 def shift_insertion(*shift_mm: float) -> Callable[[Setup], Setup]:
@@ -145,6 +148,8 @@ def run_geometry(options: Options) -> Experiment:
         nominal = replace(thesis_world(size, beams), uncertainty=Uncertainty())
         trusted = replace(nominal, uncertainty=Uncertainty.exact())
         for index, case in enumerate(GEOMETRY_CASES):
+            if beams not in case.beams:
+                continue
             world = case.change(thesis_world(size, beams))
             label = f"geometry: {case.name}, {beams} beam{'s' * (beams > 1)}"
             variants = [Variant(VARIANTS[0], trusted, "precise"), Variant(VARIANTS[1], nominal, "precise")]

@@ -16,7 +16,7 @@ sequence's test (:mod:`spotnav.sequence`) may speak. A silent failure is an
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -31,7 +31,13 @@ from spotnav.experiments.chapter6 import (
     thesis_world,
     with_true_edge,
 )
-from spotnav.experiments.geometry import change_beam, change_camera, change_eye_radius, shift_insertion
+from spotnav.experiments.geometry import (
+    GeometryCase,
+    change_beam,
+    change_camera,
+    change_eye_radius,
+    shift_insertion,
+)
 from spotnav.experiments.runner import (
     FrameJob,
     FrameResult,
@@ -48,7 +54,6 @@ __all__ = [
     "MISMATCH_CASES",
     "SILENT_MM",
     "SILENT_SIGMAS",
-    "MismatchCase",
     "count_silent",
     "run_mismatch",
     "track_sequence",
@@ -60,24 +65,6 @@ MAX_SIZE_PX = 1024  # the issue's size
 SEQUENCE_FRAMES = 40
 
 
-@dataclass(frozen=True)
-class MismatchCase:
-    """One quantity of the world off from the setup.
-
-    Attributes
-    ----------
-    name : str
-    change : callable
-        Turns the nominal world into the true one.
-    beams : tuple of int
-        The beam counts the row runs with.
-    """
-
-    name: str
-    change: Callable[[Setup], Setup]
-    beams: tuple[int, ...] = (1, 3)
-
-
 def _light(**values: float) -> Callable[[Setup], Setup]:
     return lambda world: replace(world, light=replace(world.light, **values))
 
@@ -86,21 +73,21 @@ def _tilt(degrees: float) -> Callable[[Setup], Setup]:
     return lambda world: replace(world, instrument=replace(world.instrument, beam_tilt_deg=degrees))
 
 
-MISMATCH_CASES: tuple[MismatchCase, ...] = (
-    MismatchCase("none", lambda world: world),
-    *(MismatchCase(f"beam half-angle {d:+g} deg", change_beam(9.0 + d)) for d in (-1.0, -0.5, -0.25, 0.25, 0.5, 1.0)),
-    MismatchCase("blend 0.25 (setup 0.15)", _light(blend=0.25)),
-    MismatchCase("eye radius +0.5 mm", change_eye_radius(13.0)),
-    MismatchCase("eye radius -0.5 mm", change_eye_radius(12.0)),
-    MismatchCase("camera 1 mm higher", change_camera(centre_mm=(0.0, 0.0, 1.0))),
-    MismatchCase("camera 1 mm lower", change_camera(centre_mm=(0.0, 0.0, -1.0))),
-    MismatchCase("focal length +1 %", change_camera(focal=0.01)),
-    MismatchCase("focal length -1 %", change_camera(focal=-0.01)),
-    MismatchCase("camera tilted 0.3 deg", change_camera(rotation_deg=0.3)),
-    MismatchCase("insertion point 0.5 mm in x", shift_insertion(0.5, 0.0, 0.0)),
-    MismatchCase("beam tilt +0.5 deg", _tilt(15.5), beams=(3,)),
-    MismatchCase("beam tilt -0.5 deg", _tilt(14.5), beams=(3,)),
-    MismatchCase("radial distortion, k1 = -3", change_camera(k1=-3.0)),
+MISMATCH_CASES: tuple[GeometryCase, ...] = (
+    GeometryCase("none", lambda world: world),
+    *(GeometryCase(f"beam half-angle {d:+g} deg", change_beam(9.0 + d)) for d in (-1.0, -0.5, -0.25, 0.25, 0.5, 1.0)),
+    GeometryCase("blend 0.25 (setup 0.15)", _light(blend=0.25)),
+    GeometryCase("eye radius +0.5 mm", change_eye_radius(13.0)),
+    GeometryCase("eye radius -0.5 mm", change_eye_radius(12.0)),
+    GeometryCase("camera 1 mm higher", change_camera(centre_mm=(0.0, 0.0, 1.0))),
+    GeometryCase("camera 1 mm lower", change_camera(centre_mm=(0.0, 0.0, -1.0))),
+    GeometryCase("focal length +1 %", change_camera(focal=0.01)),
+    GeometryCase("focal length -1 %", change_camera(focal=-0.01)),
+    GeometryCase("camera tilted 0.3 deg", change_camera(rotation_deg=0.3)),
+    GeometryCase("insertion point 0.5 mm in x", shift_insertion(0.5, 0.0, 0.0)),
+    GeometryCase("beam tilt +0.5 deg", _tilt(15.5), beams=(3,)),
+    GeometryCase("beam tilt -0.5 deg", _tilt(14.5), beams=(3,)),
+    GeometryCase("radial distortion, k1 = -3", change_camera(k1=-3.0)),
 )
 
 
