@@ -10,10 +10,10 @@ import os
 import numpy as np
 import pytest
 
-from spotnav.config import Setup
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
-from spotnav.experiments.paths import helix_tips, poses_through_insertion
-from spotnav.render import Renderer
+from spotnav.optics.render import Renderer
+from spotnav.setup.config import Setup
+from spotnav.setup.paths import helix_tips, poses_through_insertion
 
 SIZES = [int(s) for s in os.environ.get("SPOTNAV_BENCH_SIZES", "1024,2048,5000").split(",")]
 

@@ -6,12 +6,12 @@ from typing import Any
 
 import numpy as np
 
-from spotnav.config import Setup
-from spotnav.experiments.paths import helix_tips, poses_through_insertion
-from spotnav.localize import localize
-from spotnav.precise import localize_precise
-from spotnav.render import Renderer
-from spotnav.track import track_frame
+from spotnav.app.track import track_frame
+from spotnav.optics.render import Renderer
+from spotnav.pose.localize import localize
+from spotnav.pose.precise import localize_precise
+from spotnav.setup.config import Setup
+from spotnav.setup.paths import helix_tips, poses_through_insertion
 
 Scene = tuple[Setup, Renderer, list[np.ndarray]]
 

@@ -7,8 +7,8 @@ from dataclasses import replace
 import pytest
 from hypothesis import settings
 
-from spotnav.config import Camera, Light, Render, Setup, Uncertainty
-from spotnav.render import Renderer
+from spotnav.optics.render import Renderer
+from spotnav.setup.config import Camera, Light, Render, Setup, Uncertainty
 
 # No per-example deadline: the first example of a test may compile (or load) Numba kernels, and a
 # shared 2-core CI machine's timing varies; the suite's time is kept by CI's own limit.

@@ -19,12 +19,12 @@ import numpy as np
 import pytest
 
 from spotnav import cli
+from spotnav.app.track import TrackedFrame, Tracker
 from spotnav.cli import main
-from spotnav.config import EXAMPLE_SETUP, THESIS_EXPOSURE_STOPS, Render, Setup, Uncertainty, setup_from_toml
 from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.files import iter_frames
-from spotnav.geometry import edge_angle_of_blend
-from spotnav.track import TrackedFrame, Tracker
+from spotnav.setup.config import EXAMPLE_SETUP, THESIS_EXPOSURE_STOPS, Render, Setup, Uncertainty, setup_from_toml
+from spotnav.setup.geometry import edge_angle_of_blend
 
 
 def write_scene(path: Path, size_px: int = 5000, blend: float = 0.0) -> Path:
@@ -491,7 +491,7 @@ def test_track_runs_its_loop_with_the_heap_frozen(
     tmp_path: Path, long_video: tuple[Path, Path], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # A full garbage collection walks every object alive; the tracking loop leaves those alive before it to themselves
-    # (spotnav.track.frozen_heap) and gives them back after.
+    # (spotnav.app.track.frozen_heap) and gives them back after.
     scene, video = long_video
     frozen, update = [], Tracker.update
 

@@ -18,12 +18,15 @@ def test_cached_kernels_are_dropped_when_any_source_changes(tmp_path: Path) -> N
     package = tmp_path / "spotnav"
     shutil.copytree(Path(spotnav.__file__).parent, package, ignore=shutil.ignore_patterns("__pycache__"))
     _import_package(tmp_path)
-    kernels = [package / "__pycache__" / name for name in ("conefit._residuals-1.py311.nbi", "conefit.x.py311.1.nbc")]
+    (package / "pose" / "__pycache__").mkdir(exist_ok=True)
+    kernels = [
+        package / "pose" / "__pycache__" / name for name in ("conefit._residuals-1.py311.nbi", "conefit.x.py311.1.nbc")
+    ]
     for kernel in kernels:
         kernel.write_bytes(b"cached")
     _import_package(tmp_path)
     assert all(kernel.exists() for kernel in kernels)
-    with (package / "camera.py").open("a") as source:
+    with (package / "optics" / "camera.py").open("a") as source:
         source.write("\n")
     _import_package(tmp_path)
     assert not any(kernel.exists() for kernel in kernels)

@@ -1,9 +1,9 @@
 """spotnav: localize a surgical instrument inside the eye from the light cone it projects.
 
-The data flows one way: setup (:mod:`spotnav.config`) -> :mod:`spotnav.geometry`
--> :mod:`spotnav.camera` -> :mod:`spotnav.render` -> :mod:`spotnav.detect` ->
-:mod:`spotnav.reconstruct` -> :mod:`spotnav.localize`, then
-:mod:`spotnav.experiments` and :mod:`spotnav.cli`.
+The data flows one way, a package per stage: :mod:`spotnav.setup` -> :mod:`spotnav.optics` ->
+:mod:`spotnav.image` -> :mod:`spotnav.pose`, with :mod:`spotnav.files` for what is read and written; then the
+applications (:mod:`spotnav.app`), the studies (:mod:`spotnav.experiments`) and the command line
+(:mod:`spotnav.cli`). ``docs/architecture.md`` draws the map.
 """
 
 import hashlib
@@ -14,24 +14,25 @@ def _drop_stale_kernels() -> None:
     """Drop the compiled kernels cached beside the sources when any of the package's sources changed since.
 
     Numba keys each cached kernel on its own module's source only, and a kernel keeps the code of the kernels it
-    calls in other modules: after a change to ``camera.py`` alone (a ``git pull`` into an editable install),
-    ``conefit``'s cached kernels would go on computing with the old camera. Read-only sources (a cache under
+    calls in other modules: after a change to ``optics/camera.py`` alone (a ``git pull`` into an editable install),
+    ``pose``'s cached kernels would go on computing with the old camera. Read-only sources (a cache under
     ``NUMBA_CACHE_DIR``) do not change, and are left alone.
     """
     package = Path(__file__).parent
-    cache = package / "__pycache__"
-    stamps = [(path.name, path.stat().st_size, path.stat().st_mtime_ns) for path in sorted(package.glob("*.py"))]
+    sources = sorted(package.rglob("*.py"))
+    stamps = [(str(path.relative_to(package)), path.stat().st_size, path.stat().st_mtime_ns) for path in sources]
     fingerprint = hashlib.sha256(repr(stamps).encode()).hexdigest()
-    marker = cache / "spotnav-kernels-sources.txt"
+    marker = package / "__pycache__" / "spotnav-kernels-sources.txt"
     try:
         if marker.read_text() == fingerprint:
             return
     except OSError:
         pass
     try:
-        cache.mkdir(exist_ok=True)
-        for kernel in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
-            kernel.unlink(missing_ok=True)
+        marker.parent.mkdir(exist_ok=True)
+        for cache in {path.parent / "__pycache__" for path in sources}:
+            for kernel in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+                kernel.unlink(missing_ok=True)
         marker.write_text(fingerprint)
     except OSError:
         return
@@ -39,10 +40,10 @@ def _drop_stale_kernels() -> None:
 
 _drop_stale_kernels()
 
-from spotnav.config import Setup, SetupError, setup_from_toml  # noqa: E402
-from spotnav.geometry import InstrumentPose  # noqa: E402
-from spotnav.localize import PoseEstimate, localize  # noqa: E402
-from spotnav.render import Renderer  # noqa: E402
+from spotnav.optics.render import Renderer  # noqa: E402
+from spotnav.pose.localize import PoseEstimate, localize  # noqa: E402
+from spotnav.setup.config import Setup, SetupError, setup_from_toml  # noqa: E402
+from spotnav.setup.geometry import InstrumentPose  # noqa: E402
 
 __version__ = "0.1.0"
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from spotnav import __version__
-from spotnav.calibrate import (
+from spotnav.app.calibrate import (
     EDGE_BAND_MARGIN,
     Calibration,
     KnownFrame,
@@ -33,14 +33,14 @@ from spotnav.calibrate import (
     prepare_self_calibration,
     self_calibrate_radius,
 )
-from spotnav.conefit import PARAMETER_GROUPS
-from spotnav.config import EXAMPLES, GEOMETRY_PARAMETERS, Camera, Setup
+from spotnav.app.evaluate import evaluate_poses, evaluation_text, write_evaluation
+from spotnav.app.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT, PoseServer
+from spotnav.app.overlay import crop_box, draw_overlay, fitted_spots
+from spotnav.app.progress import progress
+from spotnav.app.track import TrackedFrame, Tracker, frozen_heap, prepare_kernels
 from spotnav.errors import SpotnavError
-from spotnav.estimate import PoseEstimate
 from spotnav.experiments import EXPERIMENTS, approximation_rows, reproduce
 from spotnav.experiments.bench import bench_markdown, run_bench, run_stress, stress_markdown
-from spotnav.experiments.evaluate import evaluate_poses, evaluation_text, write_evaluation
-from spotnav.experiments.paths import helix_tips, resample_polyline, square_tips, tremor_offsets
 from spotnav.experiments.profiling import profile_markdown, run_profile
 from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
 from spotnav.experiments.sweep_report import write_sweep_report
@@ -66,13 +66,13 @@ from spotnav.files import (
     write_truth_csv,
     write_truth_json,
 )
-from spotnav.geometry import InstrumentPose, beam_axes
-from spotnav.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT, PoseServer
-from spotnav.localize import DEFAULT_METHOD, METHODS, localize, localize_detailed
-from spotnav.overlay import crop_box, draw_overlay, fitted_spots
-from spotnav.progress import progress
-from spotnav.render import Renderer
-from spotnav.track import TrackedFrame, Tracker, frozen_heap, prepare_kernels
+from spotnav.optics.render import Renderer
+from spotnav.pose.conefit import PARAMETER_GROUPS
+from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.localize import DEFAULT_METHOD, METHODS, localize, localize_detailed
+from spotnav.setup.config import EXAMPLES, GEOMETRY_PARAMETERS, Camera, Setup
+from spotnav.setup.geometry import InstrumentPose, beam_axes
+from spotnav.setup.paths import helix_tips, resample_polyline, square_tips, tremor_offsets
 
 __all__ = ["main"]
 

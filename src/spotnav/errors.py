@@ -4,7 +4,7 @@ Every error a user can cause is a :class:`SpotnavError` with a one-line message
 that names what to change; the command line turns it into
 ``spotnav: error: MESSAGE`` and exit code 2. Anything else that escapes is a
 bug and keeps its traceback. A frame that cannot be localized is not an error:
-it is a :class:`~spotnav.estimate.PoseEstimate` with a status.
+it is a :class:`~spotnav.pose.estimate.PoseEstimate` with a status.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 __all__ = ["InputError", "SpotnavError"]
 
 
-class SpotnavError(ValueError):
+class SpotnavError(Exception):
     """A user error (see the module's docstring)."""
 
 

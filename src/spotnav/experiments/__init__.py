@@ -20,8 +20,8 @@ from spotnav.experiments.faults import run_faults
 from spotnav.experiments.geometry import run_geometry
 from spotnav.experiments.light import run_light
 from spotnav.experiments.mismatch import run_mismatch
-from spotnav.experiments.paths import helix_tips, square_tips, working_volume_tips
 from spotnav.experiments.runner import ErrorSummary, FrameResult, FrameRunner, run_frames, summarize
+from spotnav.setup.paths import helix_tips, square_tips, working_volume_tips
 
 __all__ = [
     "EXPERIMENTS",

@@ -13,14 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spotnav.config import Setup
+from spotnav.app.progress import progress
+from spotnav.app.track import Tracker, frozen_heap
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.faults import SILENT_ERROR_MM
-from spotnav.experiments.paths import helix_tips, poses_through_insertion
-from spotnav.localize import localize
-from spotnav.progress import progress
-from spotnav.render import Renderer
-from spotnav.track import Tracker, frozen_heap
+from spotnav.optics.render import Renderer
+from spotnav.pose.localize import localize
+from spotnav.setup.config import Setup
+from spotnav.setup.paths import helix_tips, poses_through_insertion
 
 __all__ = ["STAGES", "BenchRow", "StressResult", "bench_markdown", "run_bench", "run_stress", "stress_markdown"]
 
@@ -237,7 +237,7 @@ class StressResult:
         on a dark frame.
     slowest : tuple of (int, str)
         The slowest frame after the first: its index and how the tracker answered it
-        (:data:`~spotnav.track.TRACK_MODES`).
+        (:data:`~spotnav.app.track.TRACK_MODES`).
     """
 
     size_px: int

@@ -16,8 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from spotnav.calibrate import Calibration, KnownFrame, calibrate, prepare_self_calibration, self_calibrate_radius
-from spotnav.config import GEOMETRY_PARAMETERS, Instrument, Light, Setup, Uncertainty, World
+from spotnav.app.calibrate import Calibration, KnownFrame, calibrate, prepare_self_calibration, self_calibrate_radius
 from spotnav.experiments.chapter6 import (
     BEAMS,
     PATH_SEEDS,
@@ -30,7 +29,6 @@ from spotnav.experiments.chapter6 import (
     with_uncertainty,
     write_results_csv,
 )
-from spotnav.experiments.paths import poses_through_insertion, working_volume_tips
 from spotnav.experiments.runner import (
     FrameJob,
     FrameResult,
@@ -42,7 +40,9 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.geometry import edge_angle_of_blend
+from spotnav.setup.config import GEOMETRY_PARAMETERS, Instrument, Light, Setup, Uncertainty, World
+from spotnav.setup.geometry import edge_angle_of_blend
+from spotnav.setup.paths import poses_through_insertion, working_volume_tips
 
 __all__ = ["KNOWN_FRAMES", "calibration_text", "known_calibration", "run_calibration"]
 

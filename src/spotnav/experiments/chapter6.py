@@ -17,18 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spotnav.camera import camera_depth_mm, decode_values, project_points
-from spotnav.config import THESIS_EXPOSURE_STOPS, Bump, Camera, Instrument, Light, Render, Setup, Uncertainty, World
-from spotnav.detect import detect_spots_otsu
-from spotnav.estimate import PoseEstimate
 from spotnav.experiments.figures import plot_against_power, plot_gallery, plot_path_3d, plot_per_step
-from spotnav.experiments.paths import (
-    HELIX,
-    SQUARE_CORNERS_MM,
-    helix_tips,
-    poses_through_insertion,
-    square_tips,
-)
 from spotnav.experiments.runner import (
     ErrorSummary,
     FrameJob,
@@ -40,11 +29,32 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.geometry import InstrumentPose, edge_angle_of_blend, rotation_about_y
-from spotnav.precise import localize_precise
-from spotnav.reconstruct import fit_ellipse, triangle_from_ellipse
-from spotnav.render import Renderer
-from spotnav.thesis import locate_from_spots, spot_candidates
+from spotnav.image.detect import detect_spots_otsu
+from spotnav.optics.camera import camera_depth_mm, decode_values, project_points
+from spotnav.optics.render import Renderer
+from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.precise import localize_precise
+from spotnav.pose.reconstruct import fit_ellipse, triangle_from_ellipse
+from spotnav.pose.thesis import locate_from_spots, spot_candidates
+from spotnav.setup.config import (
+    THESIS_EXPOSURE_STOPS,
+    Bump,
+    Camera,
+    Instrument,
+    Light,
+    Render,
+    Setup,
+    Uncertainty,
+    World,
+)
+from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend, rotation_about_y
+from spotnav.setup.paths import (
+    HELIX,
+    SQUARE_CORNERS_MM,
+    helix_tips,
+    poses_through_insertion,
+    square_tips,
+)
 
 __all__ = [
     "EXPOSURES",

@@ -19,8 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spotnav.conefit import PARAMETER_GROUPS, SHARED_SIZE, setup_with_geometry
-from spotnav.config import Setup, Uncertainty, World
+from spotnav.errors import SpotnavError
 from spotnav.experiments.calibration import known_calibration
 from spotnav.experiments.chapter6 import (
     PATH_SEEDS,
@@ -42,6 +41,8 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
+from spotnav.pose.conefit import PARAMETER_GROUPS, SHARED_SIZE, setup_with_geometry
+from spotnav.setup.config import Setup, Uncertainty, World
 
 __all__ = [
     "GEOMETRY_CASES",
@@ -157,7 +158,7 @@ def run_geometry(options: Options) -> Experiment:
                 calibration = known_calibration(
                     options.runner, world, nominal, label, axes=True, count=CALIBRATION_FRAMES
                 )
-            except ValueError as error:
+            except (SpotnavError, ValueError) as error:
                 notes.append(f"- {case.name}, {beams} beams: calibrate refused: {error}")
             else:
                 variants.append(Variant(VARIANTS[2], calibration.setup, "precise"))

@@ -13,9 +13,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from spotnav.config import Setup
 from spotnav.experiments.chapter6 import Experiment, Options, markdown_table, thesis_world, with_true_edge
-from spotnav.experiments.paths import helix_tips, poses_through_insertion
 from spotnav.experiments.runner import (
     FrameJob,
     FrameResult,
@@ -25,6 +23,8 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
+from spotnav.setup.config import Setup
+from spotnav.setup.paths import helix_tips, poses_through_insertion
 
 __all__ = ["EXPOSURE_STOPS", "FRAME_BLURS_PX", "run_light"]
 

@@ -9,7 +9,7 @@ wrong), as a user writes it (a real microscope's ``[uncertainty]``), and after
 ``spotnav calibrate`` on :data:`~spotnav.experiments.calibration.KNOWN_FRAMES`
 frames at known poses rendered in the true world. Each world is also tracked
 along a :data:`SEQUENCE_FRAMES`-frame helix with the exact setup, where the
-sequence's test (:mod:`spotnav.sequence`) may speak. A silent failure is an
+sequence's test (:mod:`spotnav.pose.sequence`) may speak. A silent failure is an
 ``ok`` frame over :data:`SILENT_MM` off or outside :data:`SILENT_SIGMAS` sigma.
 """
 
@@ -20,7 +20,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from spotnav.config import Setup, Uncertainty
+from spotnav.app.track import Tracker
+from spotnav.errors import SpotnavError
 from spotnav.experiments.calibration import KNOWN_FRAMES, known_calibration
 from spotnav.experiments.chapter6 import (
     PATH_SEEDS,
@@ -47,8 +48,8 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.geometry import InstrumentPose
-from spotnav.track import Tracker
+from spotnav.setup.config import Setup, Uncertainty
+from spotnav.setup.geometry import InstrumentPose
 
 __all__ = [
     "MISMATCH_CASES",
@@ -134,7 +135,7 @@ def run_mismatch(options: Options) -> Experiment:
             variants = [Variant("exact", exact, "precise"), Variant("as known", as_known, "precise")]
             try:
                 calibration = known_calibration(options.runner, world, as_known, label, axes=True, count=KNOWN_FRAMES)
-            except ValueError as error:
+            except (SpotnavError, ValueError) as error:
                 calibrated = f"calibrate refused: {str(error).split(';')[0]}"
             else:
                 variants.append(Variant("calibrated", calibration.setup, "precise"))

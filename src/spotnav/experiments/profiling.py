@@ -21,14 +21,15 @@ import cv2
 import numpy as np
 from numba.core.registry import CPUDispatcher
 
-from spotnav import pipeline, precise, track
+from spotnav.app import track
+from spotnav.app.progress import progress
+from spotnav.app.track import Tracker, frozen_heap
 from spotnav.experiments.bench import HELIX_FRAMES, STAGES
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
-from spotnav.experiments.paths import helix_tips, poses_through_insertion
-from spotnav.localize import localize
-from spotnav.progress import progress
-from spotnav.render import Renderer
-from spotnav.track import Tracker, frozen_heap
+from spotnav.optics.render import Renderer
+from spotnav.pose import pipeline, precise
+from spotnav.pose.localize import localize
+from spotnav.setup.paths import helix_tips, poses_through_insertion
 
 __all__ = ["PARTS", "PROFILED_STAGES", "FunctionTime", "StageProfile", "profile_markdown", "run_profile"]
 

@@ -15,13 +15,14 @@ from typing import Any
 
 import numpy as np
 
-from spotnav.config import Setup
-from spotnav.estimate import PoseEstimate
-from spotnav.geometry import InstrumentPose, angles_between, axis_rotations
-from spotnav.localize import localize
-from spotnav.progress import progress
-from spotnav.render import Renderer
-from spotnav.thesis import fit_height_correction
+from spotnav.app.progress import progress
+from spotnav.errors import SpotnavError
+from spotnav.optics.render import Renderer
+from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.localize import localize
+from spotnav.pose.thesis import fit_height_correction
+from spotnav.setup.config import Setup
+from spotnav.setup.geometry import InstrumentPose, angles_between, axis_rotations
 
 __all__ = [
     "ErrorSummary",
@@ -49,7 +50,7 @@ class Variant:
     setup : Setup
         The localizer's setup (it may differ from the rendered world).
     method : str
-        A :data:`spotnav.localize.METHODS` name.
+        A :data:`spotnav.pose.localize.METHODS` name.
     """
 
     label: str
@@ -100,7 +101,7 @@ class FrameResult:
     def rotation_error_deg(self) -> np.ndarray:
         """Absolute error of the axis's rotation about y and about z, and the angle between axes.
 
-        Shape (3,), degrees (see :func:`spotnav.geometry.axis_rotations`); NaN unless ``ok``.
+        Shape (3,), degrees (see :func:`spotnav.setup.geometry.axis_rotations`); NaN unless ``ok``.
         """
         if self.estimate.axis is None:
             return np.full(3, np.nan)
@@ -214,7 +215,7 @@ def calibrate_height(job: FrameJob) -> float:
     image = Renderer(job.world).render(job.pose, seed=job.seed)
     try:
         factor = fit_height_correction(image, job.variants[0].setup, job.pose.tip_in_eye)
-    except ValueError:
+    except (SpotnavError, ValueError):
         return float("nan")
     return factor if 0.5 <= factor <= 2.0 else float("nan")
 

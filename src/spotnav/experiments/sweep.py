@@ -31,15 +31,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from spotnav.config import Setup, Uncertainty, setup_from_toml
-from spotnav.errors import InputError
+from spotnav.app.progress import progress
+from spotnav.errors import InputError, SpotnavError
 from spotnav.experiments.chapter6 import with_true_edge
-from spotnav.experiments.paths import helix_tips, poses_through_insertion, square_tips
 from spotnav.files import read_path_csv
-from spotnav.geometry import InstrumentPose, angles_between
-from spotnav.localize import METHODS, localize
-from spotnav.progress import progress
-from spotnav.render import Renderer
+from spotnav.optics.render import Renderer
+from spotnav.pose.localize import METHODS, localize
+from spotnav.setup.config import Setup, Uncertainty, setup_from_toml
+from spotnav.setup.geometry import InstrumentPose, angles_between
+from spotnav.setup.paths import helix_tips, poses_through_insertion, square_tips
 
 __all__ = [
     "EXAMPLE_SWEEP",
@@ -215,7 +215,7 @@ def _read_frames(table: Any, base_dir: Path) -> dict[str, Any]:
         if path not in PATHS:
             try:
                 read_path_csv(path)
-            except (OSError, ValueError) as error:
+            except (OSError, SpotnavError) as error:
                 raise SweepError(f"frames.paths: {path}: {error}") from None
     methods = table.get("methods", ["thesis", "precise"])
     if not isinstance(methods, list) or not methods or not all(isinstance(m, str) and m in METHODS for m in methods):

@@ -1,0 +1,1 @@
+"""Applications: localize, calibrate, track and evaluate, called by the command line and by tests."""

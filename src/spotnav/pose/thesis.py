@@ -1,0 +1,200 @@
+"""The thesis's method: Algorithms 1 and 2 as written (sections 5.3-5.4), and section 5.5's height correction.
+
+Spots are found by Otsu's threshold (:func:`spotnav.image.detect.detect_spots_otsu`);
+each contour is back-projected onto the retina and fitted with an ellipse
+whose triangle gives two apex candidates (:mod:`spotnav.pose.reconstruct`). One
+beam: the candidate whose cone axis runs along its line from the insertion
+point (thesis-notes 6). Three beams: the closest triple and its median.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from spotnav.errors import InputError
+from spotnav.image.detect import Spot, SpotDetection, detect_spots_otsu
+from spotnav.optics.camera import unproject_pixels_to_plane, unproject_pixels_to_sphere
+from spotnav.pose.checks import check_image_size
+from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.reconstruct import ConeCandidates, apex_candidates, choose_by_insertion, sphere_normal
+from spotnav.setup.config import Setup
+from spotnav.setup.geometry import normalize
+
+__all__ = [
+    "ThesisSolution",
+    "fit_height_correction",
+    "localize_thesis",
+    "localize_thesis_with_spots",
+    "locate_from_spots",
+    "solve_thesis",
+    "spot_candidates",
+]
+
+
+def localize_thesis(image: np.ndarray, setup: Setup) -> PoseEstimate:
+    """The thesis's method: Algorithm 1 (one beam) or Algorithm 2 (three beams).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, 3|4), uint8 or uint16
+        Camera frame, RGB(A) or grey.
+    setup : Setup
+        Only ``eye``, ``camera`` and ``instrument`` are used.
+    """
+    return localize_thesis_with_spots(image, setup)[0]
+
+
+def localize_thesis_with_spots(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, SpotDetection | None]:
+    """:func:`localize_thesis`, and the spots it detected (None for an image of the wrong size)."""
+    wrong = check_image_size(image, setup)
+    if wrong is not None:
+        return wrong, None
+    detection = detect_spots_otsu(image, response=setup.camera.pixel_response)
+    return locate_from_spots(detection, setup), detection
+
+
+def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCandidates | None:
+    """Both apex candidates of one spot (Algorithm 1 after detection).
+
+    Parameters
+    ----------
+    spot : Spot
+    setup : Setup
+        The eye, camera and instrument (with its height correction).
+    surface : str
+        ``"sphere"``: the retina of ``eye.radius_mm``. ``"plane"``: the plane
+        ``z = 0``, the thesis's ellipse test (section 6.2).
+
+    Returns
+    -------
+    ConeCandidates or None
+        ``None`` when the spot is cut by the border or the retina's edge.
+    """
+    if spot.touches_border:
+        return None
+    if surface == "plane":
+        points = unproject_pixels_to_plane(setup.camera, spot.contour_px)
+        normal = np.array([0.0, 0.0, 1.0])
+    else:
+        points = unproject_pixels_to_sphere(setup.camera, spot.contour_px, setup.eye.radius_mm)
+        if not np.isfinite(points).all():
+            return None
+        normal = sphere_normal(points, setup.eye.center_in_eye)
+    try:
+        return apex_candidates(points, normal, setup.instrument.beam_half_angle, setup.instrument.height_correction)
+    except (ValueError, np.linalg.LinAlgError):  # no ellipse fits the contour
+        return None
+
+
+def _closest_set(candidates: list[ConeCandidates]) -> tuple[int, ...]:
+    """One candidate per contour: the combination whose apexes have the smallest summed pairwise distance."""
+    best, best_spread = (0,) * len(candidates), np.inf
+    for choice in itertools.product((0, 1), repeat=len(candidates)):
+        apexes = [c.apexes[i] for c, i in zip(candidates, choice, strict=True)]
+        spread = sum(np.linalg.norm(p - q) for p, q in itertools.combinations(apexes, 2))
+        if spread < best_spread:
+            best, best_spread = choice, spread
+    return best
+
+
+@dataclass(frozen=True)
+class ThesisSolution:
+    """The thesis's reconstruction of one frame: its estimate, and the spots and candidates it chose from.
+
+    Attributes
+    ----------
+    estimate : PoseEstimate
+    spots : tuple of Spot
+        The whole spots used.
+    candidates : tuple of ConeCandidates
+        Each spot's two apex candidates.
+    chosen : tuple of int
+        The candidate chosen for each spot.
+    """
+
+    estimate: PoseEstimate
+    spots: tuple[Spot, ...] = ()
+    candidates: tuple[ConeCandidates, ...] = ()
+    chosen: tuple[int, ...] = ()
+
+
+def solve_thesis(detection: SpotDetection, setup: Setup, surface: str = "sphere") -> ThesisSolution:
+    """The thesis's reconstruction from detected spots, with what it chose (see :func:`locate_from_spots`)."""
+    beams = setup.instrument.beam_count
+    spots = detection.spots
+    if not spots:
+        return ThesisSolution(
+            PoseEstimate(
+                "no_spot", detail=f"no region brighter than the background (contrast {detection.contrast:.1f})"
+            )
+        )
+    if len(spots) > beams:
+        return ThesisSolution(
+            PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}")
+        )
+    pairs = [(spot, c) for spot, c in ((spot, spot_candidates(spot, setup, surface)) for spot in spots) if c]
+    needed = 1 if beams == 1 else 2
+    if len(pairs) < needed:
+        if len(pairs) < len(spots):
+            detail = "a spot reaches the image border or the retina's edge"
+            return ThesisSolution(PoseEstimate("clipped", spots=len(spots), detail=detail))
+        detail = f"{len(spots)} of {beams} spots, need {needed}"
+        return ThesisSolution(PoseEstimate("too_few_spots", spots=len(spots), detail=detail))
+    usable = [c for _, c in pairs]
+    if beams == 1:
+        chosen: tuple[int, ...] = (choose_by_insertion(usable[0], setup.instrument.insertion_in_eye)[0],)
+        tip = usable[0].apexes[chosen[0]]
+    else:
+        chosen = _closest_set(usable)
+        apexes = np.array([c.apexes[i] for c, i in zip(usable, chosen, strict=True)])
+        tip = np.median(apexes, axis=0)  # Algorithm 2; the median of two is their mean
+    if not setup.contains_point(tip):
+        estimate = PoseEstimate("unreliable", spots=len(usable), detail="the fitted apex lies outside the eye")
+    else:
+        axis = normalize(tip - setup.instrument.insertion_in_eye)  # the thesis's axis
+        detail = f"{len(usable)} of {beams} spots" if len(usable) < beams else ""
+        estimate = PoseEstimate("ok", tip_in_eye=tip, axis=axis, spots=len(usable), detail=detail)
+    return ThesisSolution(estimate, tuple(s for s, _ in pairs), tuple(usable), chosen)
+
+
+def locate_from_spots(detection: SpotDetection, setup: Setup, surface: str = "sphere") -> PoseEstimate:
+    """The thesis's reconstruction from detected spots (Algorithms 1 and 2).
+
+    One beam: the spot's two apex candidates, the one whose cone axis runs
+    along its line from the insertion point. Three beams: two candidates per
+    spot, the combination (one per spot) with the smallest spread, and its
+    coordinate-wise median; two visible spots still give a pose (their mean),
+    with ``spots = 2``. The instrument's axis comes from the insertion point.
+    ``instrument.height_correction`` (section 5.5) scales every triangle.
+    ``surface`` is that of :func:`spot_candidates`.
+    """
+    return solve_thesis(detection, setup, surface).estimate
+
+
+def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarray) -> float:
+    """Section 5.5's factor from one frame with the tip at a known position.
+
+    The known height of the tip above each spot's fitting plane divided by the
+    reconstructed height ``s2``, averaged over the visible spots.
+
+    Raises
+    ------
+    ValueError
+        When the frame shows no usable spot.
+    """
+    wrong = check_image_size(image, setup)
+    if wrong is not None:
+        raise InputError(wrong.detail)
+    detection = detect_spots_otsu(image, response=setup.camera.pixel_response)
+    if len(detection.spots) > setup.instrument.beam_count:
+        raise InputError(f"the calibration frame shows {len(detection.spots)} spots")
+    plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
+    fits = [c for c in (spot_candidates(s, plain) for s in detection.spots) if c]
+    if not fits:
+        raise InputError("the calibration frame shows no whole spot")
+    tip_in_eye = np.asarray(tip_in_eye, dtype=float)
+    factors = [float((tip_in_eye - c.plane_origin_in_eye) @ c.plane_normal_in_eye) / c.s2 for c in fits]
+    return float(np.mean(factors))

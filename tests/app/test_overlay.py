@@ -1,0 +1,49 @@
+from __future__ import annotations
+
+import numpy as np
+from conftest import small_setup
+
+from spotnav.app.overlay import crop_box, draw_overlay
+from spotnav.optics.render import Renderer
+from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.localize import localize_detailed
+from spotnav.setup.geometry import InstrumentPose
+
+GREEN, CYAN, YELLOW = (0, 220, 0), (0, 230, 255), (255, 255, 0)
+
+
+def _count(canvas: np.ndarray, colour: tuple[int, int, int]) -> int:
+    return int(np.all(canvas == colour, axis=2).sum())
+
+
+def test_the_overlay_draws_the_edge_the_cones_the_tip_and_leaves_the_frame_alone() -> None:
+    setup = small_setup(512, blend=0.15)
+    pose = InstrumentPose.through_insertion(np.array([0.5, 0.5, 4.0]), setup.instrument.insertion_in_eye)
+    image = Renderer(setup).render(pose, seed=1)
+    before = image.copy()
+    result = localize_detailed(image, setup)
+    assert result.estimate.ok
+    canvas = draw_overlay(image, setup, result.estimate, spots=result.spots, cones=result.cones, label="frame 7")
+    np.testing.assert_array_equal(image, before)
+    assert canvas.shape == image.shape and canvas.dtype == np.uint8
+    assert _count(canvas, GREEN) > 50 and _count(canvas, YELLOW) > 5
+    cones_only = draw_overlay(image, setup, result.estimate, cones=result.cones)
+    assert _count(cones_only, CYAN) > 100 and _count(cones_only, GREEN) == 0
+    # The green points sit on the spot's edge: between its bright inside and the dark outside.
+    green = np.argwhere(np.all(canvas == GREEN, axis=2))
+    brightness = image.astype(float).mean(axis=2)
+    centre = green.mean(axis=0)
+    inside = brightness[tuple(np.round(centre + 0.8 * (green - centre)).astype(int).T)]
+    outside = brightness[tuple(np.clip(np.round(centre + 1.2 * (green - centre)).astype(int), 0, 511).T)]
+    assert np.median(inside) > 2 * np.median(outside)
+    x0, y0, x1, y1 = crop_box(setup, result)
+    assert 0 <= x0 < centre[1] < x1 <= 512 and 0 <= y0 < centre[0] < y1 <= 512 and (x1 - x0) < 256
+
+
+def test_a_frame_without_a_pose_shows_its_status_and_no_cone() -> None:
+    setup = small_setup(256)
+    image = np.zeros((256, 256), np.uint16)
+    refused = PoseEstimate("no_spot", detail="nothing bright")
+    canvas = draw_overlay(image, setup, refused)
+    assert canvas.shape == (256, 256, 3) and _count(canvas, CYAN) == 0 and _count(canvas, YELLOW) == 0
+    assert canvas.max() > 0  # the status text
