@@ -67,7 +67,7 @@ from spotnav.files import (
     write_truth_json,
 )
 from spotnav.optics.render import Renderer
-from spotnav.pose.conefit import PARAMETER_GROUPS
+from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.localize import DEFAULT_METHOD, METHODS, localize, localize_detailed
 from spotnav.setup.config import EXAMPLES, GEOMETRY_PARAMETERS, Camera, Setup

@@ -23,8 +23,9 @@ from spotnav.app.calibrate import (
 from spotnav.errors import InputError, SpotnavError
 from spotnav.experiments import helix_tips, working_volume_tips
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
-from spotnav.pose.conefit import SHARED_SIZE, edge_angle, geometry_covariance, setup_with_geometry
+from spotnav.pose.conefit.parameters import SHARED_SIZE, geometry_covariance, setup_with_geometry
 from spotnav.pose.localize import localize
 from spotnav.pose.precise import localize_precise
 from spotnav.setup.config import GEOMETRY_PARAMETERS, Instrument, Setup, Uncertainty, World

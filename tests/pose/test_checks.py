@@ -9,9 +9,9 @@ from conftest import small_setup
 
 from spotnav.image.detect import SpotEdge
 from spotnav.optics.camera import camera_depth_mm
+from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
 from spotnav.pose.checks import FIT_RATIO_EXPLAINED, MAX_FIT_RATIO, _depth_of, _fit_spread, blur_shift_px, residuals_px
-from spotnav.pose.conefit import edge_angle
 from spotnav.pose.localize import localize
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend

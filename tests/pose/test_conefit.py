@@ -11,29 +11,21 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from spotnav.optics.camera import camera_model, perturbed_model, project_points
-from spotnav.pose.conefit import (
+from spotnav.optics.light import edge_angle
+from spotnav.pose.conefit.covariance import correlation_inflation, scatter_covariance
+from spotnav.pose.conefit.parameters import (
     AXIS_MODES,
     EDGE_MODEL_SIGMA,
     PARAMETER_GROUPS,
     SHARED_SIZE,
-    SOLVERS,
-    EdgePoints,
-    _fit_recipe,
-    _frame_starts,
-    _free_trace,
-    _start_frames,
-    _tip_box,
-    cone_problem,
-    correlation_inflation,
-    edge_angle,
-    fit_cones,
     geometry_covariance,
     geometry_values,
     prior_sigmas,
-    robust_sigma,
-    scatter_covariance,
     setup_with_geometry,
 )
+from spotnav.pose.conefit.problem import EdgePoints, _frame_starts, _start_frames, cone_problem
+from spotnav.pose.conefit.solution import _free_trace
+from spotnav.pose.conefit.solvers import SOLVERS, _fit_recipe, _tip_box, fit_cones, robust_sigma
 from spotnav.setup.config import GEOMETRY_PARAMETERS, CalibrationRecord, Camera, Instrument, Setup, Uncertainty
 from spotnav.setup.geometry import (
     InstrumentPose,
@@ -242,7 +234,7 @@ def test_the_fit_recipe_is_one_code_compiled_or_run_by_python(solver: str) -> No
     fit = fit_cones(problem, solver=solver)
     low, high = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
     x, box = problem.start, (low, high, np.arange(0))
-    arguments = (x, problem._arrays, len(problem.free_frame), box, SOLVERS.index(solver))
+    arguments = (x, problem.arrays, len(problem.free_frame), box, SOLVERS.index(solver))
     compiled, interpreted = _fit_recipe(*arguments, None), _fit_recipe.py_func(*arguments, (problem, None))
     assert compiled[3] and interpreted[3]  # done
     for a, b, c in zip(compiled[:3], interpreted[:3], (fit.x, fit.residuals, fit.inliers), strict=True):

@@ -13,7 +13,10 @@ from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.optics.camera import camera_depth_mm, project_points
 from spotnav.optics.render import Renderer
 from spotnav.pose import pipeline, precise
-from spotnav.pose.conefit import AXIS_MODES, ConeProblem, ConeSolution, cone_problem, fit_cones
+from spotnav.pose.conefit.parameters import AXIS_MODES
+from spotnav.pose.conefit.problem import ConeProblem, cone_problem
+from spotnav.pose.conefit.solution import ConeSolution
+from spotnav.pose.conefit.solvers import fit_cones
 from spotnav.pose.estimate import STATUSES
 from spotnav.pose.localize import localize, localize_detailed
 from spotnav.pose.precise import detection_decimation, smallest_spot_area_px

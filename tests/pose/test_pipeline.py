@@ -10,9 +10,9 @@ import pytest
 from spotnav.app import calibrate, track
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.optics.camera import project_points
+from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
 from spotnav.pose import precise
-from spotnav.pose.conefit import edge_angle
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.pipeline import LightReading, fit_visible, fitted_edges_px
 from spotnav.setup.config import Setup

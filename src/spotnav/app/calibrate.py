@@ -48,24 +48,22 @@ from scipy.stats import chi2
 
 from spotnav.errors import InputError, SpotnavError
 from spotnav.optics.camera import unproject_pixels_to_sphere
+from spotnav.optics.light import edge_angle
 from spotnav.pose.checks import MAX_RMS_DEG, MAX_RMS_PX, check_image_size, judge_fit, residuals_px
-from spotnav.pose.conefit import (
+from spotnav.pose.conefit.covariance import scatter_covariance
+from spotnav.pose.conefit.parameters import (
     EDGE_CONTOUR_SIGMA,
     PARAMETER_GROUPS,
     SHARED_SIZE,
-    ConeProblem,
-    ConeSolution,
-    EdgePoints,
-    cone_problem,
-    edge_angle,
-    fit_cones,
     geometry_covariance,
     geometry_to_file_units,
     geometry_values,
     group_of,
-    scatter_covariance,
     setup_with_geometry,
 )
+from spotnav.pose.conefit.problem import ConeProblem, EdgePoints, cone_problem
+from spotnav.pose.conefit.solution import ConeSolution
+from spotnav.pose.conefit.solvers import fit_cones
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.pipeline import LightReading, plan_found_spots, pose_problem, read_light
 from spotnav.pose.precise import EdgeFrame, detect_spots, localize_precise_with_edges
@@ -393,7 +391,7 @@ def calibrate(
         first fit, the yardstick of "determined", and the uncertainty of what
         stays fixed.
     fit : sequence of str
-        Groups of :data:`~spotnav.pose.conefit.PARAMETER_GROUPS` to fit whatever
+        Groups of :data:`~spotnav.pose.conefit.parameters.PARAMETER_GROUPS` to fit whatever
         the frames say (an error when they cannot determine them).
     fix : sequence of str
         Groups to keep at the setup's values.
@@ -715,7 +713,7 @@ def _frame_edge_sigma(
     edge angle (its known pose, the roll free) then differs from it by an
     offset. The offsets' mean square (the upper end of its 68 % interval: a
     few frames tell a spread only roughly), less what each spot's own
-    whole-edge shift (:data:`~spotnav.pose.conefit.EDGE_CONTOUR_SIGMA`, over the
+    whole-edge shift (:data:`~spotnav.pose.conefit.parameters.EDGE_CONTOUR_SIGMA`, over the
     frame's spots) explains, is the frame's share.
     """
     edge = PARAMETER_GROUPS["edge-angle"][0]

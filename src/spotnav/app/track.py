@@ -30,9 +30,11 @@ from numba import njit
 from spotnav.image.detect import curve_rays, detect_edge_along_rays, rays_through_curve
 from spotnav.optics.camera import camera_model, project_points, project_rows
 from spotnav.optics.edgeblur import frame_blur_for_width, frame_blur_shift, response_curve
+from spotnav.optics.light import edge_angle
 from spotnav.optics.pixelnoise import advance_noise_pool, discard_noise_reading, new_noise_pool, pooled_frame_blur
 from spotnav.pose.checks import check_image_size, judge_edge, judge_fit
-from spotnav.pose.conefit import ConeSolution, edge_angle, fit_cones
+from spotnav.pose.conefit.solution import ConeSolution
+from spotnav.pose.conefit.solvers import fit_cones
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.pipeline import (
     LightReading,

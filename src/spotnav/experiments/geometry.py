@@ -41,7 +41,7 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.pose.conefit import PARAMETER_GROUPS, SHARED_SIZE, setup_with_geometry
+from spotnav.pose.conefit.parameters import PARAMETER_GROUPS, SHARED_SIZE, setup_with_geometry
 from spotnav.setup.config import Setup, Uncertainty, World
 
 __all__ = [

@@ -39,7 +39,7 @@ import numpy as np
 from numba import njit
 
 from spotnav.optics.camera import camera_model, sphere_point
-from spotnav.pose.conefit import edge_angle
+from spotnav.optics.light import edge_angle
 from spotnav.setup.config import Setup
 
 __all__ = ["EdgeLight", "edge_light", "fit_clipped_edges", "pixel_light"]
@@ -713,7 +713,7 @@ def edge_light(setup: Setup, tip_in_eye: np.ndarray, beam_axis: np.ndarray) -> E
     the band's width changes slowly with the pose).
 
     The band is the smoothstep in the light's angle over ``instrument.edge_band_deg`` centred on the edge model's
-    half-light angle (:func:`spotnav.pose.conefit.edge_angle`); by default from ``beta`` in to ``2 edge - beta``, and
+    half-light angle (:func:`spotnav.optics.light.edge_angle`); by default from ``beta`` in to ``2 edge - beta``, and
     a beam whose edge model lies at or beyond ``beta`` is sharp.
     """
     instrument = setup.instrument

@@ -17,16 +17,11 @@ from numba import njit
 from spotnav.image.detect import SpotEdge
 from spotnav.optics.camera import camera_depth_mm
 from spotnav.optics.edgeblur import frame_blur_for_width, frame_blur_shift, response_curve, seen_edge
-from spotnav.pose.conefit import (
-    DEFAULT_BLEND,
-    PARAMETER_GROUPS,
-    ConeSolution,
-    cone_problem,
-    edge_angle,
-    fit_cones,
-    geometry_covariance,
-    group_of,
-)
+from spotnav.optics.light import DEFAULT_BLEND, edge_angle
+from spotnav.pose.conefit.parameters import PARAMETER_GROUPS, geometry_covariance, group_of
+from spotnav.pose.conefit.problem import cone_problem
+from spotnav.pose.conefit.solution import ConeSolution
+from spotnav.pose.conefit.solvers import fit_cones
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.setup.config import Camera, Setup
 from spotnav.setup.geometry import edge_angle_of_blend
@@ -352,7 +347,7 @@ def judge_fit(
     setup's light or geometry is not this frame's (or the frame is disturbed
     as no model here says), and the detail names what a free edge angle would
     fit. Over :data:`FIT_RATIO_EXPLAINED` the excess counts as a shift of each
-    spot's whole edge (:meth:`~spotnav.pose.conefit.ConeSolution.with_edge_shift`),
+    spot's whole edge (:meth:`~spotnav.pose.conefit.solution.ConeSolution.with_edge_shift`),
     which widens ``sigma_mm``. Then ``uncalibrated`` when the setup's stated
     geometry uncertainty takes the tip's uncertainty over
     :data:`MAX_SIGMA_MM` (a geometry that uncertain may also cause any other

@@ -16,7 +16,7 @@ from functools import partial
 
 import numpy as np
 
-from spotnav.pose.conefit import edge_angle
+from spotnav.optics.light import edge_angle
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.precise import localize_precise, localize_precise_with_edges
 from spotnav.pose.thesis import localize_thesis, localize_thesis_with_spots

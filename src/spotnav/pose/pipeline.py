@@ -24,8 +24,11 @@ import numpy as np
 
 from spotnav.image.detect import Spot, SpotEdge, detect_edge_along_rays, rays_around_spot
 from spotnav.image.photometry import edge_light
+from spotnav.optics.light import edge_angle
 from spotnav.pose.checks import judge_edge
-from spotnav.pose.conefit import ConeProblem, ConeSolution, EdgePoints, cone_problem, edge_angle, fit_cones
+from spotnav.pose.conefit.problem import ConeProblem, EdgePoints, cone_problem
+from spotnav.pose.conefit.solution import ConeSolution
+from spotnav.pose.conefit.solvers import fit_cones
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.shaft import visible_edge_points
 from spotnav.setup.config import Setup

@@ -21,7 +21,8 @@ import numpy as np
 from spotnav.image.detect import SpotDetection, detect_spots_otsu, group_fragments, outer_boundary
 from spotnav.optics.camera import camera_depth_mm
 from spotnav.pose.checks import check_image_size, judge_fit
-from spotnav.pose.conefit import PARAMETER_GROUPS, ConeSolution
+from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
+from spotnav.pose.conefit.solution import ConeSolution
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.pipeline import (
     LightReading,

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from spotnav.pose.conefit import ConeSolution
+from spotnav.pose.conefit.solution import ConeSolution
 from spotnav.setup.config import Setup
 
 __all__ = ["MEETING_SIGMAS", "MIN_LINES", "AxesMeeting", "AxisLine", "axis_line"]
