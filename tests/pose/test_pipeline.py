@@ -50,7 +50,7 @@ def three_readings(image: np.ndarray, setup: Setup, pose: InstrumentPose) -> dic
     found = precise.prepare_edges(image, precise.detect_spots(image, setup), setup, True)
     known = calibrate._frame_edges(calibrate.KnownFrame("known", image, pose.tip_in_eye, pose.axis), setup)
     return {
-        "whole frame": found if isinstance(found, PoseEstimate) else found.reading,
+        "whole frame": found.reading if found.ok else found.start,
         "tracking": track._read_predicted_edges(image, setup, truth_of(pose), 128),
         "calibration": known if isinstance(known, PoseEstimate) else known.reading,
     }

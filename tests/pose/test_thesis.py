@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.errors import SpotnavError
 from spotnav.experiments import working_volume_tips
 from spotnav.optics.render import Renderer
 from spotnav.pose.localize import localize
@@ -21,7 +20,7 @@ def test_height_correction_removes_the_soft_edge_bias() -> None:
     setup = small_setup(1024, blend=0.15)
     renderer = Renderer(setup)
     known = InstrumentPose.through_insertion([0.0, 0.0, 4.5], setup.instrument.insertion_in_eye)
-    factor = fit_height_correction(renderer.render(known, seed=50), setup, known.tip_in_eye)
+    factor = fit_height_correction(renderer.render(known, seed=50), setup, known.tip_in_eye).factor
     assert 1.01 < factor < 1.1
     calibrated = replace(setup, instrument=replace(setup.instrument, height_correction=factor))
     plain_errors, calibrated_errors = [], []
@@ -35,11 +34,12 @@ def test_height_correction_removes_the_soft_edge_bias() -> None:
 def test_height_correction_is_one_for_a_sharp_edge(renderer_2048: Renderer) -> None:
     setup = renderer_2048.setup
     known = InstrumentPose.through_insertion([0.0, 0.0, 4.5], setup.instrument.insertion_in_eye)
-    factor = fit_height_correction(renderer_2048.render(known, seed=3), setup, known.tip_in_eye)
+    factor = fit_height_correction(renderer_2048.render(known, seed=3), setup, known.tip_in_eye).factor
     assert factor == pytest.approx(1.0, abs=0.01)
 
 
 def test_height_correction_needs_a_spot(renderer_512: Renderer) -> None:
     dark = renderer_512.render(InstrumentPose([0.0, 0.0, 4.0], [0.0, 0.0, -1.0]), power_w=0.0)
-    with pytest.raises(SpotnavError, match="no whole spot"):
-        fit_height_correction(dark, renderer_512.setup, np.array([0.0, 0.0, 4.0]))
+    refused = fit_height_correction(dark, renderer_512.setup, np.array([0.0, 0.0, 4.0]))
+    assert refused.status == "no_spot"
+    assert "no whole spot" in refused.detail

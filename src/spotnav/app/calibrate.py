@@ -851,10 +851,11 @@ def calibrate_height_correction(frames: Sequence[KnownFrame], setup: Setup) -> H
     """
     factors, skipped = [], []
     for frame in frames:
-        try:
-            factors.append(fit_height_correction(frame.image, setup, frame.tip_in_eye))
-        except (SpotnavError, ValueError) as error:
-            skipped.append(f"{frame.name}: {error}")
+        fitted = fit_height_correction(frame.image, setup, frame.tip_in_eye)
+        if fitted.ok:
+            factors.append(fitted.factor)
+        else:
+            skipped.append(f"{frame.name}: {fitted.detail}")
     if not factors:
         raise InputError(f"no frame gives a height correction ({'; '.join(skipped)})")
     return HeightCorrection(float(np.mean(factors)), float(np.std(factors)), len(factors), tuple(skipped))

@@ -16,7 +16,6 @@ from typing import Any
 import numpy as np
 
 from spotnav.app.progress import progress
-from spotnav.errors import SpotnavError
 from spotnav.optics.render import Renderer
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.localize import localize
@@ -213,10 +212,10 @@ def calibrate_height(job: FrameJob) -> float:
     NaN when the frame shows no usable spot or the factor leaves the setup's range [0.5, 2].
     """
     image = Renderer(job.world).render(job.pose, seed=job.seed)
-    try:
-        factor = fit_height_correction(image, job.variants[0].setup, job.pose.tip_in_eye)
-    except (SpotnavError, ValueError):
+    fitted = fit_height_correction(image, job.variants[0].setup, job.pose.tip_in_eye)
+    if not fitted.ok:
         return float("nan")
+    factor = fitted.factor
     return factor if 0.5 <= factor <= 2.0 else float("nan")
 
 

@@ -2,13 +2,14 @@
 
 A frame is refused (a :class:`~spotnav.pose.estimate.PoseEstimate` that is not
 ``ok``) when it is the wrong size, when a spot's edge cannot be trusted
-(:func:`judge_edge`), or when the fit fails a consistency check or the
+(:func:`judge_edge`, an :class:`EdgeVerdict`), or when the fit fails a consistency check or the
 setup's geometry cannot back it (:func:`judge_fit`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -31,6 +32,7 @@ __all__ = [
     "MAX_FIT_RATIO",
     "MAX_SIGMA_MM",
     "MIN_EDGE_POINTS",
+    "EdgeVerdict",
     "blur_shift_px",
     "check_image_size",
     "judge_edge",
@@ -133,9 +135,33 @@ def _soft_band_share(setup: Setup, edge_angle: float) -> float:
     return 2.0 * soft / beta
 
 
-def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float) -> PoseEstimate | float:
-    """Why a spot's edge cannot be trusted, as an estimate with that status and reason; else its own whole-edge
-    sigma, radians.
+@dataclass(frozen=True)
+class EdgeVerdict:
+    """The judgement of one spot's edge (:func:`judge_edge`).
+
+    Attributes
+    ----------
+    status : str
+        ``ok``, or why the edge cannot be trusted: ``unreliable`` or ``blurred``
+        (a :data:`~spotnav.pose.estimate.STATUSES` status).
+    detail : str
+        The reason, for a status other than ``ok``.
+    sigma : float
+        A trusted edge's own whole-edge sigma, radians (NaN otherwise).
+    """
+
+    status: str
+    detail: str = ""
+    sigma: float = float("nan")
+
+    @property
+    def ok(self) -> bool:
+        """Whether the edge can be trusted."""
+        return self.status == "ok"
+
+
+def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float) -> EdgeVerdict:
+    """Whether a spot's edge can be trusted: its own whole-edge sigma (radians), or the status and reason it cannot.
 
     ``unreliable``: noise that biases the halfway level (contrast under
     ``_MIN_CONTRAST_TO_NOISE`` times the noise); too few points (under
@@ -158,18 +184,18 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     # Every tracked frame passes here: plain floats and math, and the reasons' text only where one is given.
     if math.isfinite(edge.contrast_to_noise) and not edge.contrast_to_noise >= _MIN_CONTRAST_TO_NOISE:
         ratio = f"{edge.contrast_to_noise:.0f} times the noise, under {_MIN_CONTRAST_TO_NOISE:.0f}"
-        return PoseEstimate("unreliable", detail=f"the edge's contrast is {ratio}")
+        return EdgeVerdict("unreliable", f"the edge's contrast is {ratio}")
     if edge.clipped_fraction > _MAX_CLIPPED_FRACTION and not math.isfinite(edge.log_amplitude):
         clipped = f"{100 * edge.clipped_fraction:.0f} %"
-        return PoseEstimate(
+        return EdgeVerdict(
             "unreliable",
-            detail=f"{clipped} of the spot inside its edge is at full scale in every channel, and the beam has no "
+            f"{clipped} of the spot inside its edge is at full scale in every channel, and the beam has no "
             "soft band to read its flank by",
         )
     if len(edge.pixels) < max(MIN_EDGE_POINTS, _MIN_EDGE_FRACTION * edge.rays):
         left_out = f", {edge.dark_rays} left out (vessels, the shaft, glints)" if edge.dark_rays else ""
         found = f"{len(edge.pixels)} of {edge.rays} rays found the edge{left_out}"
-        return PoseEstimate("unreliable", detail=f"too few edge points: {found}")
+        return EdgeVerdict("unreliable", f"too few edge points: {found}")
     told = math.isfinite(edge.frame_shift_sigma_px)  # the noise beside the spot told the encoded frame's blur
     measured = told and math.isfinite(edge.frame_blur_px)  # else the edge was put halfway: half the shift either way
     if not told:
@@ -184,9 +210,9 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
         else:
             why += ", blurred: where the blur acted" + (" (the noise does not tell)" if told else "")
         uncertain = f"{shift:.2f} px ({height_mm:.3f} mm of height) uncertain"
-        return PoseEstimate("blurred", detail=f"{why} leaves it {uncertain}")
+        return EdgeVerdict("blurred", f"{why} leaves it {uncertain}")
     sigma = edge.frame_shift_sigma_px if told else 0.5 * shift
-    return float(np.hypot(sigma, edge.flank_shift_px)) * edge_angle / radius_px
+    return EdgeVerdict("ok", sigma=float(np.hypot(sigma, edge.flank_shift_px)) * edge_angle / radius_px)
 
 
 @lru_cache(maxsize=32)
@@ -226,14 +252,19 @@ def residuals_px(
         raise ValueError(f"points_in_eye must have shape (..., 3), got {points.shape}")
     shape = points.shape[:-1]
     tips, angles = np.asarray(tips_in_eye, dtype=float), np.asarray(residuals, dtype=float)
-    try:
-        tips, angles = np.broadcast_to(tips, points.shape), np.broadcast_to(angles, shape)
-    except ValueError:
+    if not (_broadcasts(tips.shape, points.shape) and _broadcasts(angles.shape, shape)):
         raise ValueError(
             f"tips_in_eye {tips.shape} and residuals {angles.shape} must match points_in_eye {points.shape}"
-        ) from None
+        )
+    tips, angles = np.broadcast_to(tips, points.shape), np.broadcast_to(angles, shape)
     rows = [np.ascontiguousarray(values).reshape(-1, *values.shape[len(shape) :]) for values in (points, tips, angles)]
     return _residuals_px(*rows, *_depth_of(camera)).reshape(shape)
+
+
+def _broadcasts(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
+    """Whether an array of ``shape`` broadcasts to ``target`` (NumPy's rule: each trailing size 1 or the same)."""
+    extra = len(target) - len(shape)
+    return extra >= 0 and all(size in (1, wanted) for size, wanted in zip(shape, target[extra:], strict=True))
 
 
 def _depth_of(camera: Camera) -> tuple[np.ndarray, float, float]:

@@ -18,7 +18,7 @@ its reason.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -192,10 +192,10 @@ def read_light(
             detail = f"an edge on only {100 * found:.0f} % of the rays near the predicted spot"
             return PoseEstimate("unreliable", spots=len(plan.fans), detail=detail)
         verdict = judge_edge(edge, setup, radius_px, angle)
-        if isinstance(verdict, PoseEstimate):
-            return replace(verdict, spots=len(plan.fans))
+        if not verdict.ok:
+            return PoseEstimate(verdict.status, spots=len(plan.fans), detail=verdict.detail)
         edges.append(edge)
-        sigmas.append(verdict)
+        sigmas.append(verdict.sigma)
     return LightReading(tuple(edges), tuple(sigmas), plan.beams)
 
 
@@ -241,11 +241,11 @@ def fit_visible(
     (:func:`spotnav.pose.shaft.visible_edge_points`).
     """
     visible = visible_edge_points(setup, reading.edges_px, hidden)
-    if isinstance(visible, PoseEstimate):
-        return visible
+    if not visible.ok:
+        return PoseEstimate(visible.status, spots=len(reading.edges_px), detail=visible.detail)
     problem = pose_problem(
         setup,
-        visible,
+        visible.edges_px,
         reading.beams,
         tip_in_eye,
         axis,

@@ -76,27 +76,40 @@ _MIN_MISCALIBRATION_DEG = 1.0  # a free axis errs by up to 0.6 deg on the thesis
 
 @dataclass(frozen=True)
 class EdgeFrame:
-    """One frame's material for the precise fit: its spots' light read, and the thesis's start.
+    """One frame's material for the precise fit: the find stage's plan, its spots' light read, and the thesis's start;
+    or why the frame gives none.
 
     Attributes
     ----------
-    reading : LightReading
-        Each spot's sub-pixel edge, its own whole-edge sigma and its beam.
     start : PoseEstimate
-        The thesis's closed form (``ok``).
-    axis : ndarray, shape (3,)
+        The thesis's closed form the fit starts from (``ok``); or why the frame
+        gives no edges to fit (not ``ok``: the thesis's own refusal,
+        ``ambiguous`` beams, or the light read's ``unreliable`` or ``blurred``),
+        and then the other fields are None.
+    plan : SpotPlan or None
+        Where each spot's edge is read, and its beam (:func:`plan_spots`).
+    reading : LightReading or None
+        Each spot's sub-pixel edge, its own whole-edge sigma and its beam (:func:`prepare_edges`; None before the
+        light is read).
+    axis : ndarray, shape (3,), or None
         Starting instrument axis.
     roll : float
         Starting roll, radians.
-    solution : ThesisSolution
+    solution : ThesisSolution or None
         The thesis's reconstruction it started from.
     """
 
-    reading: LightReading
     start: PoseEstimate
-    axis: np.ndarray
-    roll: float
-    solution: ThesisSolution
+    plan: SpotPlan | None = None
+    reading: LightReading | None = None
+    axis: np.ndarray | None = None
+    roll: float = 0.0
+    solution: ThesisSolution | None = None
+
+    @property
+    def ok(self) -> bool:
+        """Whether the frame gives a start to fit from."""
+        return self.start.ok
 
     @property
     def edges_px(self) -> tuple[np.ndarray, ...]:
@@ -275,8 +288,8 @@ def localize_precise_with_edges(
             return PreciseResult(PoseEstimate("ambiguous", spots=len(spots), detail=detail))
         detection = replace(detection, spots=spots[:beams])
     prepared = prepare_edges(image, detection, setup, through_insertion, max_rays)
-    if isinstance(prepared, PoseEstimate):
-        return PreciseResult(prepared)
+    if not prepared.ok:
+        return PreciseResult(prepared.start)
     estimate, fit = _fit_precise(prepared, setup, through_insertion)
     if estimate.ok and len(spots) > beams:
         ignored = f"{len(spots) - beams} much smaller bright regions ignored"
@@ -286,29 +299,28 @@ def localize_precise_with_edges(
 
 def prepare_edges(
     image: np.ndarray, detection: SpotDetection, setup: Setup, through_insertion: bool, max_rays: int = _MAX_RAYS
-) -> EdgeFrame | PoseEstimate:
+) -> EdgeFrame:
     """The precise method up to its fit: the find stage (:func:`plan_spots`), then the spots' light read
     (:func:`spotnav.pose.pipeline.read_light`).
 
-    Returns the reason (a :class:`PoseEstimate` that is not ``ok``) when the frame cannot be used.
+    A frame that cannot be used has a ``start`` that is not ``ok``, with the reason.
     """
     planned = plan_spots(detection, setup, through_insertion, max_rays)
-    if isinstance(planned, PoseEstimate):
+    if not planned.ok:
         return planned
-    plan, solution, axis, roll = planned
-    reading = read_light(image, setup, plan)
+    reading = read_light(image, setup, planned.plan)
     if isinstance(reading, PoseEstimate):
-        return replace(reading, spots=solution.estimate.spots)
-    return EdgeFrame(reading, solution.estimate, axis, roll, solution)
+        return EdgeFrame(replace(reading, spots=planned.start.spots))
+    return replace(planned, reading=reading)
 
 
-def plan_spots(
-    detection: SpotDetection, setup: Setup, through_insertion: bool, max_rays: int = _MAX_RAYS
-) -> tuple[SpotPlan, ThesisSolution, np.ndarray, float] | PoseEstimate:
+def plan_spots(detection: SpotDetection, setup: Setup, through_insertion: bool, max_rays: int = _MAX_RAYS) -> EdgeFrame:
     """The precise method's find stage: the spots' rays (at most ``max_rays`` each), the beam of each and the
-    light's pose from the thesis's closed form; with the thesis's solution, the starting axis and roll.
+    light's pose from the thesis's closed form; with the thesis's solution, the starting axis and roll (an
+    :class:`EdgeFrame` whose light is not read yet).
 
-    Returns ``ambiguous`` (which beam made each spot is not told) or the thesis's own refusal.
+    Its ``start`` is ``ambiguous`` (which beam made each spot is not told) or the thesis's own refusal when the
+    frame cannot be used.
     """
     plain = _without_height_correction(setup)
     # Start from the spots' convex outlines: the shaft or a vessel in front of a spot carves into it.
@@ -316,7 +328,7 @@ def plan_spots(
     solution = solve_thesis(detection, plain)
     start = solution.estimate
     if not start.ok:
-        return start
+        return EdgeFrame(start)
     axis = start.pose()[1]
     chosen_axes = np.array([c.cone_axes[i] for c, i in zip(solution.candidates, solution.chosen, strict=True)])
     if not through_insertion and len(solution.candidates) == 3:
@@ -324,10 +336,10 @@ def plan_spots(
         axis = normalize(chosen_axes.sum(axis=0))
     assignment = ([0], 0.0) if setup.instrument.beam_count == 1 else assign_beams(chosen_axes, axis)
     if assignment is None:
-        return PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made")
+        return EdgeFrame(PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made"))
     beams, roll = assignment
     plan = plan_found_spots(setup, solution.spots, beams, start.pose()[0], axis, roll, max_rays)
-    return plan, solution, axis, roll
+    return EdgeFrame(start, plan=plan, axis=axis, roll=roll, solution=solution)
 
 
 @lru_cache(maxsize=32)
@@ -361,7 +373,7 @@ def _fit_unhidden(
     edges_px = prepared.edges_px
     hidden = hidden_by_shaft(setup, edges_px, tip, axis, margin_mm)
     views = [_ShaftView(tip, axis, hidden)]
-    if isinstance(visible_edge_points(setup, edges_px, hidden), PoseEstimate):  # judge the shaft at a fitted pose
+    if not visible_edge_points(setup, edges_px, hidden).ok:  # judge the shaft at a fitted pose
         hidden = [np.zeros(len(edge), dtype=bool) for edge in edges_px]
     for _ in range(_SHAFT_PASSES):
         fit = fit_visible(setup, prepared.reading, hidden, tip, axis, roll)

@@ -205,8 +205,8 @@ def sphere_normal(points_in_eye: np.ndarray, sphere_center: np.ndarray) -> np.nd
 
 def apex_candidates(
     points_in_eye: np.ndarray, surface_normal: np.ndarray, half_angle: float, height_correction: float = 1.0
-) -> ConeCandidates:
-    """Both apex candidates of a contour on the surface (Algorithm 1).
+) -> ConeCandidates | None:
+    """Both apex candidates of a contour on the surface (Algorithm 1), or None where no ellipse fits it.
 
     Parameters
     ----------
@@ -221,18 +221,29 @@ def apex_candidates(
     height_correction : float
         Section 5.5's factor: scales the triangle (``s1`` and ``s2``) about the
         ellipse's centre, as a uniform growth of the spot would.
+
+    Returns
+    -------
+    ConeCandidates or None
+        None for fewer than 5 points, points that are not finite, or points no
+        ellipse fits (collinear ones).
+
+    Raises
+    ------
+    ValueError
+        If the points are not of shape (N, 3).
     """
     points_in_eye = np.ascontiguousarray(points_in_eye, dtype=float)
-    if points_in_eye.ndim != 2 or points_in_eye.shape[1] != 3 or len(points_in_eye) < 5:
-        raise ValueError(f"need at least 5 points of shape (N, 3), got {points_in_eye.shape}")
-    if not np.isfinite(points_in_eye).all():
-        raise ValueError("the points must be finite")
+    if points_in_eye.ndim != 2 or points_in_eye.shape[1] != 3:
+        raise ValueError(f"points_in_eye must have shape (N, 3), got {points_in_eye.shape}")
+    if len(points_in_eye) < 5 or not np.isfinite(points_in_eye).all():
+        return None
     normal = normalize(np.asarray(surface_normal, dtype=float))
     fitted, apexes, cone_axes, ellipse, triangle, planes = _apex_candidates(
         points_in_eye, normal, float(half_angle), float(height_correction)
     )
     if not fitted:
-        raise ValueError("no ellipse fits these points")
+        return None
     centre, semi_major, semi_minor, major_direction = ellipse
     return ConeCandidates(
         apexes, cone_axes, Ellipse(centre, semi_major, semi_minor, major_direction), *triangle, planes[0], planes[1]

@@ -1,19 +1,43 @@
-"""Shaft occlusion: the edge points that the instrument's shaft hides from the camera."""
+"""Shaft occlusion: the edge points that the instrument's shaft hides from the camera, and the ones it leaves."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from spotnav.optics.camera import pixels_behind_segment, unproject_pixels_to_sphere
 from spotnav.pose.checks import MIN_EDGE_POINTS
-from spotnav.pose.estimate import PoseEstimate
 from spotnav.setup.config import Setup
 
-__all__ = ["hidden_by_shaft", "visible_edge_points"]
+__all__ = ["VisibleEdges", "hidden_by_shaft", "visible_edge_points"]
 
 _MAX_HIDDEN_FRACTION = 0.6  # a spot whose edge the shaft hides more than this is occluded
+
+
+@dataclass(frozen=True)
+class VisibleEdges:
+    """The edge points the shaft leaves visible (:func:`visible_edge_points`).
+
+    Attributes
+    ----------
+    status : str
+        ``ok``, or ``occluded`` (a :data:`~spotnav.pose.estimate.STATUSES` status).
+    detail : str
+        The reason, for ``occluded``.
+    edges_px : tuple of ndarray, shape (N_k, 2)
+        Each spot's visible edge points, pixels (empty unless ``ok``).
+    """
+
+    status: str
+    detail: str = ""
+    edges_px: tuple[np.ndarray, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        """Whether every spot keeps enough of its edge."""
+        return self.status == "ok"
 
 
 def hidden_by_shaft(
@@ -50,9 +74,7 @@ def hidden_by_shaft(
     return [pixels_behind_segment(setup.camera, edge, tip_in_eye, end, radius) for edge in edges_px]
 
 
-def visible_edge_points(
-    setup: Setup, edges_px: Sequence[np.ndarray], hidden: Sequence[np.ndarray]
-) -> list[np.ndarray] | PoseEstimate:
+def visible_edge_points(setup: Setup, edges_px: Sequence[np.ndarray], hidden: Sequence[np.ndarray]) -> VisibleEdges:
     """Each spot's edge points (pixels) that are not hidden and lie on the retina, or ``occluded``.
 
     ``occluded`` when the shaft hides over 60 % of a spot's edge or leaves
@@ -63,8 +85,8 @@ def visible_edge_points(
         count = int(np.count_nonzero(covered))
         if count > _MAX_HIDDEN_FRACTION * len(covered) or len(covered) - count < MIN_EDGE_POINTS:
             detail = f"the shaft hides {100 * count / max(len(covered), 1):.0f} % of a spot's edge"
-            return PoseEstimate("occluded", spots=len(edges_px), detail=detail)
+            return VisibleEdges("occluded", detail)
         shown = edge[~covered] if count else edge
         on_sphere = unproject_pixels_to_sphere(setup.camera, shown, setup.eye.radius_mm)
         visible.append(shown[np.isfinite(on_sphere).all(axis=1)])
-    return visible
+    return VisibleEdges("ok", edges_px=tuple(visible))

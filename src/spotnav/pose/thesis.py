@@ -14,7 +14,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spotnav.errors import InputError
 from spotnav.image.detect import Spot, SpotDetection, detect_spots_otsu
 from spotnav.optics.camera import unproject_pixels_to_plane, unproject_pixels_to_sphere
 from spotnav.pose.checks import check_image_size
@@ -24,6 +23,7 @@ from spotnav.setup.config import Setup
 from spotnav.setup.geometry import normalize
 
 __all__ = [
+    "HeightFactor",
     "ThesisSolution",
     "fit_height_correction",
     "localize_thesis",
@@ -71,7 +71,7 @@ def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCa
     Returns
     -------
     ConeCandidates or None
-        ``None`` when the spot is cut by the border or the retina's edge.
+        ``None`` when the spot is cut by the border or the retina's edge, or no ellipse fits its contour.
     """
     if spot.touches_border:
         return None
@@ -83,10 +83,7 @@ def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCa
         if not np.isfinite(points).all():
             return None
         normal = sphere_normal(points, setup.eye.center_in_eye)
-    try:
-        return apex_candidates(points, normal, setup.instrument.beam_half_angle, setup.instrument.height_correction)
-    except (ValueError, np.linalg.LinAlgError):  # no ellipse fits the contour
-        return None
+    return apex_candidates(points, normal, setup.instrument.beam_half_angle, setup.instrument.height_correction)
 
 
 def _closest_set(candidates: list[ConeCandidates]) -> tuple[int, ...]:
@@ -174,27 +171,48 @@ def locate_from_spots(detection: SpotDetection, setup: Setup, surface: str = "sp
     return solve_thesis(detection, setup, surface).estimate
 
 
-def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarray) -> float:
+@dataclass(frozen=True)
+class HeightFactor:
+    """Section 5.5's factor from one frame (:func:`fit_height_correction`), or why the frame gives none.
+
+    Attributes
+    ----------
+    status : str
+        ``ok``, or a :data:`~spotnav.pose.estimate.STATUSES` status: ``wrong_size``, ``ambiguous`` (more spots than
+        beams), ``no_spot`` or ``clipped`` (no whole spot).
+    detail : str
+        The reason, for a status other than ``ok``.
+    factor : float
+        The factor (NaN unless ``ok``).
+    """
+
+    status: str
+    detail: str = ""
+    factor: float = float("nan")
+
+    @property
+    def ok(self) -> bool:
+        """Whether the frame gave a factor."""
+        return self.status == "ok"
+
+
+def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarray) -> HeightFactor:
     """Section 5.5's factor from one frame with the tip at a known position.
 
     The known height of the tip above each spot's fitting plane divided by the
-    reconstructed height ``s2``, averaged over the visible spots.
-
-    Raises
-    ------
-    ValueError
-        When the frame shows no usable spot.
+    reconstructed height ``s2``, averaged over the visible spots; or why the
+    frame shows no usable spot.
     """
     wrong = check_image_size(image, setup)
     if wrong is not None:
-        raise InputError(wrong.detail)
+        return HeightFactor(wrong.status, wrong.detail)
     detection = detect_spots_otsu(image, response=setup.camera.pixel_response)
     if len(detection.spots) > setup.instrument.beam_count:
-        raise InputError(f"the calibration frame shows {len(detection.spots)} spots")
+        return HeightFactor("ambiguous", f"the calibration frame shows {len(detection.spots)} spots")
     plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
     fits = [c for c in (spot_candidates(s, plain) for s in detection.spots) if c]
     if not fits:
-        raise InputError("the calibration frame shows no whole spot")
+        return HeightFactor("clipped" if detection.spots else "no_spot", "the calibration frame shows no whole spot")
     tip_in_eye = np.asarray(tip_in_eye, dtype=float)
     factors = [float((tip_in_eye - c.plane_origin_in_eye) @ c.plane_normal_in_eye) / c.s2 for c in fits]
-    return float(np.mean(factors))
+    return HeightFactor("ok", factor=float(np.mean(factors)))
