@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.image.detect import SpotEdge
+from spotnav.image.rays import SpotEdge
 from spotnav.optics.camera import camera_depth_mm
 from spotnav.optics.render import Renderer
 from spotnav.pose.checks import FIT_RATIO_EXPLAINED, MAX_FIT_RATIO, _depth_of, _fit_spread, blur_shift_px, residuals_px
