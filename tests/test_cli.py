@@ -373,7 +373,7 @@ def test_bench_profile_splits_each_stage_into_its_parts(capsys: pytest.CaptureFi
     out = capsys.readouterr().out
     assert "## 512 px, acquisition (precise, full frame):" in out
     assert "## 512 px, tracking, frames from memory:" in out and "(3 frames)" in out  # the first one acquired
-    assert "| detect._edge_on_rays | compiled (Numba) |" in out  # both stages read the edges in one compiled call
+    assert "| rays._edge_on_rays | compiled (Numba) |" in out  # both stages read the edges in one compiled call
     assert "| cv2." in out  # the acquisition's detection runs OpenCV
     assert "| detection |" in out and "| find: predicted rays |" in out and "| read the light |" in out
 

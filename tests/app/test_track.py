@@ -14,7 +14,7 @@ from scipy.optimize import brentq
 from spotnav.app import track
 from spotnav.app.track import Tracker, _track_once, frozen_heap, track_frame
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
-from spotnav.image.detect import edge_window_px, rays_through_curve
+from spotnav.image.rays import edge_window_px, rays_through_curve
 from spotnav.optics.camera import project_points
 from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
@@ -228,7 +228,10 @@ def test_a_new_tracker_has_its_compiled_kernels_ready_before_the_first_frame() -
     code = """
 import json
 import numba
-import spotnav.image.detect as d, spotnav.pose.checks as k
+import spotnav.image.rays as d, spotnav.image.spots as sp, spotnav.image.channels as ch
+import spotnav.image.fragments as fr, spotnav.image.frameblur as fb, spotnav.image.profiles as pr
+import spotnav.image.selection as se, spotnav.image.falls as fa, spotnav.image.passes as pa
+import spotnav.pose.checks as k
 import spotnav.pose.conefit.model as cm, spotnav.pose.conefit.problem as cp, spotnav.pose.conefit.covariance as cc
 import spotnav.pose.conefit.solution as cn, spotnav.pose.conefit.solvers as cs
 import spotnav.setup.geometry as g, spotnav.optics.camera as m
@@ -238,10 +241,10 @@ kernels = [t._predicted_rays, d._edge_on_rays, d.curve_rays,
            cs._fit_recipe, cs._at_box, cc._frame_uncertainty,
            b.seen_edge, b.frame_blur_for_width, b.frame_blur_shift, n.pooled_frame_blur, k._fit_spread,
            g.cone_sphere_points, m._behind_segment,
-           d._histograms, d.otsu_threshold,
+           sp._histograms, sp.otsu_threshold,
            cm._instrument_axis, r._fit_ellipse, cp._start_frames, cp._frame_starts, cp._spot_rows, cp._frame_order,
-           cs._tip_box, cn._free_trace, g._unit_rows, d._background_level, d._one_row_means]
-modules = (d, cm, cp, cc, cn, cs, k, g, m, r, t, b, n)
+           cs._tip_box, cn._free_trace, g._unit_rows, sp._background_level, ch._one_row_means]
+modules = (d, sp, ch, fr, fb, pr, se, fa, pa, cm, cp, cc, cn, cs, k, g, m, r, t, b, n)
 every = [f for mod in modules for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.setup.paths import helix_tips, poses_through_insertion

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.image.detect import SpotEdge
+from spotnav.image.rays import SpotEdge
 from spotnav.optics.camera import camera_depth_mm
 from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer

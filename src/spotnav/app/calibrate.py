@@ -477,7 +477,7 @@ def with_edge_band(setup: Setup) -> Setup:
 def _choose_edge_band(
     frames: Sequence[KnownFrame], fitted: _GeometryFit, fit: Sequence[str], fix: Sequence[str]
 ) -> tuple[_GeometryFit, tuple[tuple[float, float], ...]]:
-    """Where a known frame's spot clips (read from its flank, :func:`spotnav.image.photometry.fit_clipped_edges`), the
+    """Where a known frame's spot clips (read from its flank, :func:`spotnav.image.clipped.fit_clipped_edges`), the
     calibration through the soft band (:data:`EDGE_BAND_FACTORS` of the setup's) whose spots agree best, if it
     beats the setup's by :data:`EDGE_BAND_MARGIN`; and each band's spread (:attr:`Calibration.edge_bands`).
 

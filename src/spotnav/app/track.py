@@ -5,7 +5,7 @@ The first frame is localized on the whole image
 tracker predicts the pose (the tip's last step, changed as it changed from the
 step before when that change agrees with the one before it: a steady turn), projects each beam's predicted
 edge curve into the image and reads the image only along rays across it
-(:func:`spotnav.image.detect.detect_edge_along_rays`): the rays are the region of
+(:func:`spotnav.image.rays.detect_edge_along_rays`): the rays are the region of
 interest, a few per cent of the pixels. The cone fit starts from the
 prediction, so the fit keeps the apex that continues the track. A tracked
 frame whose fit fails a check, or whose tip jumps further than
@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from spotnav.image.detect import curve_rays, detect_edge_along_rays, rays_through_curve
+from spotnav.image.rays import curve_rays, detect_edge_along_rays, rays_through_curve
 from spotnav.optics.camera import camera_model, project_points, project_rows
 from spotnav.optics.edgeblur import frame_blur_for_width, frame_blur_shift, response_curve
 from spotnav.optics.light import edge_angle
@@ -284,7 +284,7 @@ def _predicted_rays(
 
     The cone of ``angle`` (radians) from ``apex_in_eye`` (3,) along ``beam_axis`` (3,) meets the eye (mm) in
     ``_CURVE_POINTS`` points; ``model`` (:func:`spotnav.optics.camera.camera_model`) projects them. Returns which of
-    ``_REFUSALS`` applies (``_ON_IMAGE``: none) and the rays of :func:`spotnav.image.detect.rays_through_curve`: their
+    ``_REFUSALS`` applies (``_ON_IMAGE``: none) and the rays of :func:`spotnav.image.rays.rays_through_curve`: their
     centre (2,), angles (R,) in radians and radii (R,) in pixels, one per two pixels of the curve, 64 to
     ``max_rays``.
     """

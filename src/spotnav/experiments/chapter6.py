@@ -29,7 +29,7 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.image.detect import detect_spots_otsu
+from spotnav.image.spots import detect_spots_otsu
 from spotnav.optics.camera import camera_depth_mm, decode_values, project_points
 from spotnav.optics.render import Renderer
 from spotnav.pose.estimate import PoseEstimate

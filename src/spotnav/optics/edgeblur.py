@@ -1,6 +1,6 @@
 """A spot's edge as the edge reader sees it: the beam's soft band, blurred in light, encoded, blurred again.
 
-The reader (:func:`spotnav.image.detect.detect_edge_along_rays`) puts an edge
+The reader (:func:`spotnav.image.rays.detect_edge_along_rays`) puts an edge
 where the decoded light crosses the level halfway between plateau and
 background. A blur of the light (defocus, the lens) leaves that crossing
 where it was; a blur of the *encoded* frame (a codec's or a camera's

@@ -15,7 +15,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from spotnav.image.detect import SpotEdge
+from spotnav.image.rays import SpotEdge
 from spotnav.optics.camera import camera_depth_mm
 from spotnav.optics.edgeblur import frame_blur_for_width, frame_blur_shift, response_curve, seen_edge
 from spotnav.optics.light import DEFAULT_BLEND, edge_angle
@@ -171,12 +171,12 @@ def judge_edge(edge: SpotEdge, setup: Setup, radius_px: float, edge_angle: float
     blur whose unknown kind may have moved the edge by more than
     ``_MAX_BLUR_MM`` of tip height (:func:`blur_shift_px`), whatever the
     spot's size; where the noise beside the spot told the blur of the encoded
-    frame (:attr:`~spotnav.image.detect.SpotEdge.frame_shift_sigma_px`), its shift
+    frame (:attr:`~spotnav.image.rays.SpotEdge.frame_shift_sigma_px`), its shift
     was taken out and only its uncertainty counts (twice its sigma; a
     clipped spot's flank was read with that blur in its model, and only the
     edge's curvature moved it). A trusted edge's sigma is half the shift that blur may have
     caused and, where the plateau clips, the shift the fitted amplitude's
-    uncertainty leaves (:attr:`~spotnav.image.detect.SpotEdge.flank_shift_px`): a
+    uncertainty leaves (:attr:`~spotnav.image.rays.SpotEdge.flank_shift_px`): a
     uniform shift of ``s`` pixels is an angle of about ``s`` over the spot's
     radius times the edge angle. A clipped plateau is refused only where the
     photometric model did not read it.

@@ -22,9 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spotnav.image.detect import Spot, SpotEdge, detect_edge_along_rays, rays_around_spot
 from spotnav.image.photometry import edge_light
 from spotnav.optics.light import edge_angle
+from spotnav.image.rays import SpotEdge, detect_edge_along_rays, rays_around_spot
+from spotnav.image.spots import Spot
 from spotnav.pose.checks import judge_edge
 from spotnav.pose.conefit.problem import ConeProblem, EdgePoints, cone_problem
 from spotnav.pose.conefit.solution import ConeSolution
@@ -61,7 +62,7 @@ class RayFan:
         Where each ray is expected to cross the edge, pixels from the centre.
     align : bool
         Whether each ray is read around its own radius (a predicted curve)
-        rather than the spot's median one (:func:`spotnav.image.detect.detect_edge_along_rays`).
+        rather than the spot's median one (:func:`spotnav.image.rays.detect_edge_along_rays`).
     """
 
     centre_px: np.ndarray
@@ -130,7 +131,7 @@ def plan_found_spots(
     max_rays: int,
 ) -> SpotPlan:
     """The find stage of spots found on the frame: rays across each one's outline
-    (:func:`spotnav.image.detect.rays_around_spot`, at most ``max_rays``), its radius from its area, and the light
+    (:func:`spotnav.image.rays.rays_around_spot`, at most ``max_rays``), its radius from its area, and the light
     modelled from a pose (eye frame, mm; the instrument's ``axis`` and ``roll``, radians)."""
     instrument = setup.instrument
     return SpotPlan(
@@ -164,7 +165,7 @@ def read_light(
     noise_pools : sequence of ndarray, optional
         A stream's noise beside each beam's spot over its last frames, by beam
         (:func:`spotnav.optics.pixelnoise.new_noise_pool`; see
-        :func:`spotnav.image.detect.detect_edge_along_rays`).
+        :func:`spotnav.image.rays.detect_edge_along_rays`).
 
     Returns
     -------

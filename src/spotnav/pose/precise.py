@@ -2,7 +2,7 @@
 
 The thesis's closed form (:mod:`spotnav.pose.thesis`) finds the spots, which beam
 made each and a starting pose. Each spot's edge is then located to a fraction
-of a pixel (:func:`spotnav.image.detect.detect_edge_subpixel`), and one instrument
+of a pixel (:func:`spotnav.image.rays.detect_edge_subpixel`), and one instrument
 pose is fitted to every edge point through the camera and the edge model
 (:mod:`spotnav.pose.conefit`), leaving out what the shaft hides
 (:mod:`spotnav.pose.shaft`). The estimate carries its 1-sigma tip uncertainty,
@@ -18,7 +18,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from spotnav.image.detect import SpotDetection, detect_spots_otsu, group_fragments, outer_boundary
+from spotnav.image.fragments import group_fragments, outer_boundary
+from spotnav.image.spots import SpotDetection, detect_spots_otsu
 from spotnav.optics.camera import camera_depth_mm
 from spotnav.pose.checks import check_image_size, judge_fit
 from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
@@ -134,13 +135,13 @@ def detect_spots(image: np.ndarray, setup: Setup, find_radius_px: float = _FIND_
     removed; regions down to ``_FRAGMENT_AREA_FRACTION`` of the largest are kept, then
     those closer than a vessel's width (``_VESSEL_MM``) are grouped by the
     ellipse their outer boundaries share
-    (:func:`spotnav.image.detect.group_fragments`): the pieces of a spot that dark
+    (:func:`spotnav.image.fragments.group_fragments`): the pieces of a spot that dark
     vessels cut are one spot, and two spots stay two.
 
     Parameters
     ----------
     image : ndarray
-        The frame (see :func:`spotnav.image.detect.detect_spots_otsu`).
+        The frame (see :func:`spotnav.image.spots.detect_spots_otsu`).
     setup : Setup
         Its camera (response, focal length) and beam: how small a spot can be.
     find_radius_px : float

@@ -1,6 +1,6 @@
 """The thesis's method: Algorithms 1 and 2 as written (sections 5.3-5.4), and section 5.5's height correction.
 
-Spots are found by Otsu's threshold (:func:`spotnav.image.detect.detect_spots_otsu`);
+Spots are found by Otsu's threshold (:func:`spotnav.image.spots.detect_spots_otsu`);
 each contour is back-projected onto the retina and fitted with an ellipse
 whose triangle gives two apex candidates (:mod:`spotnav.pose.reconstruct`). One
 beam: the candidate whose cone axis runs along its line from the insertion
@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spotnav.image.detect import Spot, SpotDetection, detect_spots_otsu
+from spotnav.image.spots import Spot, SpotDetection, detect_spots_otsu
 from spotnav.optics.camera import unproject_pixels_to_plane, unproject_pixels_to_sphere
 from spotnav.pose.checks import check_image_size
 from spotnav.pose.estimate import PoseEstimate
