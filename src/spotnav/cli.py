@@ -24,15 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from spotnav import __version__
-from spotnav.app.calibrate import (
-    EDGE_BAND_MARGIN,
-    Calibration,
-    KnownFrame,
-    calibrate,
-    calibrate_height_correction,
-    prepare_self_calibration,
-    self_calibrate_radius,
-)
+from spotnav.app.calibrate import EDGE_BAND_MARGIN, calibrate, calibrate_height_correction
 from spotnav.app.evaluate import evaluate_poses, evaluation_text, write_evaluation
 from spotnav.app.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT, PoseServer
 from spotnav.app.overlay import crop_box, draw_overlay, fitted_spots
@@ -67,9 +59,12 @@ from spotnav.files import (
     write_truth_json,
 )
 from spotnav.optics.render import Renderer
+from spotnav.pose.calibration import Calibration
 from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
 from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.known_frame import KnownFrame
 from spotnav.pose.localize import DEFAULT_METHOD, METHODS, localize, localize_detailed
+from spotnav.pose.self_calibration import prepare_self_calibration, self_calibrate_radius
 from spotnav.setup.config import EXAMPLES, GEOMETRY_PARAMETERS, Camera, Setup
 from spotnav.setup.geometry import InstrumentPose, beam_axes
 from spotnav.setup.paths import helix_tips, resample_polyline, square_tips, tremor_offsets

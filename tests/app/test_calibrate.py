@@ -7,29 +7,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from conftest import small_setup
-from hypothesis import given
-from hypothesis import strategies as st
 
-from spotnav.app import calibrate as calibration_module
-from spotnav.app.calibrate import (
-    EDGE_BAND_MARGIN,
-    RESPONSE_CANDIDATES,
-    RESPONSE_MARGIN,
-    KnownFrame,
-    calibrate,
-    insertion_from_axes,
-    self_calibrate_radius,
-)
+from spotnav.app.calibrate import EDGE_BAND_MARGIN, RESPONSE_CANDIDATES, RESPONSE_MARGIN, calibrate
 from spotnav.errors import InputError, SpotnavError
 from spotnav.experiments import helix_tips, working_volume_tips
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
+from spotnav.pose import calibration
 from spotnav.pose.conefit.parameters import SHARED_SIZE, geometry_covariance, setup_with_geometry
+from spotnav.pose.known_frame import KnownFrame
 from spotnav.pose.localize import localize
 from spotnav.pose.precise import localize_precise
 from spotnav.setup.config import GEOMETRY_PARAMETERS, Instrument, Setup, Uncertainty, World
-from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend, normalize
+from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend
 from spotnav.setup.paths import poses_through_insertion
 
 
@@ -114,7 +105,7 @@ def test_a_wrong_geometry_is_measured_and_localized_within_its_sigma(monkeypatch
     scale = result.covariance_scale
     assert scale == 1.0
     with monkeypatch.context() as patch:
-        patch.setattr(calibration_module, "_most_likely_scale", lambda *_: 1.0)
+        patch.setattr(calibration, "_most_likely_scale", lambda *_: 1.0)
         unscaled = calibrate(known, setup)
     np.testing.assert_allclose(result.sigmas, scale * unscaled.sigmas, rtol=1e-12)
     np.testing.assert_allclose(
@@ -187,40 +178,6 @@ def test_calibration_refuses_too_few_degenerate_or_misfit_frames() -> None:
         calibrate(shuffled, setup)
 
 
-@given(
-    point=st.tuples(st.floats(-2, 2), st.floats(3, 8), st.floats(15, 22)),
-    seed=st.integers(0, 2**16),
-)
-def test_the_insertion_point_is_where_the_axes_meet(point: tuple[float, float, float], seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    tips = np.column_stack([rng.uniform(-3, 3, 6), rng.uniform(-3, 3, 6), rng.uniform(2, 7, 6)])
-    axes = normalize(tips - np.array(point))
-    found, covariance, rms = insertion_from_axes(tips, axes)
-    np.testing.assert_allclose(found, point, atol=1e-6)
-    assert rms < 1e-6 and np.all(np.diag(covariance) < 1e-10)
-
-
-def test_self_calibration_of_the_radius_from_a_sequence() -> None:
-    # 20 helix frames in a 13.5 mm eye that the setup calls 12.5 mm, poses unknown: the joint fit
-    # finds the radius within 0.1 mm and the tips to a few hundredths of a millimetre.
-    world = replace(small_setup(768, blend=0.15), world=World(eye_radius_mm=13.5))
-    setup = with_true_edge(world)
-    renderer = Renderer(world)
-    tips = helix_tips(20)
-    images = [
-        renderer.render(InstrumentPose.through_insertion(tip, world.instrument.insertion_in_eye), seed=i)
-        for i, tip in enumerate(tips)
-    ]
-    result = self_calibrate_radius(images, setup)
-    assert result.radius_mm == pytest.approx(13.5, abs=0.1)
-    assert result.frames == 20
-    errors = [np.linalg.norm(e.tip_in_eye - t) for e, t in zip(result.estimates, tips, strict=True)]
-    assert max(errors) < 0.05
-    assert all("eye radius fitted" in e.detail for e in result.estimates)
-    with pytest.raises(SpotnavError, match="at least 20 frames"):
-        self_calibrate_radius(images[:10], setup)
-
-
 @pytest.mark.parametrize(("written", "found"), [("agx", "agx"), ("srgb", None)])
 def test_calibration_tells_a_tone_curve_from_srgb_when_the_response_is_not_stated(
     written: str, found: str | None
@@ -240,27 +197,9 @@ def test_calibration_tells_a_tone_curve_from_srgb_when_the_response_is_not_state
     assert stated.responses == () and stated.setup.camera.response == written
 
 
-def test_the_most_likely_scale_of_the_geometry_s_sigmas() -> None:
-    # Frames' misses drawn with their own covariance and a shared geometry error k times the stated one: the
-    # scale found is near k (30 shared directions tell it), 1 when the stated one holds, the cap when nothing does.
-    rng = np.random.default_rng(7)
-    frames, parameters = 40, 30
-    own = [np.diag(rng.uniform(0.5, 2.0, 3)) ** 2 for _ in range(frames)]
-    gains = [rng.normal(size=(3, parameters)) for _ in range(frames)]
-    geometry = np.diag(rng.uniform(0.1, 0.3, parameters) ** 2)
-    found = []
-    for true_scale in (1.0, 3.0):
-        shared = rng.multivariate_normal(np.zeros(parameters), true_scale**2 * geometry)
-        misses = [gain @ shared + rng.multivariate_normal(np.zeros(3), c) for gain, c in zip(gains, own, strict=True)]
-        found.append(calibration_module._most_likely_scale(misses, own, gains, geometry))
-    assert found[0] < 1.4 and 2.2 < found[1] < 4.0
-    misses = [np.full(3, 1e3)] * frames
-    assert calibration_module._most_likely_scale(misses, own, gains, geometry) == 10.0  # refused by calibrate
-
-
 def test_a_calibration_that_misses_its_own_frames_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
     world = small_setup(512, blend=0.15)
-    monkeypatch.setattr(calibration_module, "_most_likely_scale", lambda *_: 10.0)
+    monkeypatch.setattr(calibration, "_most_likely_scale", lambda *_: 10.0)
     with pytest.raises(InputError, match="does not find its own frames' tips"):
         calibrate(known_frames(world, 5), _only(world, edge_half_angle_deg=0.3))
 

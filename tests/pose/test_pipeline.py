@@ -7,13 +7,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from spotnav.app import calibrate, track
+from spotnav.app import track
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.optics.camera import project_points
 from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
 from spotnav.pose import precise
 from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.known_frame import KnownFrame, read_known_frame
 from spotnav.pose.pipeline import LightReading, fit_visible, fitted_edges_px
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, beam_axes, cone_sphere_curve
@@ -48,11 +49,11 @@ def distances_to_true_edge_px(setup: Setup, pose: InstrumentPose, beam: int, poi
 def three_readings(image: np.ndarray, setup: Setup, pose: InstrumentPose) -> dict[str, LightReading | PoseEstimate]:
     """The read stage as the whole-frame method, the tracker (from the true pose) and calibration configure it."""
     found = precise.prepare_edges(image, precise.detect_spots(image, setup), setup, True)
-    known = calibrate._frame_edges(calibrate.KnownFrame("known", image, pose.tip_in_eye, pose.axis), setup)
+    known = read_known_frame(KnownFrame("known", image, pose.tip_in_eye, pose.axis), setup)
     return {
         "whole frame": found.reading if found.ok else found.start,
         "tracking": track._read_predicted_edges(image, setup, truth_of(pose), 128),
-        "calibration": known if isinstance(known, PoseEstimate) else known.reading,
+        "calibration": known.light() if known.ok else PoseEstimate(known.status, detail=known.detail),
     }
 
 
@@ -86,8 +87,8 @@ def test_a_frame_blurred_past_reading_is_refused_blurred_by_every_method() -> No
     image = Renderer(setup).render(pose, seed=40)
     for how, reading in three_readings(image, setup, pose).items():
         assert isinstance(reading, PoseEstimate) and reading.status == "blurred", f"{how}: {reading}"
-    known = calibrate._frame_edges(calibrate.KnownFrame("cal_07", image, pose.tip_in_eye), setup)
-    assert isinstance(known, PoseEstimate) and known.detail.startswith("cal_07: ")
+    known = read_known_frame(KnownFrame("cal_07", image, pose.tip_in_eye), setup)
+    assert not known.ok and known.detail.startswith("cal_07: ")
 
 
 def test_a_spot_not_where_it_was_predicted_is_a_status() -> None:

@@ -1,30 +1,7 @@
-"""Calibration from frames at known poses: the geometry that the frames determine, on the cone-fit engine.
+"""The calibration job: the camera's response and the light's soft band chosen for the joint geometry fit, and
+the thesis method's height correction, from frames at known poses.
 
-With the tip known (a robot reports it, and often the instrument's axis too),
-every edge point is a measurement of the geometry: it must lie on its beam's
-edge cone once the camera has turned it into a point on the retina. All
-frames' points are fitted at once (:mod:`spotnav.pose.conefit`) to the geometry's
-parameters (:data:`spotnav.setup.config.GEOMETRY_PARAMETERS`: the edge model, the
-eye's radius, the camera's rotation, centre, scale, principal point and
-distortion, the insertion point) and each three-beam frame's roll.
-
-:func:`calibrate` chooses the model itself. A first fit with every
-parameter free, held by priors (the setup's ``[uncertainty]``), reaches the
-neighbourhood of the answer; then, in the order of :data:`PRIORITY`, each
-parameter joins the fit when the frames determine it (its uncertainty from the
-frames alone, with the parameters already chosen, under
-:data:`DETERMINED_RATIO` of its prior, and none of those already chosen lost).
-The others stay at the setup's values and are named: a camera's tilt and
-shift look alike from above, as do its focal length and height. The last fit
-gives the parameters' covariance, the unchosen ones' uncertainty included, and
-the calibrated setup carries it (``[calibration]``) so that every pose's
-``sigma_mm`` does too. A calibration whose edge points still miss their cones
-is refused.
-
-With known axes (``known.csv``'s ``dir_x, dir_y, dir_z``) the insertion point
-is where the axes' lines meet (least squares); without, the images determine
-it, if they can.
-
+:func:`calibrate` runs the geometry fit of :mod:`spotnav.pose.calibration`.
 When the setup does not state the camera's response (``camera.response``),
 the frames are calibrated through each of :data:`RESPONSE_CANDIDATES`, and
 the reading whose spots agree best with the calibrated edge model (the RMS of
@@ -33,7 +10,10 @@ their mean offsets from their cones) is kept if it beats sRGB's by
 fraction of its step that depends on its brightness, so spots of different
 brightness disagree. Power laws differ little that way (read through another
 gamma, a spot on a dark background moves by the same fraction of its step,
-which the edge angle absorbs): a linear or gamma camera must be stated.
+which the edge angle absorbs): a linear or gamma camera must be stated. Where
+known frames' spots clip, the soft band they are read with is chosen the same
+way (:data:`EDGE_BAND_FACTORS`). :func:`calibrate_height_correction` averages
+section 5.5's factor over the frames.
 """
 
 from __future__ import annotations
@@ -42,82 +22,26 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.linalg import block_diag
-from scipy.optimize import minimize_scalar
-from scipy.stats import chi2
 
 from spotnav.errors import InputError, SpotnavError
-from spotnav.optics.camera import unproject_pixels_to_sphere
 from spotnav.optics.light import edge_angle
-from spotnav.pose.checks import MAX_RMS_DEG, MAX_RMS_PX, check_image_size, judge_fit, residuals_px
-from spotnav.pose.conefit.covariance import scatter_covariance
-from spotnav.pose.conefit.parameters import (
-    EDGE_CONTOUR_SIGMA,
-    PARAMETER_GROUPS,
-    SHARED_SIZE,
-    geometry_covariance,
-    geometry_to_file_units,
-    geometry_values,
-    group_of,
-    setup_with_geometry,
-)
-from spotnav.pose.conefit.problem import ConeProblem, EdgePoints, cone_problem
-from spotnav.pose.conefit.solution import ConeSolution
-from spotnav.pose.conefit.solvers import fit_cones
-from spotnav.pose.estimate import PoseEstimate
-from spotnav.pose.pipeline import LightReading, plan_found_spots, pose_problem, read_light
-from spotnav.pose.precise import EdgeFrame, detect_spots, localize_precise_with_edges
+from spotnav.pose.calibration import MIN_INLIER_FRACTION, Calibration, GeometryFit, finish_calibration, fit_geometry
+from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
+from spotnav.pose.known_frame import KnownFrame
 from spotnav.pose.thesis import fit_height_correction
-from spotnav.setup.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup, Uncertainty
-from spotnav.setup.geometry import assign_beams, normalize
+from spotnav.setup.config import Setup
 
 __all__ = [
-    "DETERMINED_RATIO",
     "EDGE_BAND_FACTORS",
     "EDGE_BAND_MARGIN",
-    "MIN_FRAMES",
-    "MIN_FRAMES_FOR_SELF_CALIBRATION",
-    "PRIORITY",
     "RESPONSE_CANDIDATES",
     "RESPONSE_MARGIN",
-    "Calibration",
     "HeightCorrection",
-    "KnownFrame",
-    "RadiusSelfCalibration",
     "calibrate",
     "calibrate_height_correction",
-    "insertion_from_axes",
-    "prepare_self_calibration",
-    "self_calibrate_radius",
     "with_edge_band",
 ]
 
-MIN_FRAMES = 3
-# A parameter is fitted when the frames alone pin it to this fraction of how well it was known before.
-DETERMINED_RATIO = 0.25
-# The order in which parameters may join the fit: what a microscope most often gets wrong first. Of two that look
-# alike (a tilt and a shift of the camera, its focal length and its height) the first is fitted.
-PRIORITY: tuple[int, ...] = (
-    *PARAMETER_GROUPS["edge-angle"],
-    *PARAMETER_GROUPS["camera-rotation"],
-    *PARAMETER_GROUPS["focal-length"],
-    *PARAMETER_GROUPS["light-radius"],
-    *PARAMETER_GROUPS["insertion-point"],
-    *PARAMETER_GROUPS["distortion"][:1],
-    *PARAMETER_GROUPS["eye-radius"],
-    *PARAMETER_GROUPS["camera-position"][::-1],
-    *PARAMETER_GROUPS["principal-point"],
-    *PARAMETER_GROUPS["distortion"][1:],
-)
-_MAX_AXES_CONDITION = 1e6  # the known axes' lines must cross at an angle (1e6: some 0.1 deg apart)
-_MIN_INLIER_FRACTION = 0.5
-_MAX_COVARIANCE_SCALE = 10.0  # a calibration whose own frames need more is refused
-# One ray per pixel of each spot's outline (up to this many): calibration pools its frames' edges into the geometry,
-# where more points do tell (a frame's own fit reads at most 256).
-_RAYS = 2048
-# The spots are found on a frame shrunk less than a frame's own detection shrinks it (precise._FIND_SPOT_RADIUS_PX):
-# the outlines place the rays, and the calibration, which every later frame carries, keeps the finer placement.
-_FIND_RADIUS_PX = 6.0
 # The responses told apart when the setup states none: sRGB (the default reading) and a tone curve. Power laws
 # (linear, gammas) are not tried: on a textured retina a reading that compresses the texture makes the spots agree
 # better whatever the camera wrote (measured on spotnav's renderer: sRGB frames agree best read as linear).
@@ -135,252 +59,11 @@ EDGE_BAND_MARGIN = 0.15
 _WIDEST_BAND_DEG = 44.0  # instrument.edge_band_deg is under 45 deg
 
 
-@dataclass(frozen=True)
-class KnownFrame:
-    """A calibration frame and where the instrument was.
-
-    Attributes
-    ----------
-    name : str
-        For messages.
-    image : ndarray
-        The frame, sRGB-encoded RGB or grey.
-    tip_in_eye : ndarray, shape (3,)
-        The known tip, mm.
-    axis : ndarray, shape (3,), or None
-        The known instrument axis; ``None``: from the insertion point to the tip.
-    """
-
-    name: str
-    image: np.ndarray
-    tip_in_eye: np.ndarray
-    axis: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """A calibrated geometry: the setup, what was fitted, how well, and the residuals before and after.
-
-    Attributes
-    ----------
-    setup : Setup
-        The calibrated setup, with ``[calibration]``: the geometry's covariance.
-    values : ndarray, shape (SHARED_SIZE,)
-        Each parameter of :data:`~spotnav.setup.config.GEOMETRY_PARAMETERS` in the
-        calibrated setup, in its units (changes for the camera's rotation and
-        focal length).
-    sigmas : ndarray, shape (SHARED_SIZE,)
-        Their 1-sigma uncertainty after the calibration.
-    fitted : tuple of str
-        The parameters fitted (names of :data:`~spotnav.setup.config.GEOMETRY_PARAMETERS`).
-    fixed : tuple of (str, str)
-        Parameters left at the setup's value, and why.
-    insertion_rms_mm : float
-        RMS distance of the known axes' lines from the insertion point they
-        give (NaN without known axes).
-    rms_before_deg, rms_after_deg : float
-        RMS angle of the inlying edge points from their cones with the setup's
-        geometry and with the calibrated one.
-    rms_after_px : float
-        The latter in pixels.
-    frames : int
-        Frames used.
-    points : int
-        Edge points used (inliers).
-    skipped : tuple of str
-        Frames left out, with the reason.
-    responses : tuple of (str or float, float)
-        When the setup stated no response: each candidate tried and the RMS
-        of its spots' mean offsets from their cones after its calibration,
-        pixels (NaN: its calibration failed); empty otherwise.
-    covariance_scale : float
-        The factor on the geometry's sigmas (already in ``setup`` and
-        ``sigmas``) that its frames' own tips needed (see ``tip_misses_mm``); 1:
-        none, or fewer than two frames to tell.
-    tip_misses_mm : tuple of float
-        How far each frame's tip, found from its edges alone in the calibrated
-        setup, is from the known one, mm (the frames whose fit settled).
-    edge_bands : tuple of (float, float)
-        Where some known frame's spot clips: each soft band tried
-        (``instrument.edge_band_deg``, the setup's first) and the RMS of its
-        spots' mean offsets from their cones after its calibration, pixels
-        (NaN: its calibration failed); empty where none clips.
-    """
-
-    setup: Setup
-    values: np.ndarray
-    sigmas: np.ndarray
-    fitted: tuple[str, ...]
-    fixed: tuple[tuple[str, str], ...]
-    insertion_rms_mm: float
-    rms_before_deg: float
-    rms_after_deg: float
-    rms_after_px: float
-    frames: int
-    points: int
-    skipped: tuple[str, ...] = ()
-    responses: tuple[tuple[str | float, float], ...] = ()
-    covariance_scale: float = 1.0
-    tip_misses_mm: tuple[float, ...] = ()
-    edge_bands: tuple[tuple[float, float], ...] = ()
-
-
-@dataclass(frozen=True)
-class _FrameEdges:
-    """A known frame's light read (:func:`_frame_edges`), at its known tip and axis and the roll its spots show."""
-
-    reading: LightReading
-    tip: np.ndarray
-    axis: np.ndarray
-    roll: float
-
-    @property
-    def edges_px(self) -> tuple[np.ndarray, ...]:
-        return self.reading.edges_px
-
-    @property
-    def beams(self) -> tuple[int, ...]:
-        return self.reading.beams
-
-
-def _frame_edges(frame: KnownFrame, setup: Setup) -> _FrameEdges | PoseEstimate:
-    """The frame's pipeline up to its fit: the find stage from the known pose (its spots, the beam of each and the
-    starting roll) and the spots' light read (:func:`spotnav.pose.pipeline.read_light`); or why the frame cannot be used
-    (its detail names the frame)."""
-    instrument = setup.instrument
-    wrong = check_image_size(frame.image, setup)
-    if wrong is not None:
-        return replace(wrong, detail=f"{frame.name}: {wrong.detail}")
-    detection = detect_spots(frame.image, setup, _FIND_RADIUS_PX)
-    spots = detection.spots
-    whole = [spot for spot in spots if not spot.touches_border]
-    if len(spots) != instrument.beam_count or len(whole) != len(spots):
-        cut = f", {len(spots) - len(whole)} cut by the border" if len(whole) != len(spots) else ""
-        status = "clipped" if cut else "ambiguous" if len(spots) > instrument.beam_count else "too_few_spots"
-        detail = f"{frame.name}: {detection.regions}{cut}, {instrument.beam_count} beams"
-        return PoseEstimate(status, spots=len(spots), detail=detail)
-    tip = np.asarray(frame.tip_in_eye, dtype=float)
-    axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
-    beams, roll = [0], 0.0
-    if len(spots) > 1:
-        centres = np.array(
-            [
-                unproject_pixels_to_sphere(setup.camera, spot.contour_px.mean(axis=0), setup.eye.radius_mm)
-                for spot in spots
-            ]
-        )
-        # Around their centroid, not the tip: a camera that is not where the setup says moves them all alike.
-        assignment = assign_beams(centres - centres.mean(axis=0), axis)
-        if assignment is None:
-            detail = f"{frame.name}: cannot tell which spot each beam made"
-            return PoseEstimate("ambiguous", spots=len(spots), detail=detail)
-        beams, roll = assignment
-    # Each spot's edge is read knowing its beam: where the spot clips, the beam's soft band is the light's model.
-    reading = read_light(frame.image, setup, plan_found_spots(setup, spots, beams, tip, axis, roll, _RAYS))
-    if isinstance(reading, PoseEstimate):
-        return replace(reading, detail=f"{frame.name}: {reading.detail}")
-    return _FrameEdges(reading, tip, axis, roll)
-
-
-def insertion_from_axes(tips_in_eye: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Where the instrument's lines meet: the point nearest all of them, least squares.
-
-    Parameters
-    ----------
-    tips_in_eye, axes : ndarray, shape (F, 3)
-        A point on each line and its direction.
-
-    Returns
-    -------
-    point : ndarray, shape (3,), mm
-    covariance : ndarray, shape (3, 3), mm^2
-        From the lines' scatter about the point (two constraints per line).
-    rms_mm : float
-        RMS distance of the lines from the point.
-    """
-    axes = normalize(axes)
-    projectors = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
-    normal = projectors.sum(axis=0)
-    if np.linalg.cond(normal) > _MAX_AXES_CONDITION:
-        raise InputError("the known axes are (nearly) parallel: they do not fix the insertion point")
-    point = np.linalg.solve(normal, np.einsum("fij,fj->i", projectors, tips_in_eye))
-    offsets = np.einsum("fij,fj->fi", projectors, point - tips_in_eye)
-    squares = float(np.sum(offsets**2))
-    variance = squares / max(2 * len(axes) - 3, 1)
-    return point, variance * np.linalg.inv(normal), float(np.sqrt(squares / len(axes)))
-
-
-def _problem(
-    setup: Setup, frames: list[_FrameEdges], axis: str, free: Sequence[int], shared: np.ndarray
-) -> ConeProblem:
-    """The frames' edges as one cone problem: the tips known, the rolls free, the shared ``free`` too."""
-    points = EdgePoints.of_frames([f.edges_px for f in frames], [f.beams for f in frames])
-    return cone_problem(
-        setup,
-        points,
-        np.array([f.tip for f in frames]),
-        np.array([f.axis for f in frames]),
-        np.array([f.roll for f in frames]),
-        axis=axis,
-        free_tips=False,
-        free_shared=free,
-        shared=shared,
-        one_frame=False,
-    )
-
-
-def _dense(solution: ConeSolution) -> np.ndarray:
-    matrix = solution.problem.jacobian_matrix(solution.x, solution.inliers)
-    return matrix if isinstance(matrix, np.ndarray) else matrix.toarray()
-
-
-def _chosen(solution: ConeSolution, candidates: Sequence[int], forced: Sequence[int]) -> tuple[list[int], np.ndarray]:
-    """The candidates the frames determine, in :data:`PRIORITY` order, and each one's sigma over its prior.
-
-    ``solution`` is the fit with every candidate free, held by its prior (in
-    ``candidates``' order, then the frames' own parameters). A parameter joins
-    when the frames alone, with the parameters chosen before it, pin it to
-    under :data:`DETERMINED_RATIO` of its prior and still pin every one chosen
-    before. The uncertainty from the frames alone: the points' scatter
-    (correlation-inflated) and each spot's whole-edge shift.
-    """
-    jacobian = _dense(solution)
-    residuals = solution.residuals[solution.inliers]
-    spots = solution.problem.points.spot[solution.inliers]
-    own = list(range(len(candidates), jacobian.shape[1]))  # the frames' rolls are always fitted
-    prior = np.sqrt(np.diag(solution.problem.prior))
-
-    def ratios(chosen: list[int]) -> np.ndarray:
-        columns = [candidates.index(i) for i in chosen] + own
-        size = jacobian.shape[1]
-        covariance = scatter_covariance(jacobian[:, columns], residuals, spots, EDGE_CONTOUR_SIGMA, size)[0]
-        return np.sqrt(np.diag(covariance)[: len(chosen)]) / prior[chosen]
-
-    chosen = list(forced)
-    tried = np.full(SHARED_SIZE, np.nan)
-    for index in PRIORITY:
-        if index not in candidates or index in chosen:
-            continue
-        trial = [*chosen, index]
-        trial_ratios = ratios(trial)
-        tried[index] = trial_ratios[-1]
-        if np.all(trial_ratios[len(forced) :] < DETERMINED_RATIO):
-            chosen = trial
-    if chosen:
-        tried[chosen] = ratios(chosen)
-    return chosen, tried
-
-
-def _describe_poses(frames: list[_FrameEdges]) -> str:
-    tips = np.array([f.tip for f in frames])
-    spread = float(np.max(np.ptp(tips[:, :2], axis=0)))
-    return f"tips {spread:.2f} mm apart in x, y, {tips[:, 2].min():.2f}-{tips[:, 2].max():.2f} mm above the pole"
-
-
 def calibrate(
     frames: Sequence[KnownFrame], setup: Setup, *, fit: Sequence[str] = (), fix: Sequence[str] = ()
 ) -> Calibration:
-    """Fit the geometry that frames at known poses determine (see the module's docstring).
+    """Fit the geometry that frames at known poses determine (:mod:`spotnav.pose.calibration`), read through the
+    response and soft band whose spots agree best (see the module's docstring).
 
     Parameters
     ----------
@@ -398,8 +81,8 @@ def calibrate(
 
     Raises
     ------
-    ValueError
-        Unknown group names; fewer than :data:`MIN_FRAMES` usable frames; a
+    InputError
+        Unknown group names; fewer than :data:`~spotnav.pose.calibration.MIN_FRAMES` usable frames; a
         forced group the frames cannot determine; known axes that are
         (nearly) parallel; or a calibrated model whose edge points still miss
         their cones (RMS over 0.1 deg and 1 px).
@@ -413,55 +96,51 @@ def calibrate(
     setup = with_edge_band(setup)
     responses: tuple[tuple[str | float, float], ...] = ()
     if setup.camera.response is not None:
-        chosen = _fit_geometry(frames, setup, fit, fix)
+        chosen = fit_geometry(frames, setup, fit, fix)
     else:
         chosen, responses = _choose_response(frames, setup, fit, fix)
     chosen, bands = _choose_edge_band(frames, chosen, fit, fix)
-    return replace(_finish(chosen), responses=responses, edge_bands=bands)
+    return replace(finish_calibration(chosen), responses=responses, edge_bands=bands)
 
 
 def _choose_response(
     frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str], fix: Sequence[str]
-) -> tuple[_GeometryFit, tuple[tuple[str | float, float], ...]]:
+) -> tuple[GeometryFit, tuple[tuple[str | float, float], ...]]:
     """The calibration through the response whose spots agree best (the module's docstring), and each response's
     spread (:attr:`Calibration.responses`)."""
-    fits: list[_GeometryFit | None] = []
+    fits: list[GeometryFit | None] = []
     for response in RESPONSE_CANDIDATES:
         reading = replace(setup, camera=replace(setup.camera, response=response))
         try:
-            fits.append(_fit_geometry(frames, reading, fit, fix))
-        except (
-            SpotnavError,
-            ValueError,
-        ):  # no usable frames, or a geometry out of its allowed ranges: not this response
+            fits.append(fit_geometry(frames, reading, fit, fix))
+        except SpotnavError:  # no usable frames, or a geometry out of its allowed ranges: not this response
             if response == RESPONSE_CANDIDATES[0]:
                 raise  # the default reading's own reason
             fits.append(None)
-    best, spreads = _most_agreeing(fits, RESPONSE_MARGIN)
-    chosen = fits[best]
-    assert chosen is not None
+    best, chosen, spreads = _most_agreeing(fits, RESPONSE_MARGIN)
     if best == 0:  # not told apart from the default reading: the response stays unstated
         chosen = replace(chosen, setup=replace(chosen.setup, camera=replace(chosen.setup.camera, response=None)))
     return chosen, tuple((r, float(v)) for r, v in zip(RESPONSE_CANDIDATES, spreads, strict=True))
 
 
-def _most_agreeing(fits: Sequence[_GeometryFit | None], margin: float) -> tuple[int, list[float]]:
-    """Which of calibrations through other readings of the same frames (the first the setup's) to keep: the one
-    whose spots agree best (:meth:`_GeometryFit.spot_spread_px`) if it beats the first's by ``margin``, and each
-    one's spread (NaN where it failed or kept under half its points).
+def _most_agreeing(fits: Sequence[GeometryFit | None], margin: float) -> tuple[int, GeometryFit, list[float]]:
+    """Which of calibrations through other readings of the same frames (the first the setup's, never None) to keep,
+    and which it is: the one whose spots agree best (:meth:`GeometryFit.spot_spread_px`) if it beats the first's by
+    ``margin``; and each one's spread (NaN where it failed or kept under half its points).
 
     A reading may use fewer of the frames (a band under a pixel reads no flank): its spread is over those it read.
     Required to read them all, the renderer's sharper beam (blend 0.1, 768 px) kept a band of 0.45 deg (0.0051 /
     0.0227 mm on the helix) where 0.31 deg, with which two of its eight frames are left out, gives 0.0028 / 0.0062.
     """
     spreads = [
-        f.spot_spread_px() if f is not None and f.solution.inliers.mean() >= _MIN_INLIER_FRACTION else np.nan
+        f.spot_spread_px() if f is not None and f.solution.inliers.mean() >= MIN_INLIER_FRACTION else np.nan
         for f in fits
     ]
     best = int(np.nanargmin(spreads)) if np.any(np.isfinite(spreads)) else 0
     if np.isfinite(spreads[0]) and not spreads[best] < (1.0 - margin) * spreads[0]:
         best = 0
-    return best, spreads
+    read = {index: f for index, f in enumerate(fits) if f is not None}  # a finite spread's, or the first
+    return best, read[best], spreads
 
 
 def with_edge_band(setup: Setup) -> Setup:
@@ -475,8 +154,8 @@ def with_edge_band(setup: Setup) -> Setup:
 
 
 def _choose_edge_band(
-    frames: Sequence[KnownFrame], fitted: _GeometryFit, fit: Sequence[str], fix: Sequence[str]
-) -> tuple[_GeometryFit, tuple[tuple[float, float], ...]]:
+    frames: Sequence[KnownFrame], fitted: GeometryFit, fit: Sequence[str], fix: Sequence[str]
+) -> tuple[GeometryFit, tuple[tuple[float, float], ...]]:
     """Where a known frame's spot clips (read from its flank, :func:`spotnav.image.clipped.fit_clipped_edges`), the
     calibration through the soft band (:data:`EDGE_BAND_FACTORS` of the setup's) whose spots agree best, if it
     beats the setup's by :data:`EDGE_BAND_MARGIN`; and each band's spread (:attr:`Calibration.edge_bands`).
@@ -484,339 +163,23 @@ def _choose_edge_band(
     A band too narrow or too wide moves each clipped spot's edge by an amount that depends on how far its
     plateau is over full scale: spots of different brightness then disagree, which no geometry absorbs.
     """
-    clipped = any(np.isfinite(edge.log_amplitude) for frame in fitted.edges for edge in frame.reading.edges)
+    clipped = any(np.isfinite(edge.log_amplitude) for frame in fitted.edges for edge in frame.light().edges)
     nominal = fitted.setup.instrument.edge_band_deg
     if not clipped or nominal is None or nominal == 0.0:
         return fitted, ()
     # A band's inner side stays outside the beam's axis (under twice the edge angle).
     widest = 0.99 * 2.0 * float(np.degrees(edge_angle(fitted.setup)))
     bands = [nominal] + [min(factor * nominal, widest) for factor in EDGE_BAND_FACTORS if factor != 1.0]
-    fits: list[_GeometryFit | None] = [fitted]
+    fits: list[GeometryFit | None] = [fitted]
     for band in bands[1:]:
         # The fit's own starting setup (the response it read with, the insertion point its axes gave).
         setup = replace(fitted.setup, instrument=replace(fitted.setup.instrument, edge_band_deg=band))
         try:
-            fits.append(_fit_geometry(frames, setup, fit, fix))
+            fits.append(fit_geometry(frames, setup, fit, fix))
         except InputError:  # too few frames read with this band (a band under a pixel reads no flank)
             fits.append(None)
-    best, spreads = _most_agreeing(fits, EDGE_BAND_MARGIN)
-    chosen = fits[best]
-    assert chosen is not None
+    _, chosen, spreads = _most_agreeing(fits, EDGE_BAND_MARGIN)
     return chosen, tuple((float(b), float(s)) for b, s in zip(bands, spreads, strict=True))
-
-
-@dataclass(frozen=True)
-class _GeometryFit:
-    """One calibration's fit before its frame-edge sigma and check (:func:`_fit_geometry`)."""
-
-    setup: Setup
-    edges: list[_FrameEdges]
-    axis_mode: str
-    chosen: list[int]
-    solution: ConeSolution
-    rms_before: float
-    reasons: dict[int, str]
-    lines: tuple[np.ndarray, np.ndarray, float] | None
-    skipped: list[str]
-
-    def spot_spread_px(self) -> float:
-        """RMS of the spots' mean offsets from their cones after the fit, pixels: how well they agree."""
-        problem, inliers = self.solution.problem, self.solution.inliers
-        residuals = _residuals_px(setup_with_geometry(self.setup, self.solution.shared), self.solution)
-        spots = [(problem.points.spot == s) & inliers for s in np.unique(problem.points.spot)]
-        offsets = [residuals[spot].mean() for spot in spots if spot.any()]
-        return float(np.sqrt(np.mean(np.square(offsets)))) if offsets else float("nan")
-
-
-# The [uncertainty] key of each parameter group.
-_UNCERTAINTY_KEYS = {
-    "edge-angle": "edge_half_angle_deg",
-    "light-radius": "light_radius_mm",
-    "eye-radius": "eye_radius_mm",
-    "camera-rotation": "camera_rotation_deg",
-    "camera-position": "camera_position_mm",
-    "focal-length": "focal_length_percent",
-    "principal-point": "principal_point_percent",
-    "distortion": "distortion_px",
-    "insertion-point": "insertion_point_mm",
-}
-
-
-def _fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str], fix: Sequence[str]) -> _GeometryFit:
-    """The edges read with the setup's response, the parameters the frames determine, and the last fit."""
-    edges, skipped = [], []
-    for frame in frames:
-        result = _frame_edges(frame, setup)
-        if isinstance(result, PoseEstimate):
-            skipped.append(f"{result.detail} ({result.status})")
-        else:
-            edges.append(result)
-    if len(edges) < MIN_FRAMES:
-        reasons = "; ".join(skipped) if skipped else "none given"
-        raise InputError(f"calibration needs at least {MIN_FRAMES} usable frames, got {len(edges)} ({reasons})")
-    reasons = {i: "fixed (--fix)" for name in fix for i in PARAMETER_GROUPS[name]}
-    prior = np.sqrt(np.diag(geometry_covariance(setup, one_frame=False)))
-    exact = [name for name in fit if np.any(prior[PARAMETER_GROUPS[name]] == 0)]
-    if exact:  # --fit overrules [uncertainty] 0: judge what the frames tell against a real microscope's prior
-        typical = {_UNCERTAINTY_KEYS[name]: getattr(Uncertainty(), _UNCERTAINTY_KEYS[name]) for name in exact}
-        setup = replace(setup, uncertainty=replace(setup.uncertainty, **typical))
-        prior = np.sqrt(np.diag(geometry_covariance(setup, one_frame=False)))
-    reasons.update({i: "known exactly ([uncertainty] 0)" for i in range(SHARED_SIZE) if prior[i] == 0})
-    known_axes = all(frame.axis is not None for frame in frames)
-    lines = None
-    if known_axes:
-        if "insertion-point" in fit:
-            raise InputError("with known axes the insertion point is where they meet: it cannot be --fit")
-        if "insertion-point" not in fix:
-            lines = insertion_from_axes(np.array([e.tip for e in edges]), np.array([e.axis for e in edges]))
-            setup = replace(setup, instrument=replace(setup.instrument, insertion_point_mm=tuple(lines[0])))
-        reasons.update({i: reasons.get(i, "where the known axes meet") for i in PARAMETER_GROUPS["insertion-point"]})
-    axis_mode = "known" if known_axes else "insertion"
-    forced = [i for name in fit for i in PARAMETER_GROUPS[name]]
-    candidates = [i for i in PRIORITY if i in forced or i not in reasons]
-    if not candidates:
-        raise InputError(
-            "nothing to calibrate: the setup's [uncertainty] says its geometry is known exactly "
-            "(leave the section out for a real microscope, or force parameters with --fit)"
-        )
-    zeros = np.zeros(SHARED_SIZE)
-    before = _problem(setup, edges, axis_mode, [], zeros)
-    # First every candidate, held by its prior; then the ones the frames determine, on their own.
-    everything = _problem(setup, edges, axis_mode, candidates, zeros)
-    widths = np.full(everything.size, np.inf)
-    widths[: len(candidates)] = np.where(prior[candidates] > 0, prior[candidates], np.inf)
-    held = fit_cones(everything, priors=widths)
-    chosen, ratios = _chosen(held, candidates, forced)
-    unresolved = [i for i in forced if not ratios[i] < DETERMINED_RATIO]
-    if unresolved:
-        raise InputError(
-            f"the known frames cannot determine {group_of(unresolved[0])} (they give it "
-            f"{ratios[unresolved[0]]:.2f} of its prior uncertainty, under {DETERMINED_RATIO} is needed): too few "
-            f"frames, or degenerate poses ({_describe_poses(edges)})"
-        )
-    reasons.update(
-        {i: f"not determined by these frames ({ratios[i]:.2f} of its prior)" for i in candidates if i not in chosen}
-    )
-    chosen = sorted(chosen)
-    start = np.where(np.isin(np.arange(SHARED_SIZE), chosen), held.shared, 0.0)
-    solution = fit_cones(_problem(setup, edges, axis_mode, chosen, start))
-    rms_before = _rms(before.residuals(before.start), solution.inliers)
-    return _GeometryFit(setup, edges, axis_mode, chosen, solution, rms_before, reasons, lines, skipped)
-
-
-def _finish(fitted: _GeometryFit) -> Calibration:
-    """The calibration of a fit: its frame-edge sigma, its check and its covariance, scaled up if its own frames'
-    tips, found from their edges alone, miss the known ones by more than it says (:func:`_frame_misses`,
-    :func:`_most_likely_scale`); refused when that takes more than ``_MAX_COVARIANCE_SCALE`` times its sigmas."""
-    frame_edge = _frame_edge_sigma(fitted.setup, fitted.edges, fitted.axis_mode, fitted.chosen, fitted.solution.shared)
-    calibration = _calibration(
-        fitted.setup,
-        fitted.solution,
-        fitted.chosen,
-        fitted.rms_before,
-        frame_edge,
-        fitted.reasons,
-        fitted.lines,
-        fitted.skipped,
-    )
-    misses, own, gains, geometry = _frame_misses(calibration.setup, fitted.edges)
-    scale = _most_likely_scale(misses, own, gains, geometry) if len(misses) >= 2 else 1.0
-    distances = tuple(float(np.linalg.norm(miss)) for miss in misses)
-    if scale >= _MAX_COVARIANCE_SCALE:
-        raise InputError(
-            f"the calibrated geometry does not find its own frames' tips: from their edges alone they land "
-            f"{np.mean(distances):.4f} mm from the known ones on average, over {_MAX_COVARIANCE_SCALE:g} times what "
-            "its covariance allows; check known.csv (tips in the eye frame, images in its order) and the setup's beam"
-        )
-    record = calibration.setup.calibration
-    covariance = tuple(tuple(scale**2 * v for v in row) for row in record.covariance)
-    setup = replace(calibration.setup, calibration=replace(record, covariance=covariance))
-    return replace(
-        calibration, setup=setup, sigmas=scale * calibration.sigmas, covariance_scale=scale, tip_misses_mm=distances
-    )
-
-
-def _frame_misses(
-    calibrated: Setup, edges: list[_FrameEdges]
-) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], np.ndarray]:
-    """Each calibration frame's tip found from its edges alone in ``calibrated``, against the known one.
-
-    The pose is fitted to the frame's calibration edges (one ray per pixel, the points the shaft hides kept, no
-    spot's own blur term), the tip free and the axis through the insertion point, from the known pose. The
-    calibration fit made the edges agree with the known tips; what it left at the setup's values (several parameters
-    wrong at once) still moves a tip found from the edges alone, mostly along the instrument's axis. Frames whose fit
-    did not settle (a tip held at its box) are left out.
-
-    Returns
-    -------
-    misses : list of ndarray, shape (3,)
-        Fitted tip minus known tip, mm.
-    own : list of ndarray, shape (3, 3)
-        Each one's covariance from its own frame: its edge points' and one frame's edge-model error, mm^2.
-    gains : list of ndarray, shape (3, G)
-        How each tip moves with the geometry's parameters that carry uncertainty (engine units).
-    geometry : ndarray, shape (G, G)
-        Their covariance, shared by every frame (the calibrated one, without the one-frame edge-model error).
-    """
-    one_frame, geometry = geometry_covariance(calibrated), geometry_covariance(calibrated, one_frame=False)
-    ids = np.flatnonzero(np.diag(one_frame) > 0)
-    misses, own, gains = [], [], []
-    for frame in edges:
-        fit = fit_cones(
-            pose_problem(calibrated, frame.edges_px, frame.beams, frame.tip, frame.axis, frame.roll),
-            solver="levenberg-marquardt",
-        )
-        if not fit.settled:
-            continue
-        if not np.array_equal(fit.geometry_ids, ids):
-            raise ValueError(f"the fit carries geometry parameters {fit.geometry_ids}, expected {ids.tolist()}")
-        data, gain = fit.tip_terms()
-        misses.append(fit.tip() - frame.tip)
-        own.append(data + gain @ (one_frame - geometry)[np.ix_(ids, ids)] @ gain.T)
-        gains.append(gain)
-    return misses, own, gains, geometry[np.ix_(ids, ids)]
-
-
-def _most_likely_scale(
-    misses: Sequence[np.ndarray], own: Sequence[np.ndarray], gains: Sequence[np.ndarray], geometry: np.ndarray
-) -> float:
-    """The most likely factor ``k`` in [1, ``_MAX_COVARIANCE_SCALE``] on the geometry's sigmas, given frames' misses.
-
-    The misses (F of (3,), stacked (3F,)) are taken as Gaussian with covariance ``B + k^2 G R G^T``: ``B`` block
-    diagonal, each frame's ``own`` (3, 3); ``R`` the ``geometry`` (G, G), one error shared by every frame, through
-    the ``gains`` (F of (3, G), stacked (3F, G)). Within 0.5 % of 1 is 1; within 0.1 % of the bound, the bound.
-    """
-    stacked, gain = np.concatenate(misses), np.vstack(gains)
-    independent, shared = block_diag(*own), gain @ geometry @ gain.T
-
-    def deviance(log_scale: float) -> float:
-        """Minus twice the misses' log-likelihood (less a constant) with the geometry's sigmas scaled by e^log_scale."""
-        covariance = independent + np.exp(2.0 * log_scale) * shared
-        return float(stacked @ np.linalg.solve(covariance, stacked) + np.linalg.slogdet(covariance)[1])
-
-    best = minimize_scalar(
-        deviance, bounds=(0.0, np.log(_MAX_COVARIANCE_SCALE)), method="bounded", options={"xatol": 1e-4}
-    )
-    scale = float(np.exp(best.x))
-    if scale > 0.999 * _MAX_COVARIANCE_SCALE:
-        return _MAX_COVARIANCE_SCALE  # the bound itself, or more
-    return scale if scale > 1.005 and deviance(best.x) < deviance(0.0) else 1.0
-
-
-def _frame_edge_sigma(
-    setup: Setup, edges: list[_FrameEdges], axis_mode: str, chosen: list[int], shared: np.ndarray
-) -> float:
-    """How far one frame's edge strays from the edge model as a whole, radians: each frame left out in turn.
-
-    The edge model (its angle, and the light's radius if fitted) is fitted to
-    the other frames in the calibrated camera and eye; the left-out frame's own
-    edge angle (its known pose, the roll free) then differs from it by an
-    offset. The offsets' mean square (the upper end of its 68 % interval: a
-    few frames tell a spread only roughly), less what each spot's own
-    whole-edge shift (:data:`~spotnav.pose.conefit.parameters.EDGE_CONTOUR_SIGMA`, over the
-    frame's spots) explains, is the frame's share.
-    """
-    edge = PARAMETER_GROUPS["edge-angle"][0]
-    model = [i for i in chosen if group_of(i) in ("edge-angle", "light-radius")]
-    offsets = []
-    for f in range(len(edges)):
-        others = edges[:f] + edges[f + 1 :]
-        geometry = fit_cones(_problem(setup, others, axis_mode, model, shared)).shared
-        alone = fit_cones(_problem(setup, edges[f : f + 1], axis_mode, [edge], geometry))
-        offsets.append(alone.shared[edge] - geometry[edge])
-    square = np.mean(np.square(offsets)) * len(offsets) / chi2.ppf(0.16, len(offsets))
-    return float(np.sqrt(max(square - EDGE_CONTOUR_SIGMA**2 / setup.instrument.beam_count, 0.0)))
-
-
-def _rms(residuals: np.ndarray, inliers: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(residuals[inliers] ** 2)))
-
-
-def _residuals_px(calibrated: Setup, solution: ConeSolution) -> np.ndarray:
-    """Each edge point's distance from its cone in ``calibrated``'s camera, pixels (N,)."""
-    problem = solution.problem
-    points = unproject_pixels_to_sphere(calibrated.camera, problem.points.pixels, calibrated.eye.radius_mm)
-    return residuals_px(calibrated.camera, points, problem.frames[problem.points.frame, :3], solution.residuals)
-
-
-def _calibration(
-    setup: Setup,
-    solution: ConeSolution,
-    chosen: list[int],
-    rms_before: float,
-    frame_edge: float,
-    reasons: dict[int, str],
-    lines: tuple[np.ndarray, np.ndarray, float] | None,
-    skipped: list[str],
-) -> Calibration:
-    """The calibration from the final fit: its check, its covariance and the calibrated setup."""
-    problem, inliers = solution.problem, solution.inliers
-    rms_after = _rms(solution.residuals, inliers)
-    calibrated = setup_with_geometry(setup, solution.shared)
-    rms_px = float(np.sqrt(np.mean(_residuals_px(calibrated, solution)[inliers] ** 2)))
-    if inliers.mean() < _MIN_INLIER_FRACTION or (np.degrees(rms_after) > MAX_RMS_DEG and rms_px > MAX_RMS_PX):
-        raise InputError(
-            f"the calibrated model does not fit the frames: RMS {np.degrees(rms_after):.3f} deg ({rms_px:.2f} px) "
-            f"after, {np.degrees(rms_before):.3f} deg before, {100 * inliers.mean():.0f} % of the edge points fit; "
-            "check known.csv (tips in the eye frame, images in its order) and the setup's beam (count, angles)"
-        )
-    covariance = _geometry_covariance(solution, None if lines is None else lines[1])
-    fitted = [*chosen, *([] if lines is None else PARAMETER_GROUPS["insertion-point"])]
-    record = CalibrationRecord(
-        parameters=GEOMETRY_PARAMETERS,
-        covariance=tuple(tuple(float(v) for v in row) for row in covariance),
-        fitted=tuple(GEOMETRY_PARAMETERS[i] for i in sorted(fitted)),
-        rms_deg=float(np.degrees(rms_after)),
-        frames=len(problem.frames),
-        frame_edge_sigma_deg=float(np.degrees(frame_edge)),
-    )
-    calibrated = replace(calibrated, calibration=record)
-    values = geometry_values(calibrated)
-    changes_only = [*PARAMETER_GROUPS["camera-rotation"], *PARAMETER_GROUPS["focal-length"]]
-    values[changes_only] = geometry_to_file_units(solution.shared)[changes_only]
-    return Calibration(
-        setup=calibrated,
-        values=values,
-        sigmas=np.sqrt(np.diag(covariance)),
-        fitted=record.fitted,
-        fixed=tuple((GEOMETRY_PARAMETERS[i], reasons[i]) for i in range(SHARED_SIZE) if i not in fitted),
-        insertion_rms_mm=float("nan") if lines is None else lines[2],
-        rms_before_deg=float(np.degrees(rms_before)),
-        rms_after_deg=float(np.degrees(rms_after)),
-        rms_after_px=rms_px,
-        frames=len(problem.frames),
-        points=int(inliers.sum()),
-        skipped=tuple(skipped),
-    )
-
-
-def _geometry_covariance(solution: ConeSolution, insertion_covariance: np.ndarray | None) -> np.ndarray:
-    """The calibrated geometry's error covariance over every shared parameter, file units, (SHARED_SIZE,)*2.
-
-    The fitted ones: the fit's covariance, which carries the fixed ones'
-    uncertainty; the fixed ones: their prior ``C``; between them ``-M C``,
-    ``M`` the fit's geometry gain (a true value ``d`` away from a fixed one
-    moves the fitted ones by ``M d``, while the fixed one's error is ``-d``).
-    An insertion point from the known axes' lines brings its own covariance.
-    """
-    problem = solution.problem
-    chosen, fixed = list(problem.free_shared), list(solution.geometry_ids)
-    covariance = np.array(problem.prior, dtype=float)
-    covariance[chosen, :] = 0.0
-    covariance[:, chosen] = 0.0
-    covariance[np.ix_(chosen, chosen)] = solution.covariance[: len(chosen), : len(chosen)]
-    if fixed and chosen:
-        cross = -solution.geometry_gain[: len(chosen)] @ problem.prior[np.ix_(fixed, fixed)]
-        covariance[np.ix_(chosen, fixed)] = cross
-        covariance[np.ix_(fixed, chosen)] = cross.T
-    if insertion_covariance is not None:
-        insertion = list(PARAMETER_GROUPS["insertion-point"])
-        covariance[insertion, :] = 0.0
-        covariance[:, insertion] = 0.0
-        covariance[np.ix_(insertion, insertion)] = insertion_covariance
-    scale = geometry_to_file_units(np.ones(SHARED_SIZE))
-    covariance = covariance * np.outer(scale, scale)
-    return 0.5 * (covariance + covariance.T)
 
 
 @dataclass(frozen=True)
@@ -846,7 +209,7 @@ def calibrate_height_correction(frames: Sequence[KnownFrame], setup: Setup) -> H
 
     Raises
     ------
-    ValueError
+    InputError
         When no frame gives a factor.
     """
     factors, skipped = [], []
@@ -854,101 +217,8 @@ def calibrate_height_correction(frames: Sequence[KnownFrame], setup: Setup) -> H
         fitted = fit_height_correction(frame.image, setup, frame.tip_in_eye)
         if fitted.ok:
             factors.append(fitted.factor)
-        else:
+        else:  # the frame's reason (no whole spot, too many, the wrong size)
             skipped.append(f"{frame.name}: {fitted.detail}")
     if not factors:
         raise InputError(f"no frame gives a height correction ({'; '.join(skipped)})")
     return HeightCorrection(float(np.mean(factors)), float(np.std(factors)), len(factors), tuple(skipped))
-
-
-MIN_FRAMES_FOR_SELF_CALIBRATION = 20
-
-
-@dataclass(frozen=True)
-class RadiusSelfCalibration:
-    """The eye's radius fitted jointly with the poses of a sequence, and those poses.
-
-    Attributes
-    ----------
-    radius_mm, radius_sigma_mm : float
-    estimates : list of PoseEstimate
-        One per frame, in order; frames the fit could not use keep their status.
-    frames : int
-        Frames in the joint fit.
-    """
-
-    radius_mm: float
-    radius_sigma_mm: float
-    estimates: list[PoseEstimate]
-    frames: int
-
-
-def prepare_self_calibration(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, EdgeFrame | None]:
-    """One frame's share of :func:`self_calibrate_radius`: its precise pose and its edges (None if unusable).
-
-    A frame refused ``mismatch`` (its edges do not fit the setup's geometry,
-    which may be the radius the joint fit is about to find) is used too,
-    from its fit's pose.
-    """
-    result = localize_precise_with_edges(image, setup, max_rays=_RAYS, find_radius_px=_FIND_RADIUS_PX)
-    estimate, prepared, fit = result.estimate, result.edges, result.fit
-    if estimate.status == "mismatch" and fit is not None and prepared is not None:
-        start = PoseEstimate("ok", tip_in_eye=fit.tip(), axis=fit.axis(), roll=fit.roll(), spots=estimate.spots)
-        return start, prepared
-    return estimate, prepared if estimate.ok else None
-
-
-def self_calibrate_radius(
-    frames_or_images: Sequence[np.ndarray] | Sequence[tuple[PoseEstimate, EdgeFrame | None]], setup: Setup
-) -> RadiusSelfCalibration:
-    """Fit one eye radius and every frame's pose together, without known poses.
-
-    Only the true radius puts every frame's back-projected edge on a right
-    circular cone of the edge angle with its axis through the insertion point,
-    so the radius is fitted with all poses at once (one cone problem, the
-    tips, rolls and radius free), starting from each frame's precise fit at
-    the setup's radius.
-
-    Parameters
-    ----------
-    frames_or_images : sequence
-        The frames, or what :func:`prepare_self_calibration` made of each
-        (so that frames can be prepared elsewhere, in parallel).
-    setup : Setup
-
-    Raises
-    ------
-    ValueError
-        With fewer than 20 usable frames.
-    """
-    shares = [f if isinstance(f, tuple) else prepare_self_calibration(f, setup) for f in frames_or_images]
-    estimates = [estimate for estimate, _ in shares]
-    used = [index for index, (_, prepared) in enumerate(shares) if prepared is not None]
-    if len(used) < MIN_FRAMES_FOR_SELF_CALIBRATION:
-        raise InputError(
-            f"fitting the radius from the frames alone needs at least {MIN_FRAMES_FOR_SELF_CALIBRATION} frames "
-            f"with a pose, got {len(used)}"
-        )
-    prepared = [shares[i][1] for i in used]
-    starts = [estimates[i] for i in used]
-    points = EdgePoints.of_frames(
-        [p.edges_px for p in prepared],  # type: ignore[union-attr]
-        [p.beams for p in prepared],  # type: ignore[union-attr]
-        [p.edge_sigmas for p in prepared],  # type: ignore[union-attr]
-    )
-    problem = cone_problem(
-        setup,
-        points,
-        np.array([e.tip_in_eye for e in starts]),
-        np.array([e.axis for e in starts]),
-        np.array([e.roll for e in starts]),
-        free_shared=PARAMETER_GROUPS["eye-radius"],
-    )
-    solution = fit_cones(problem)
-    radius = float(setup.eye.radius_mm + solution.shared[PARAMETER_GROUPS["eye-radius"][0]])
-    fitted = replace(setup, eye=replace(setup.eye, radius_mm=radius))
-    for f, index in enumerate(used):
-        judged = judge_fit(solution.frame_solution(f), fitted, spots=len(prepared[f].edges_px))  # type: ignore[union-attr]
-        estimates[index] = replace(judged, detail=f"eye radius fitted over {len(used)} frames: {radius:.3f} mm")
-    sigma = float(np.sqrt(solution.covariance[0, 0]))
-    return RadiusSelfCalibration(radius, sigma, estimates, len(used))

@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from spotnav.app.calibrate import Calibration, KnownFrame, calibrate, prepare_self_calibration, self_calibrate_radius
+from spotnav.app.calibrate import calibrate
 from spotnav.experiments.chapter6 import (
     BEAMS,
     PATH_SEEDS,
@@ -40,6 +40,9 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
+from spotnav.pose.calibration import Calibration
+from spotnav.pose.known_frame import KnownFrame
+from spotnav.pose.self_calibration import prepare_self_calibration, self_calibrate_radius
 from spotnav.setup.config import GEOMETRY_PARAMETERS, Instrument, Light, Setup, Uncertainty, World
 from spotnav.setup.geometry import edge_angle_of_blend
 from spotnav.setup.paths import poses_through_insertion, working_volume_tips

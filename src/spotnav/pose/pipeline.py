@@ -4,7 +4,7 @@
    pose its light is modelled from (a :class:`SpotPlan`): from the spots found
    on the whole frame and the thesis's start (:mod:`spotnav.pose.precise`), from a
    predicted pose (:mod:`spotnav.app.track`), or from a known one
-   (:mod:`spotnav.app.calibrate`).
+   (:mod:`spotnav.pose.known_frame`).
 2. *Read the light*: each spot's edge along its rays, with its beam's light
    model where the plateau clips, and judged (:func:`read_light`).
 3. *Fit*: the pose to the edge points the shaft leaves visible
@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from spotnav.image.photometry import edge_light
-from spotnav.optics.light import edge_angle
 from spotnav.image.rays import SpotEdge, detect_edge_along_rays, rays_around_spot
 from spotnav.image.spots import Spot
+from spotnav.optics.light import edge_angle
 from spotnav.pose.checks import judge_edge
 from spotnav.pose.conefit.problem import ConeProblem, EdgePoints, cone_problem
 from spotnav.pose.conefit.solution import ConeSolution
