@@ -27,9 +27,11 @@ from spotnav.optics.render import Renderer
 from spotnav.pose.conefit import SHARED_SIZE, edge_angle, geometry_covariance, setup_with_geometry
 from spotnav.pose.localize import localize
 from spotnav.pose.precise import localize_precise
-from spotnav.setup.config import GEOMETRY_PARAMETERS, Instrument, Setup, Uncertainty, World
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend, normalize
 from spotnav.setup.paths import poses_through_insertion
+from spotnav.setup.sections import Instrument, World
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS, Uncertainty
 
 
 def known_frames(world: Setup, count: int = 8, seed: int = 5, *, axes: bool = False) -> list[KnownFrame]:

@@ -15,7 +15,9 @@ from spotnav.experiments.chapter6 import path_poses, thesis_world, with_true_edg
 from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.image.photometry import edge_light, pixel_light
 from spotnav.pose.precise import localize_precise_with_edges
-from spotnav.setup.config import EXAMPLE_SETUP, Light, setup_from_toml
+from spotnav.setup.config import setup_from_toml
+from spotnav.setup.examples import EXAMPLE_SETUP
+from spotnav.setup.sections import Light
 
 
 def _square_below(offset: float, cos: float, sin: float) -> float:

@@ -34,7 +34,7 @@ from spotnav.pose.conefit import (
     scatter_covariance,
     setup_with_geometry,
 )
-from spotnav.setup.config import GEOMETRY_PARAMETERS, CalibrationRecord, Camera, Instrument, Setup, Uncertainty
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import (
     InstrumentPose,
     _axis_rotations,
@@ -44,6 +44,9 @@ from spotnav.setup.geometry import (
     edge_angle_of_blend,
     normalize,
 )
+from spotnav.setup.microscope import Camera
+from spotnav.setup.sections import Instrument
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS, CalibrationRecord, Uncertainty
 
 CENTER = np.array([0.0, 0.0, 12.5])
 EXACT = Setup(camera=Camera(width_px=1024, height_px=1024), uncertainty=Uncertainty.exact())

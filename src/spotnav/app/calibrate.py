@@ -4,7 +4,7 @@ With the tip known (a robot reports it, and often the instrument's axis too),
 every edge point is a measurement of the geometry: it must lie on its beam's
 edge cone once the camera has turned it into a point on the retina. All
 frames' points are fitted at once (:mod:`spotnav.pose.conefit`) to the geometry's
-parameters (:data:`spotnav.setup.config.GEOMETRY_PARAMETERS`: the edge model, the
+parameters (:data:`spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`: the edge model, the
 eye's radius, the camera's rotation, centre, scale, principal point and
 distortion, the insertion point) and each three-beam frame's roll.
 
@@ -70,8 +70,9 @@ from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.pipeline import LightReading, plan_found_spots, pose_problem, read_light
 from spotnav.pose.precise import EdgeFrame, detect_spots, localize_precise_with_edges
 from spotnav.pose.thesis import fit_height_correction
-from spotnav.setup.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup, Uncertainty
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import assign_beams, normalize
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS, CalibrationRecord, Uncertainty
 
 __all__ = [
     "DETERMINED_RATIO",
@@ -168,13 +169,13 @@ class Calibration:
     setup : Setup
         The calibrated setup, with ``[calibration]``: the geometry's covariance.
     values : ndarray, shape (SHARED_SIZE,)
-        Each parameter of :data:`~spotnav.setup.config.GEOMETRY_PARAMETERS` in the
+        Each parameter of :data:`~spotnav.setup.uncertainty.GEOMETRY_PARAMETERS` in the
         calibrated setup, in its units (changes for the camera's rotation and
         focal length).
     sigmas : ndarray, shape (SHARED_SIZE,)
         Their 1-sigma uncertainty after the calibration.
     fitted : tuple of str
-        The parameters fitted (names of :data:`~spotnav.setup.config.GEOMETRY_PARAMETERS`).
+        The parameters fitted (names of :data:`~spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`).
     fixed : tuple of (str, str)
         Parameters left at the setup's value, and why.
     insertion_rms_mm : float

@@ -40,9 +40,11 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.setup.config import GEOMETRY_PARAMETERS, Instrument, Light, Setup, Uncertainty, World
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import edge_angle_of_blend
 from spotnav.setup.paths import poses_through_insertion, working_volume_tips
+from spotnav.setup.sections import Instrument, Light, World
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS, Uncertainty
 
 __all__ = ["KNOWN_FRAMES", "calibration_text", "known_calibration", "run_calibration"]
 

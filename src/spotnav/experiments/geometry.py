@@ -42,7 +42,9 @@ from spotnav.experiments.runner import (
     summarize,
 )
 from spotnav.pose.conefit import PARAMETER_GROUPS, SHARED_SIZE, setup_with_geometry
-from spotnav.setup.config import Setup, Uncertainty, World
+from spotnav.setup.config import Setup
+from spotnav.setup.sections import World
+from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = [
     "GEOMETRY_CASES",

@@ -28,8 +28,9 @@ from spotnav.pose.conefit import (
     group_of,
 )
 from spotnav.pose.estimate import PoseEstimate
-from spotnav.setup.config import Camera, Setup
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import edge_angle_of_blend
+from spotnav.setup.microscope import Camera
 
 __all__ = [
     "FIT_RATIO_EXPLAINED",

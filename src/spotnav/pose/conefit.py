@@ -13,7 +13,7 @@ cone, radians (the thesis's cone-sphere intersection, section 4.1, without
 the planar approximation of 4.2).
 
 The parameters. Shared by all frames, the geometry (:data:`SHARED_SIZE`
-values, :data:`spotnav.setup.config.GEOMETRY_PARAMETERS`, each a change of the
+values, :data:`spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`, each a change of the
 setup's value): the edge angle, the light's radius, the eye's radius, the
 camera's rotation, centre, focal length, principal point and distortion, and
 the insertion point. Per frame (:data:`FRAME_PARAMETERS`): the tip, the
@@ -47,8 +47,9 @@ from spotnav.optics.camera import (
     sphere_point_rates,
     sphere_points,
 )
-from spotnav.setup.config import GEOMETRY_PARAMETERS, Setup
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import _axis_rotations, _beam_axes, edge_angle_of_blend, normalize
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 __all__ = [
     "AXIS_MODES",
@@ -554,7 +555,7 @@ def cone_problem(
     free_tips : bool
         Fit the tips (else they are known).
     free_shared : sequence of int
-        Shared parameters to fit (indices of :data:`spotnav.setup.config.GEOMETRY_PARAMETERS`).
+        Shared parameters to fit (indices of :data:`spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`).
     shared : ndarray, shape (SHARED_SIZE,), optional
         Start of the shared changes, engine units (default 0: the setup's values).
     one_frame : bool
