@@ -2,7 +2,6 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +10,28 @@ import pytest
 from spotnav.files import decoder
 from spotnav.files.capture import Frame
 from spotnav.files.images import ImageReadError
-from spotnav.files.sequences import iter_frames
+from spotnav.files.sequences import SequenceWriter, iter_frames
+
+
+def _clip(tmp_path: Path, count: int, shape: tuple[int, int] = (48, 64)) -> tuple[Path, list[np.ndarray]]:
+    """An FFV1 clip of ``count`` noise frames of ``shape`` (rows, columns), and the frames."""
+    rng = np.random.default_rng(3)
+    frames = [rng.integers(0, 256, (*shape, 3), dtype=np.uint8) for _ in range(count)]
+    with SequenceWriter(tmp_path / "clip.mkv", fps=30.0) as writer:
+        for index, rgb in enumerate(frames):
+            writer.write(index, rgb)
+    return tmp_path / "clip.mkv", frames
+
+
+@pytest.mark.parametrize("ring", [0, 2])
+def test_video_frames_decode_exactly_and_a_ring_reuses_its_buffers(tmp_path: Path, ring: int) -> None:
+    clip, frames = _clip(tmp_path, 4)
+    decoded = []
+    for frame in iter_frames(str(clip), ring=ring):
+        np.testing.assert_array_equal(frame.pixels, frames[frame.index])  # lossless, as handed over
+        decoded.append(frame.pixels)
+    assert len(decoded) == 4
+    assert (decoded[0] is decoded[2]) == (ring == 2) and decoded[0] is not decoded[1]
 
 
 def _child_processes() -> set[str]:
@@ -23,10 +43,8 @@ def _child_processes() -> set[str]:
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
-def test_a_decoder_process_hands_over_every_frame_and_keeps_the_one_before(
-    tmp_path: Path, write_clip: Callable[..., tuple[Path, list[np.ndarray]]]
-) -> None:
-    clip, frames = write_clip(tmp_path, 7)
+def test_a_decoder_process_hands_over_every_frame_and_keeps_the_one_before(tmp_path: Path) -> None:
+    clip, frames = _clip(tmp_path, 7)
     cores, before = os.sched_getaffinity(0), _child_processes()
     waited_on: list[np.ndarray] = []
     source = iter_frames(str(clip), ring=2, while_waiting=waited_on.append)
@@ -52,10 +70,8 @@ def test_a_decoder_process_hands_over_every_frame_and_keeps_the_one_before(
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
-def test_a_decoder_process_stops_with_its_reader_and_reports_its_failure(
-    tmp_path: Path, write_clip: Callable[..., tuple[Path, list[np.ndarray]]]
-) -> None:
-    clip, frames = write_clip(tmp_path, 5)
+def test_a_decoder_process_stops_with_its_reader_and_reports_its_failure(tmp_path: Path) -> None:
+    clip, frames = _clip(tmp_path, 5)
     cores, before = os.sched_getaffinity(0), _child_processes()
     source = iter_frames(str(clip), ring=1, while_waiting=lambda pixels: None)
     np.testing.assert_array_equal(next(source).pixels, frames[0])
@@ -67,7 +83,7 @@ def test_a_decoder_process_stops_with_its_reader_and_reports_its_failure(
 
     # Frames that take milliseconds to decode: the next one is surely still being decoded when it is asked for,
     # and the rehearsal runs (a frame already there is handed over without one).
-    slow, _ = write_clip(tmp_path / "slow", 2, (1024, 1024))
+    slow, _ = _clip(tmp_path / "slow", 2, (1024, 1024))
     source = iter_frames(str(slow), ring=2, while_waiting=failing)
     next(source)
     with pytest.raises(RuntimeError, match="a rehearsal failed"):
@@ -84,9 +100,9 @@ def test_a_decoder_process_stops_with_its_reader_and_reports_its_failure(
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
 def test_without_shared_memory_or_a_second_core_a_video_is_decoded_in_this_thread(
-    tmp_path: Path, write_clip: Callable[..., tuple[Path, list[np.ndarray]]], monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    clip, frames = write_clip(tmp_path, 3)
+    clip, frames = _clip(tmp_path, 3)
 
     def no_room(descriptor: int, offset: int, size: int) -> None:
         raise OSError(28, "No space left on device")

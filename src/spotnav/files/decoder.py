@@ -64,9 +64,10 @@ def _current_core(cores: set[int]) -> int:
 def read_capture_in_process(
     source: str, capture: cv2.VideoCapture, ring: int, while_waiting: Callable[[np.ndarray], object]
 ) -> Iterator[Frame]:
-    """:func:`iter_frames`'s video frames from a decoder process, through a ring of ``ring + 1`` buffers in shared
-    memory: a frame's buffer is written again once the frame ``ring`` later is handed over. In this thread, as
-    :func:`read_capture`, without a second core to decode on or shared memory to decode into."""
+    """:func:`~spotnav.files.sequences.iter_frames`'s video frames from a decoder process, through a ring of
+    ``ring + 1`` buffers in shared memory: a frame's buffer is written again once the frame ``ring`` later is handed
+    over. In this thread, as :func:`~spotnav.files.capture.read_capture`, without a second core to decode on or
+    shared memory to decode into."""
     own, others = _split_cores()
     shape = (ring + 1, int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)), int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), 3)
     buffers = _shared_buffers(math.prod(shape)) if own and min(shape) > 0 else None

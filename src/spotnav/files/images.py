@@ -69,7 +69,9 @@ def image_size(path: str | Path) -> tuple[int, int] | None:
         return None
     except OSError as error:
         raise _open_error(name, error) from None
-    except (ValueError, SyntaxError):  # a header Pillow cannot parse: let OpenCV decide
+    # A header Pillow cannot parse: let OpenCV decide. Pillow's plugins raise a plain ValueError for it (PPM's
+    # tokens, PNG's chunks), no narrower class.
+    except (ValueError, SyntaxError):
         return None
 
 

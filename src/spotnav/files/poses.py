@@ -315,3 +315,4 @@ def read_path_csv(path: str | Path) -> np.ndarray:
         raise InputError(f"{path}: not a UTF-8 CSV file ({error})") from None
     if len(tips) < 2:
         raise InputError(f"{path}: a path needs at least two rows")
+    return np.array(tips)

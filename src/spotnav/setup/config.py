@@ -55,8 +55,7 @@ class Setup:
         """The camera must see the bowl of the sphere of ``radius`` from outside it, from above."""
         camera = self.camera
         if not camera.is_calibrated:
-            assert camera.distance_mm is not None
-            if camera.distance_mm <= 2.0 * radius:
+            if camera.distance_mm <= 2.0 * radius:  # type: ignore[operator]
                 raise SetupError(
                     f"camera.distance_mm = {camera.distance_mm:g} puts the camera inside the eye, "
                     f"allowed > 2 * {key} = {2 * radius:g}"

@@ -189,8 +189,7 @@ class Camera:
         """OpenCV's camera matrix ``K``, shape (3, 3), pixels."""
         if self.matrix is not None:
             return read_only(np.array(self.matrix, dtype=float))
-        assert self.focal_length_mm is not None and self.sensor_width_mm is not None
-        focal = self.focal_length_mm * self.width_px / self.sensor_width_mm
+        focal = self.focal_length_mm * self.width_px / self.sensor_width_mm  # type: ignore[operator]
         cx, cy = (self.width_px - 1) / 2.0, (self.height_px - 1) / 2.0
         return read_only(np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]]))
 
@@ -212,7 +211,6 @@ class Camera:
         """``t`` of ``x_cam = R x_eye + t``, shape (3,), mm."""
         if self.translation_mm is not None:
             return read_only(np.array(self.translation_mm, dtype=float))
-        assert self.distance_mm is not None
         return read_only(np.array([0.0, 0.0, self.distance_mm]))
 
     @cached_property
