@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spotnav.errors import SpotnavError
-from spotnav.files.poses import POSES_COLUMNS, PosesWriter, pose_row, read_known_poses
+from spotnav.errors import InputError, SpotnavError
+from spotnav.files.poses import POSES_COLUMNS, PosesWriter, pose_row, read_known_poses, read_path_csv, read_poses_csv
 from spotnav.pose.estimate import PoseEstimate
 
 
@@ -46,3 +46,28 @@ def test_read_known_poses(tmp_path: Path) -> None:
         read_known_poses(tmp_path / "bad.csv")
     with pytest.raises(SpotnavError, match="cannot read"):
         read_known_poses(tmp_path / "missing.csv")
+
+
+def test_a_field_that_is_not_a_number_is_refused_naming_the_line(tmp_path: Path) -> None:
+    cases = [
+        ("known.csv", "image,x_mm,y_mm,z_mm,frame\na.png,1,2,4,1.5\n", read_known_poses, "line 2: the frame must be"),
+        ("known.csv", "image,x_mm,y_mm,z_mm,dir_x,dir_y,dir_z\na.png,1,2,4,0,0\n", read_known_poses, "line 2: the pos"),
+        ("poses.csv", f"{','.join(POSES_COLUMNS)}\na.png,ok,1,2,3,0,0,-1,1,wide\n", read_poses_csv, "line 2: sigma_mm"),
+        (
+            "poses.csv",
+            f"{','.join(POSES_COLUMNS[:8])}\na.png,ok,1,2,x,0,0,-1\n",
+            read_poses_csv,
+            "line 2: the pose must",
+        ),
+        ("path.csv", "x_mm,y_mm,z_mm\n1,2,3\n1,2\n", read_path_csv, "row 3: x_mm, y_mm, z_mm must be numbers"),
+        ("truth.json", '{"tip_mm": ["one", 2, 3], "axis": [0, 0, -1]}', read_known_poses, "not a truth file"),
+        ("truth.json", '{"tip_mm": [1, 2], "axis": [0, 0, -1]}', read_known_poses, "three finite numbers each"),
+    ]
+    for name, text, read, message in cases:
+        (tmp_path / name).write_text(text)
+        with pytest.raises(InputError, match=message):
+            read(tmp_path / name)
+    (tmp_path / "truth.json").write_text('{"tip_mm": [" 1", "2_0", 3], "axis": [0, 0, -1], "image": "a.png"}')
+    (pose,) = read_known_poses(tmp_path / "truth.json")  # numbers' text is read as NumPy reads it
+    np.testing.assert_array_equal(pose.tip_in_eye, [1.0, 20.0, 3.0])
+    assert pose.image == tmp_path / "a.png"
