@@ -8,7 +8,10 @@ import pytest
 from hypothesis import settings
 
 from spotnav.optics.render import Renderer
-from spotnav.setup.config import Camera, Light, Render, Setup, Uncertainty
+from spotnav.setup.config import Setup
+from spotnav.setup.microscope import Camera
+from spotnav.setup.sections import Light, Render
+from spotnav.setup.uncertainty import Uncertainty
 
 # No per-example deadline: the first example of a test may compile (or load) Numba kernels, and a
 # shared 2-core CI machine's timing varies; the suite's time is kept by CI's own limit.

@@ -22,9 +22,12 @@ from spotnav import cli
 from spotnav.app.track import TrackedFrame, Tracker
 from spotnav.cli import main
 from spotnav.experiments.faults import SILENT_ERROR_MM
-from spotnav.files import iter_frames
-from spotnav.setup.config import EXAMPLE_SETUP, THESIS_EXPOSURE_STOPS, Render, Setup, Uncertainty, setup_from_toml
+from spotnav.files.sequences import iter_frames
+from spotnav.setup.config import Setup, setup_from_toml
+from spotnav.setup.examples import EXAMPLE_SETUP, THESIS_EXPOSURE_STOPS
 from spotnav.setup.geometry import edge_angle_of_blend
+from spotnav.setup.sections import Render
+from spotnav.setup.uncertainty import Uncertainty
 
 
 def write_scene(path: Path, size_px: int = 5000, blend: float = 0.0) -> Path:
@@ -588,7 +591,7 @@ def test_a_bug_is_not_dressed_up_as_a_user_error(tmp_path: Path, monkeypatch: py
     def broken(*_: object) -> None:
         raise ValueError("a bug")
 
-    monkeypatch.setattr("spotnav.cli.localize", broken)
+    monkeypatch.setattr("spotnav.pose.localize.localize", broken)
     with pytest.raises(ValueError, match="a bug"):
         main(["localize", "--scene", str(scene), str(frame), "--out", str(tmp_path / "poses.csv")])
 

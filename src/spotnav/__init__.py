@@ -42,8 +42,9 @@ _drop_stale_kernels()
 
 from spotnav.optics.render import Renderer  # noqa: E402
 from spotnav.pose.localize import PoseEstimate, localize  # noqa: E402
-from spotnav.setup.config import Setup, SetupError, setup_from_toml  # noqa: E402
+from spotnav.setup.config import Setup, setup_from_toml  # noqa: E402
 from spotnav.setup.geometry import InstrumentPose  # noqa: E402
+from spotnav.setup.values import SetupError  # noqa: E402
 
 __version__ = "0.1.0"
 

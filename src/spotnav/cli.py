@@ -36,28 +36,21 @@ from spotnav.experiments.bench import bench_markdown, run_bench, run_stress, str
 from spotnav.experiments.profiling import profile_markdown, run_profile
 from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
 from spotnav.experiments.sweep_report import write_sweep_report
-from spotnav.files import (
+from spotnav.files.capture import Frame
+from spotnav.files.images import ImageReadError, display_name, read_image, write_image
+from spotnav.files.poses import (
     TRACK_COLUMNS,
-    CameraSettings,
-    Frame,
-    ImageReadError,
     PosesWriter,
-    SequenceWriter,
-    display_name,
-    iter_frames,
     pose_row,
-    read_image,
     read_known_poses,
-    read_opencv_camera,
     read_path_csv,
     read_poses_csv,
-    read_setup,
-    setup_to_toml,
     track_row,
-    write_image,
     write_truth_csv,
     write_truth_json,
 )
+from spotnav.files.sequences import CameraSettings, SequenceWriter, iter_frames
+from spotnav.files.setup_files import read_opencv_camera, read_setup, setup_to_toml
 from spotnav.optics.render import Renderer
 from spotnav.pose.calibration import Calibration
 from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
@@ -65,9 +58,11 @@ from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.known_frame import KnownFrame
 from spotnav.pose.localize import DEFAULT_METHOD, METHODS, localize, localize_detailed
 from spotnav.pose.self_calibration import prepare_self_calibration, self_calibrate_radius
-from spotnav.setup.config import EXAMPLES, GEOMETRY_PARAMETERS, Camera, Setup
+from spotnav.setup.config import Camera, Setup
+from spotnav.setup.examples import EXAMPLES
 from spotnav.setup.geometry import InstrumentPose, beam_axes
 from spotnav.setup.paths import helix_tips, resample_polyline, square_tips, tremor_offsets
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 __all__ = ["main"]
 

@@ -19,9 +19,10 @@ from spotnav.pose.conefit.parameters import SHARED_SIZE, geometry_covariance, se
 from spotnav.pose.known_frame import KnownFrame
 from spotnav.pose.localize import localize
 from spotnav.pose.precise import localize_precise
-from spotnav.setup.config import GEOMETRY_PARAMETERS, Instrument, Setup, Uncertainty, World
+from spotnav.setup.config import Instrument, Setup, Uncertainty, World
 from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend
 from spotnav.setup.paths import poses_through_insertion
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 
 def known_frames(world: Setup, count: int = 8, seed: int = 5, *, axes: bool = False) -> list[KnownFrame]:

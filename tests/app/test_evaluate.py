@@ -8,7 +8,7 @@ import pytest
 from spotnav.app.evaluate import evaluate_poses, evaluation_text
 from spotnav.cli import main
 from spotnav.errors import SpotnavError
-from spotnav.files import KnownPose, PoseRow, read_poses_csv
+from spotnav.files.poses import KnownPose, PoseRow, read_poses_csv
 
 AXIS = np.array([0.0, 0.0, -1.0])
 

@@ -20,9 +20,10 @@ from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.precise import localize_precise
-from spotnav.setup.config import Setup, Uncertainty
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, cone_sphere_curve
 from spotnav.setup.paths import helix_tips, poses_through_insertion
+from spotnav.setup.uncertainty import Uncertainty
 
 SIZE_PX = 1024
 

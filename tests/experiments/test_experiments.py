@@ -30,7 +30,7 @@ from spotnav.experiments.chapter6 import (
 )
 from spotnav.experiments.profiling import PARTS, PROFILED_STAGES, run_profile
 from spotnav.optics.render import Renderer
-from spotnav.setup.config import THESIS_EXPOSURE_STOPS
+from spotnav.setup.examples import THESIS_EXPOSURE_STOPS
 from spotnav.setup.geometry import InstrumentPose
 from spotnav.setup.paths import SQUARE_CORNERS_MM
 

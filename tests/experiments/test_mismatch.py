@@ -9,8 +9,8 @@ from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.mismatch import MISMATCH_CASES, SILENT_MM, SILENT_SIGMAS
 from spotnav.optics.render import Renderer
 from spotnav.pose.localize import localize
-from spotnav.setup.config import Uncertainty
 from spotnav.setup.geometry import InstrumentPose
+from spotnav.setup.uncertainty import Uncertainty
 
 # What three beams' frames show of their own: a light unlike the setup's (the edge angle, the blend, the beams'
 # tilt) bends their edges as no noise does (docs/methods.md, the precise method's 8).

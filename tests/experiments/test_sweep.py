@@ -28,7 +28,8 @@ from spotnav.experiments.sweep import (
     sweep_from_toml,
 )
 from spotnav.experiments.sweep_report import error_curves, summary_rows, write_sweep_report
-from spotnav.setup.config import Setup, SetupError
+from spotnav.setup.config import Setup
+from spotnav.setup.values import SetupError
 
 TINY = """\
 seed = 3

@@ -17,7 +17,7 @@ import pytest
 
 from spotnav.app.evaluate import evaluate_poses
 from spotnav.cli import main
-from spotnav.files import read_known_poses, read_poses_csv
+from spotnav.files.poses import read_known_poses, read_poses_csv
 
 SHARED = Path(__file__).resolve().parents[3] / "shared"
 CYCLES_DEV = Path(os.environ.get("SPOTNAV_CYCLES_DEV", SHARED / "cycles-dev"))

@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spotnav.image.photometry import edge_light, pixel_light
-from spotnav.setup.config import EXAMPLE_SETUP, setup_from_toml
+from spotnav.setup.config import setup_from_toml
+from spotnav.setup.examples import EXAMPLE_SETUP
 
 
 def _square_below(offset: float, cos: float, sin: float) -> float:

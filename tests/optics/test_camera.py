@@ -20,7 +20,7 @@ from spotnav.optics.camera import (
     unproject_pixels_to_plane,
     unproject_pixels_to_sphere,
 )
-from spotnav.setup.config import Camera
+from spotnav.setup.microscope import Camera
 
 CAMERA = Camera()  # the thesis's: 5000 px, 36 mm sensor, 300 mm lens, 110 mm
 

@@ -8,8 +8,9 @@ from conftest import small_setup
 
 from spotnav.optics.camera import pixels_behind_segment, project_points
 from spotnav.optics.render import Renderer, bump_height, exposure_gain
-from spotnav.setup.config import Bump, Setup, World
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, cone_sphere_curve
+from spotnav.setup.sections import Bump, World
 
 
 def test_full_scale_at_5_mm_for_1_w() -> None:

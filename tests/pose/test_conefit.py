@@ -26,7 +26,7 @@ from spotnav.pose.conefit.parameters import (
 from spotnav.pose.conefit.problem import EdgePoints, _frame_starts, _start_frames, cone_problem
 from spotnav.pose.conefit.solution import _free_trace
 from spotnav.pose.conefit.solvers import SOLVERS, _fit_recipe, _tip_box, fit_cones, robust_sigma
-from spotnav.setup.config import GEOMETRY_PARAMETERS, CalibrationRecord, Camera, Instrument, Setup, Uncertainty
+from spotnav.setup.config import CalibrationRecord, Camera, Instrument, Setup, Uncertainty
 from spotnav.setup.geometry import (
     InstrumentPose,
     _axis_rotations,
@@ -36,6 +36,7 @@ from spotnav.setup.geometry import (
     edge_angle_of_blend,
     normalize,
 )
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 CENTER = np.array([0.0, 0.0, 12.5])
 EXACT = Setup(camera=Camera(width_px=1024, height_px=1024), uncertainty=Uncertainty.exact())

@@ -21,9 +21,10 @@ from spotnav.pose.estimate import STATUSES
 from spotnav.pose.localize import localize, localize_detailed
 from spotnav.pose.precise import detection_decimation, smallest_spot_area_px
 from spotnav.pose.shaft import hidden_by_shaft
-from spotnav.setup.config import Light, Setup
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, angles_between
 from spotnav.setup.paths import poses_through_insertion
+from spotnav.setup.sections import Light
 
 
 def test_round_trip_over_the_working_volume_2048(renderer_2048: Renderer) -> None:

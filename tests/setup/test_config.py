@@ -10,7 +10,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from spotnav.setup.config import EXAMPLE_SETUP, Bump, Setup, SetupError, Uncertainty, setup_from_dict, setup_from_toml
+from spotnav.setup.config import Setup, setup_from_dict, setup_from_toml
+from spotnav.setup.examples import EXAMPLE_SETUP
+from spotnav.setup.sections import Bump
+from spotnav.setup.uncertainty import Uncertainty
+from spotnav.setup.values import SetupError
 
 
 def test_example_is_the_thesis_setup() -> None:

@@ -20,7 +20,7 @@ import numpy as np
 
 from spotnav.errors import InputError
 from spotnav.experiments.figures import plot_errors_by_status, plot_path_3d
-from spotnav.files import KnownPose, PoseRow
+from spotnav.files.poses import KnownPose, PoseRow
 
 __all__ = ["Evaluation", "FrameEvaluation", "evaluate_poses", "evaluation_text", "write_evaluation"]
 

@@ -1,7 +1,7 @@
 """Track a moving instrument frame by frame: the precise method on a region of interest.
 
 The first frame is localized on the whole image
-(:func:`spotnav.pose.localize.localize_precise`): *acquisition*. After that the
+(:func:`spotnav.pose.precise.localize_precise`): *acquisition*. After that the
 tracker predicts the pose (the tip's last step, changed as it changed from the
 step before when that change agrees with the one before it: a steady turn), projects each beam's predicted
 edge curve into the image and reads the image only along rays across it
@@ -135,7 +135,7 @@ def track_frame(
     PoseEstimate
         ``ok``, or ``clipped`` (a predicted edge leaves the image), or
         ``unreliable`` (an edge on fewer than half the rays: the spot is not
-        where predicted; or a check of :func:`spotnav.pose.localize.judge_fit`
+        where predicted; or a check of :func:`spotnav.pose.checks.judge_fit`
         failed), or ``occluded`` (the shaft, at the predicted pose, hides too
         much of a spot's edge; its hidden edge points are never used).
     """

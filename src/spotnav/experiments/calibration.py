@@ -43,9 +43,10 @@ from spotnav.experiments.runner import (
 from spotnav.pose.calibration import Calibration
 from spotnav.pose.known_frame import KnownFrame
 from spotnav.pose.self_calibration import prepare_self_calibration, self_calibrate_radius
-from spotnav.setup.config import GEOMETRY_PARAMETERS, Instrument, Light, Setup, Uncertainty, World
+from spotnav.setup.config import Instrument, Light, Setup, Uncertainty, World
 from spotnav.setup.geometry import edge_angle_of_blend
 from spotnav.setup.paths import poses_through_insertion, working_volume_tips
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 __all__ = ["KNOWN_FRAMES", "calibration_text", "known_calibration", "run_calibration"]
 

@@ -36,18 +36,10 @@ from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.precise import localize_precise
 from spotnav.pose.reconstruct import fit_ellipse, triangle_from_ellipse
 from spotnav.pose.thesis import locate_from_spots, spot_candidates
-from spotnav.setup.config import (
-    THESIS_EXPOSURE_STOPS,
-    Bump,
-    Camera,
-    Instrument,
-    Light,
-    Render,
-    Setup,
-    Uncertainty,
-    World,
-)
+from spotnav.setup.config import Setup
+from spotnav.setup.examples import THESIS_EXPOSURE_STOPS
 from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend, rotation_about_y
+from spotnav.setup.microscope import Camera
 from spotnav.setup.paths import (
     HELIX,
     SQUARE_CORNERS_MM,
@@ -55,6 +47,8 @@ from spotnav.setup.paths import (
     poses_through_insertion,
     square_tips,
 )
+from spotnav.setup.sections import Bump, Instrument, Light, Render, World
+from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = [
     "EXPOSURES",

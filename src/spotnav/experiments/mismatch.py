@@ -48,8 +48,9 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.setup.config import Setup, Uncertainty
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose
+from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = [
     "MISMATCH_CASES",

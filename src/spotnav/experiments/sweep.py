@@ -34,12 +34,13 @@ import pyarrow.parquet as pq
 from spotnav.app.progress import progress
 from spotnav.errors import InputError, SpotnavError
 from spotnav.experiments.chapter6 import with_true_edge
-from spotnav.files import read_path_csv
+from spotnav.files.poses import read_path_csv
 from spotnav.optics.render import Renderer
 from spotnav.pose.localize import METHODS, localize
-from spotnav.setup.config import Setup, Uncertainty, setup_from_toml
+from spotnav.setup.config import Setup, setup_from_toml
 from spotnav.setup.geometry import InstrumentPose, angles_between
 from spotnav.setup.paths import helix_tips, poses_through_insertion, square_tips
+from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = [
     "EXAMPLE_SWEEP",

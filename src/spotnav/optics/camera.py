@@ -1,6 +1,6 @@
 """The camera model: OpenCV's pinhole with lens distortion and a pose, written once.
 
-A :class:`~spotnav.setup.config.Camera` is the thesis's ideal pinhole above the pole
+A :class:`~spotnav.setup.microscope.Camera` is the thesis's ideal pinhole above the pole
 or a calibrated camera (contract); both become OpenCV's ``K``, distortion and
 pose ``x_cam = R x_eye + t``. Points project as ``cv2.projectPoints`` projects
 them (all 14 distortion coefficients, the tilted sensor included); pixels
@@ -20,7 +20,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from spotnav.setup.config import Camera
+from spotnav.setup.microscope import Camera
 
 __all__ = [
     "CHANGE_SIZE",

@@ -34,8 +34,7 @@ from spotnav.optics.camera import (
     unproject_pixels_to_sphere,
 )
 from spotnav.optics.texture import make_texture, sample_albedo
-from spotnav.setup.config import Bump, Camera, Setup
-from spotnav.setup.config import Render as RenderSettings
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import (
     InstrumentPose,
     beam_axes,
@@ -44,6 +43,9 @@ from spotnav.setup.geometry import (
     intersect_rays_sphere,
     spot_attenuation,
 )
+from spotnav.setup.microscope import Camera
+from spotnav.setup.sections import Bump
+from spotnav.setup.sections import Render as RenderSettings
 
 __all__ = ["Renderer", "bump_height", "exposure_gain", "output_table"]
 

@@ -4,7 +4,7 @@ Every edge point of a frame at a known pose (:mod:`spotnav.pose.known_frame`) is
 a measurement of the geometry: it must lie on its beam's edge cone once the
 camera has turned it into a point on the retina. All frames' points are fitted
 at once (:mod:`spotnav.pose.conefit`) to the geometry's parameters
-(:data:`spotnav.setup.config.GEOMETRY_PARAMETERS`: the edge model, the eye's
+(:data:`spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`: the edge model, the eye's
 radius, the camera's rotation, centre, scale, principal point and distortion,
 the insertion point) and each three-beam frame's roll.
 
@@ -55,8 +55,9 @@ from spotnav.pose.conefit.solution import ConeSolution
 from spotnav.pose.conefit.solvers import fit_cones
 from spotnav.pose.known_frame import KnownFrame, KnownFrameEdges, read_known_frame
 from spotnav.pose.pipeline import pose_problem
-from spotnav.setup.config import GEOMETRY_PARAMETERS, CalibrationRecord, Setup, Uncertainty
+from spotnav.setup.config import CalibrationRecord, Setup, Uncertainty
 from spotnav.setup.geometry import normalize
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 __all__ = [
     "DETERMINED_RATIO",
@@ -101,13 +102,13 @@ class Calibration:
     setup : Setup
         The calibrated setup, with ``[calibration]``: the geometry's covariance.
     values : ndarray, shape (SHARED_SIZE,)
-        Each parameter of :data:`~spotnav.setup.config.GEOMETRY_PARAMETERS` in the
+        Each parameter of :data:`~spotnav.setup.uncertainty.GEOMETRY_PARAMETERS` in the
         calibrated setup, in its units (changes for the camera's rotation and
         focal length).
     sigmas : ndarray, shape (SHARED_SIZE,)
         Their 1-sigma uncertainty after the calibration.
     fitted : tuple of str
-        The parameters fitted (names of :data:`~spotnav.setup.config.GEOMETRY_PARAMETERS`).
+        The parameters fitted (names of :data:`~spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`).
     fixed : tuple of (str, str)
         Parameters left at the setup's value, and why.
     insertion_rms_mm : float
@@ -164,7 +165,8 @@ class Calibration:
 class GeometryFit:
     """One calibration's fit before its frame-edge sigma and check (:func:`fit_geometry`): the setup it started from
     (the response it read with, the insertion point its axes gave), its frames' edges (all ``ok``), the axis mode
-    (``known`` or ``insertion``), the parameters fitted (indices of :data:`~spotnav.setup.config.GEOMETRY_PARAMETERS`),
+    (``known`` or ``insertion``), the parameters fitted (indices of
+    :data:`~spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`),
     the last fit, the edge points' RMS angle from their cones with the setup's geometry (radians), why each parameter
     not fitted stayed at the setup's value, where known axes meet (:func:`insertion_from_axes`) and the frames left out
     with the reason."""
@@ -306,7 +308,7 @@ def fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str],
         Fewer than :data:`MIN_FRAMES` usable frames; nothing to calibrate; a
         forced group the frames cannot determine; known axes that are (nearly)
         parallel or with the insertion point forced. A geometry out of
-        its allowed ranges raises :class:`~spotnav.setup.config.SetupError`.
+        its allowed ranges raises :class:`~spotnav.setup.values.SetupError`.
     """
     edges, skipped = [], []
     for frame in frames:

@@ -24,8 +24,9 @@ from spotnav.pose.conefit.problem import cone_problem
 from spotnav.pose.conefit.solution import ConeSolution
 from spotnav.pose.conefit.solvers import fit_cones
 from spotnav.pose.estimate import PoseEstimate
-from spotnav.setup.config import Camera, Setup
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import edge_angle_of_blend
+from spotnav.setup.microscope import Camera
 
 __all__ = [
     "FIT_RATIO_EXPLAINED",

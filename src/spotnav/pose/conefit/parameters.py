@@ -1,7 +1,7 @@
 """The geometry's parameters: the shared vector's layout, its units, its prior and its mapping to and from a setup.
 
 Shared by all frames of a cone fit, the geometry (:data:`SHARED_SIZE` values,
-:data:`spotnav.setup.config.GEOMETRY_PARAMETERS`, each a change of the setup's value): the edge angle, the light's
+:data:`spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`, each a change of the setup's value): the edge angle, the light's
 radius, the eye's radius, the camera's rotation, centre, focal length, principal point and distortion, and the
 insertion point, grouped as calibrate's flags name them (:data:`PARAMETER_GROUPS`). Per frame
 (:data:`FRAME_PARAMETERS`): the tip, the instrument axis (through the insertion point, free as two angles, or known,
@@ -18,7 +18,8 @@ import numpy as np
 
 from spotnav.optics.camera import CHANGE_SIZE, camera_model, camera_of_model, perturbed_model
 from spotnav.optics.light import edge_angle
-from spotnav.setup.config import GEOMETRY_PARAMETERS, Setup
+from spotnav.setup.config import Setup
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 __all__ = [
     "AXIS_MODES",

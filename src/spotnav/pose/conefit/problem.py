@@ -336,7 +336,7 @@ def cone_problem(
     free_tips : bool
         Fit the tips (else they are known).
     free_shared : sequence of int
-        Shared parameters to fit (indices of :data:`spotnav.setup.config.GEOMETRY_PARAMETERS`).
+        Shared parameters to fit (indices of :data:`spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`).
     shared : ndarray, shape (SHARED_SIZE,), optional
         Start of the shared changes, engine units (default 0: the setup's values).
     one_frame : bool

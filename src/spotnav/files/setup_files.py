@@ -1,0 +1,139 @@
+"""Setup files: a setup's TOML read and written, and a camera calibration as OpenCV's tools write it.
+
+:func:`read_setup` reads and validates a TOML setup (its errors name the file and the key), :func:`setup_to_toml`
+writes one that reads back to the same setup, and :func:`read_opencv_camera` reads the image size, camera matrix and
+distortion coefficients from a ``cv2.FileStorage`` file (YAML, XML or JSON).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from spotnav.errors import InputError
+from spotnav.setup.config import Setup, setup_from_toml
+from spotnav.setup.values import SetupError
+
+__all__ = ["read_opencv_camera", "read_setup", "setup_to_dict", "setup_to_toml"]
+
+
+def read_setup(path: str | Path) -> Setup:
+    """Read and validate a TOML setup file.
+
+    Raises
+    ------
+    SetupError
+        Naming the file, and the key for invalid values.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise SetupError(f"{path}: cannot read the setup: {getattr(error, 'strerror', None) or error}") from None
+    try:
+        return setup_from_toml(text)
+    except SetupError as error:
+        raise SetupError(f"{path}: {error}") from None
+
+
+def setup_to_dict(setup: Setup) -> dict:
+    """The setup as plain data (for JSON)."""
+    return asdict(setup)
+
+
+_OPENCV_MATRIX_KEYS = ("camera_matrix", "cameraMatrix", "K", "M", "intrinsic_matrix")
+_OPENCV_DISTORTION_KEYS = ("distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "dist", "distortion")
+_OPENCV_SIZE_KEYS = (("image_width", "imageWidth", "width"), ("image_height", "imageHeight", "height"))
+
+
+def read_opencv_camera(path: str | Path) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """An OpenCV camera calibration: image size, camera matrix and distortion coefficients.
+
+    Reads what ``cv2.FileStorage`` writes (YAML, XML or JSON), as OpenCV's
+    calibration sample and tools do: ``camera_matrix`` and
+    ``distortion_coefficients`` (or ``cameraMatrix``/``K``, ``dist_coeffs``/
+    ``distCoeffs``/``D``) and ``image_width``, ``image_height``.
+
+    Returns
+    -------
+    width_px, height_px : int
+    matrix : ndarray, shape (3, 3)
+    distortion : ndarray, shape (n,), n in (4, 5, 8, 12, 14)
+
+    Raises
+    ------
+    InputError
+        Naming the file and what is missing.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError):  # OpenCV's parser raises its error through a SystemError
+        raise InputError(f"{path}: not a file cv2.FileStorage reads (YAML, XML or JSON)") from None
+    try:
+        if not storage.isOpened():
+            raise InputError(f"{path}: not a file cv2.FileStorage reads (YAML, XML or JSON)")
+
+        def first(keys: Sequence[str]) -> cv2.FileNode | None:
+            for key in keys:
+                node = storage.getNode(key)
+                if not node.empty():
+                    return node
+            return None
+
+        matrix_node, distortion_node = first(_OPENCV_MATRIX_KEYS), first(_OPENCV_DISTORTION_KEYS)
+        if matrix_node is None or distortion_node is None:
+            missing = "camera_matrix" if matrix_node is None else "distortion_coefficients"
+            raise InputError(f"{path}: no {missing} (OpenCV's calibration keys)")
+        matrix, distortion = matrix_node.mat(), distortion_node.mat()
+        sizes = [first(keys) for keys in _OPENCV_SIZE_KEYS]
+        if any(node is None for node in sizes):
+            raise InputError(f"{path}: no image_width and image_height")
+        width, height = (int(node.real()) for node in sizes)  # type: ignore[union-attr]
+    finally:
+        storage.release()
+    if matrix is None or matrix.shape != (3, 3):
+        raise InputError(f"{path}: camera_matrix must be 3 x 3")
+    if distortion is None:
+        raise InputError(f"{path}: distortion_coefficients is not a matrix")
+    return width, height, np.asarray(matrix, dtype=float), np.asarray(distortion, dtype=float).ravel()
+
+
+def setup_to_toml(setup: Setup, header: str = "") -> str:
+    """The setup as a TOML file that :func:`read_setup` reads back to the same setup.
+
+    Parameters
+    ----------
+    setup : Setup
+    header : str
+        Comment lines to put first (without ``#``).
+    """
+    lines = [f"# {line}" for line in header.splitlines()]
+    for section, values in asdict(setup).items():
+        lines += ["", f"[{section}]"]
+        for key, value in values.items():
+            if value is None:
+                continue
+            lines.append(f"{key} = {_toml_value(value)}")
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} as TOML")
