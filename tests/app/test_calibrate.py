@@ -21,15 +21,14 @@ from spotnav.app.calibrate import (
     self_calibrate_radius,
 )
 from spotnav.errors import InputError, SpotnavError
-from spotnav.experiments import helix_tips, working_volume_tips
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.render import Renderer
 from spotnav.pose.conefit import SHARED_SIZE, edge_angle, geometry_covariance, setup_with_geometry
 from spotnav.pose.localize import localize
 from spotnav.pose.precise import localize_precise
 from spotnav.setup.config import GEOMETRY_PARAMETERS, Instrument, Setup, Uncertainty, World
 from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend, normalize
-from spotnav.setup.paths import poses_through_insertion
+from spotnav.setup.paths import helix_tips, poses_through_insertion, working_volume_tips
 
 
 def known_frames(world: Setup, count: int = 8, seed: int = 5, *, axes: bool = False) -> list[KnownFrame]:

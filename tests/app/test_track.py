@@ -13,7 +13,7 @@ from scipy.optimize import brentq
 
 from spotnav.app import track
 from spotnav.app.track import Tracker, _track_once, frozen_heap, track_frame
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.image.detect import edge_window_px, rays_through_curve
 from spotnav.optics.camera import project_points
 from spotnav.optics.render import Renderer
@@ -241,7 +241,7 @@ kernels = [t._predicted_rays, d._edge_on_rays, d.curve_rays,
            c._tip_box, c._free_trace, g._unit_rows, d._background_level, d._one_row_means]
 modules = (d, c, k, g, m, r, t, b, n)
 every = [f for mod in modules for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.setup.paths import helix_tips, poses_through_insertion
 from spotnav.optics.render import Renderer
 from spotnav.app.track import Tracker

@@ -11,11 +11,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spotnav import Renderer
-from spotnav.experiments.chapter6 import path_poses, thesis_world, with_true_edge
 from spotnav.experiments.faults import SILENT_ERROR_MM
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.image.photometry import edge_light, pixel_light
 from spotnav.pose.precise import localize_precise_with_edges
 from spotnav.setup.config import EXAMPLE_SETUP, Light, setup_from_toml
+from spotnav.setup.paths import path_poses
 
 
 def _square_below(offset: float, cos: float, sin: float) -> float:
