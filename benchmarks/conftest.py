@@ -10,7 +10,7 @@ import os
 import numpy as np
 import pytest
 
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.render import Renderer
 from spotnav.setup.config import Setup
 from spotnav.setup.paths import helix_tips, poses_through_insertion

@@ -10,7 +10,6 @@ from conftest import small_setup
 
 from spotnav.app.calibrate import EDGE_BAND_MARGIN, RESPONSE_CANDIDATES, RESPONSE_MARGIN, calibrate
 from spotnav.errors import InputError, SpotnavError
-from spotnav.experiments import helix_tips, working_volume_tips
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
@@ -21,7 +20,7 @@ from spotnav.pose.localize import localize
 from spotnav.pose.precise import localize_precise
 from spotnav.setup.config import Instrument, Setup, Uncertainty, World
 from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend
-from spotnav.setup.paths import poses_through_insertion
+from spotnav.setup.paths import helix_tips, poses_through_insertion, working_volume_tips
 from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 

@@ -8,31 +8,16 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.experiments import (
-    approximation_rows,
-    geometry,
-    helix_tips,
-    mismatch,
-    reproduce,
-    run_frames,
-    square_tips,
-    summarize,
-    working_volume_tips,
-)
-from spotnav.experiments.chapter6 import (
-    EXPOSURES,
-    GALLERY_POSE,
-    POWERS_W,
-    bump_grid,
-    gallery_centre,
-    saturating_exposure_stops,
-    thesis_world,
-)
+from spotnav.experiments import geometry, mismatch, reproduce
+from spotnav.experiments.chapter6 import EXPOSURES, GALLERY_POSE, POWERS_W, gallery_centre, saturating_exposure_stops
+from spotnav.experiments.core import approximation_rows
 from spotnav.experiments.profiling import PARTS, PROFILED_STAGES, run_profile
+from spotnav.experiments.runner import run_frames, summarize
+from spotnav.experiments.scenes import bump_grid, thesis_world
 from spotnav.optics.render import Renderer
 from spotnav.setup.examples import THESIS_EXPOSURE_STOPS
 from spotnav.setup.geometry import InstrumentPose
-from spotnav.setup.paths import SQUARE_CORNERS_MM
+from spotnav.setup.paths import SQUARE_CORNERS_MM, helix_tips, square_tips, working_volume_tips
 
 
 def test_results_do_not_depend_on_workers() -> None:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from spotnav.experiments import faults, reproduce
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.camera import project_points
 from spotnav.optics.render import Renderer
 from spotnav.pose.localize import localize

@@ -5,8 +5,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.mismatch import MISMATCH_CASES, SILENT_MM, SILENT_SIGMAS
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.render import Renderer
 from spotnav.pose.localize import localize
 from spotnav.setup.geometry import InstrumentPose

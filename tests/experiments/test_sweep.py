@@ -14,17 +14,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spotnav.cli import main
-from spotnav.experiments.sweep import (
-    EXAMPLE_SWEEP,
+from spotnav.experiments.sweep import EXAMPLE_SWEEP, TIMING_COLUMNS, Chunk, plan_chunks, read_sweep_table, run_sweep
+from spotnav.experiments.sweep_file import (
     SWEEP_PARAMETERS,
-    TIMING_COLUMNS,
-    Chunk,
     SweepError,
     apply_parameters,
     design_points,
-    plan_chunks,
-    read_sweep_table,
-    run_sweep,
     sweep_from_toml,
 )
 from spotnav.experiments.sweep_report import error_curves, summary_rows, write_sweep_report

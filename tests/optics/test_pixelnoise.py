@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.pixelnoise import (
     CAMERA_NOISE_BLUR_PX,
     _ring_variances,

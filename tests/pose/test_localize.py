@@ -8,7 +8,6 @@ import pytest
 from conftest import small_setup
 
 from spotnav.app.overlay import cone_edge_px
-from spotnav.experiments import helix_tips, working_volume_tips
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.optics.camera import camera_depth_mm, project_points
 from spotnav.optics.render import Renderer
@@ -23,7 +22,7 @@ from spotnav.pose.precise import detection_decimation, smallest_spot_area_px
 from spotnav.pose.shaft import hidden_by_shaft
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, angles_between
-from spotnav.setup.paths import poses_through_insertion
+from spotnav.setup.paths import helix_tips, poses_through_insertion, working_volume_tips
 from spotnav.setup.sections import Light
 
 

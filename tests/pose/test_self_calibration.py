@@ -9,12 +9,12 @@ import pytest
 from conftest import small_setup
 
 from spotnav.errors import SpotnavError
-from spotnav.experiments import helix_tips
 from spotnav.experiments.chapter6 import with_true_edge
 from spotnav.optics.render import Renderer
 from spotnav.pose.self_calibration import self_calibrate_radius
 from spotnav.setup.config import World
 from spotnav.setup.geometry import InstrumentPose
+from spotnav.setup.paths import helix_tips
 
 
 def test_self_calibration_of_the_radius_from_a_sequence() -> None:

@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.camera import project_points
 from spotnav.pose.shaft import hidden_by_shaft
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.experiments import working_volume_tips
 from spotnav.optics.render import Renderer
 from spotnav.pose.localize import localize
 from spotnav.pose.thesis import fit_height_correction
 from spotnav.setup.geometry import InstrumentPose
+from spotnav.setup.paths import working_volume_tips
 
 
 def test_height_correction_removes_the_soft_edge_bias() -> None:

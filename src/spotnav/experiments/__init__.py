@@ -14,29 +14,17 @@ from pathlib import Path
 
 from spotnav.errors import InputError
 from spotnav.experiments.calibration import run_calibration
-from spotnav.experiments.chapter6 import Experiment, Options, run_ellipse, run_paths, run_world
-from spotnav.experiments.core import THESIS_TABLE_4_1_UM, approximation_rows, run_approximation, run_volume
+from spotnav.experiments.chapter6 import run_paths, run_world
+from spotnav.experiments.core import approximation_rows, run_approximation, run_volume
+from spotnav.experiments.ellipse import run_ellipse
 from spotnav.experiments.faults import run_faults
 from spotnav.experiments.geometry import run_geometry
 from spotnav.experiments.light import run_light
 from spotnav.experiments.mismatch import run_mismatch
-from spotnav.experiments.runner import ErrorSummary, FrameResult, FrameRunner, run_frames, summarize
-from spotnav.setup.paths import helix_tips, square_tips, working_volume_tips
+from spotnav.experiments.report import Experiment, Options
+from spotnav.experiments.runner import FrameRunner
 
-__all__ = [
-    "EXPERIMENTS",
-    "THESIS_TABLE_4_1_UM",
-    "ErrorSummary",
-    "Experiment",
-    "FrameResult",
-    "approximation_rows",
-    "helix_tips",
-    "reproduce",
-    "run_frames",
-    "square_tips",
-    "summarize",
-    "working_volume_tips",
-]
+__all__ = ["EXPERIMENTS", "ON_REQUEST", "approximation_rows", "reproduce"]
 
 EXPERIMENTS: dict[str, Callable[[Options], Experiment]] = {
     "approximation": run_approximation,

@@ -15,12 +15,12 @@ import numpy as np
 
 from spotnav.app.progress import progress
 from spotnav.app.track import Tracker, frozen_heap
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.faults import SILENT_ERROR_MM
+from spotnav.experiments.frame import localize_timed, render_timed
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.render import Renderer
-from spotnav.pose.localize import localize
 from spotnav.setup.config import Setup
-from spotnav.setup.paths import helix_tips, poses_through_insertion
+from spotnav.setup.paths import path_poses
 
 __all__ = ["STAGES", "BenchRow", "StressResult", "bench_markdown", "run_bench", "run_stress", "stress_markdown"]
 
@@ -102,9 +102,7 @@ def _fastest_passes(setup: Setup, images: Sequence[np.ndarray], passes: int) -> 
 def _time_full_frame(setup: Setup, image: np.ndarray, times: dict[str, list[float]]) -> None:
     """Localize ``image`` on the whole image by the thesis's and the precise method, adding each one's time."""
     for stage, method in ((STAGES[1], "thesis"), (STAGES[2], "precise")):
-        start = time.perf_counter()
-        localize(image, setup, method)
-        times[stage].append(_ms_since(start))
+        times[stage].append(localize_timed(image, setup, method)[1])
 
 
 def run_bench(
@@ -149,14 +147,13 @@ def run_bench(
             setup = thesis_world(size, beams)
             localizer = with_true_edge(setup)  # the simulation knows its geometry
             renderer, tracker = Renderer(setup), Tracker(localizer)
-            renderer.render(poses_through_insertion(helix_tips(2), setup.instrument.insertion_in_eye)[0])  # warm caches
+            renderer.render(path_poses("helix", 2, setup.instrument.insertion_in_eye)[0])  # warm caches
             times: dict[str, list[float]] = {stage: [] for stage in STAGES}
-            poses = poses_through_insertion(helix_tips(HELIX_FRAMES)[:frames], setup.instrument.insertion_in_eye)
+            poses = path_poses("helix", HELIX_FRAMES, setup.instrument.insertion_in_eye)[:frames]
             kept: list[np.ndarray] = []
             for index, pose in enumerate(progress(poses, desc=f"bench {size} px", unit="frame")):
-                start = time.perf_counter()
-                image = renderer.render(pose, seed=index)
-                times["render"].append(_ms_since(start))
+                image, render_ms = render_timed(renderer, pose, index)
+                times["render"].append(render_ms)
                 _time_tracking(tracker, image, times[STAGES[3]])
                 if (len(kept) + 1) * image.nbytes <= memory_mb * 2**20:
                     kept.append(image)
@@ -269,13 +266,13 @@ def run_stress(size: int, frames: int = 300, hide_every: int = 8, beams: int = 1
     setup = thesis_world(size, beams)
     localizer = with_true_edge(setup)
     renderer, tracker = Renderer(setup), Tracker(localizer)
-    poses = poses_through_insertion(helix_tips(max(frames, HELIX_FRAMES))[:frames], setup.instrument.insertion_in_eye)
+    poses = path_poses("helix", max(frames, HELIX_FRAMES), setup.instrument.insertion_in_eye)[:frames]
     renderer.render(poses[0])  # warm caches
     times, modes, reacquisitions, errors, hidden, ghosts, nearby = [], [], [], [], 0, 0, 0
     was_lost = False
     with frozen_heap():  # as a real-time loop runs (spotnav track)
         for index, pose in enumerate(progress(poses, desc=f"stress {size} px", unit="frame")):
-            image = renderer.render(pose, seed=index)
+            image = render_timed(renderer, pose, index)[0]
             dark = index % hide_every == hide_every - 1
             if dark:
                 image, hidden = np.zeros_like(image), hidden + 1

@@ -16,19 +16,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from spotnav.app.calibrate import calibrate
-from spotnav.experiments.chapter6 import (
-    BEAMS,
-    PATH_SEEDS,
-    Experiment,
-    Options,
-    markdown_table,
-    path_poses,
-    thesis_world,
-    with_true_edge,
-    with_uncertainty,
-    write_results_csv,
-)
+from spotnav.app.calibrate import Calibration, KnownFrame, calibrate
+from spotnav.experiments.frame import render_timed
+from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import (
     FrameJob,
     FrameResult,
@@ -36,16 +26,15 @@ from spotnav.experiments.runner import (
     Variant,
     localize_variants,
     render_frame,
-    render_timed,
     run_frame,
     summarize,
 )
-from spotnav.pose.calibration import Calibration
-from spotnav.pose.known_frame import KnownFrame
+from spotnav.experiments.scenes import BEAMS, PATH_SEEDS, thesis_world, with_true_edge, with_uncertainty
+from spotnav.optics.render import Renderer
 from spotnav.pose.self_calibration import prepare_self_calibration, self_calibrate_radius
 from spotnav.setup.config import Instrument, Light, Setup, Uncertainty, World
 from spotnav.setup.geometry import edge_angle_of_blend
-from spotnav.setup.paths import poses_through_insertion, working_volume_tips
+from spotnav.setup.paths import path_poses, poses_through_insertion, working_volume_tips
 from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 __all__ = ["KNOWN_FRAMES", "calibration_text", "known_calibration", "run_calibration"]
@@ -93,7 +82,7 @@ def run_frame_with_edges(job: FrameJob) -> tuple[tuple[FrameResult, ...], tuple]
 
     The second item is that frame's share of the joint radius fit (:func:`prepare_self_calibration`).
     """
-    image, render_ms = render_timed(job)
+    image, render_ms = render_timed(Renderer(job.world), job.pose, job.seed)
     start = time.perf_counter()
     share = prepare_self_calibration(image, job.variants[0].setup)
     first = FrameResult(job.pose, share[0], render_ms, 1000 * (time.perf_counter() - start))

@@ -1,23 +1,23 @@
-"""The thesis's chapter 6, one beam and three beams on the same poses, beside the thesis's numbers.
+"""The thesis's chapter 6 study: the paths, the light power and a deformed or larger eye, beside its numbers.
 
-Every experiment renders with the setup of Table 6.8 at the requested image size,
-the default soft edge (``blend = 0.15``, thesis-notes 8) and the procedural
-retina, and localizes each frame twice: with the thesis's method as written and
-with section 5.5's height correction, fitted on one frame at a known pose of the
-same world. Sizes in the thesis's pixels are millimetres times 378.79, its
-5000-px scale on the plane ``z = 0`` (thesis-notes 3), whatever size we render.
+Sections 6.4-6.6 and 6.9 (:func:`run_paths`): the square and the helix at every power, one and three beams, in
+two exposures; sections 6.7 and 6.8 (:func:`run_world`): the helix in a world the localizer does not model.
+Every frame is rendered in :func:`~spotnav.experiments.scenes.thesis_world` and localized three ways: with the
+thesis's method as written, with section 5.5's height correction (fitted on one frame at a known pose of the
+same world) and with the precise method. The ellipse tests of sections 6.2-6.3 are
+:mod:`spotnav.experiments.ellipse`.
 """
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from spotnav.experiments.figures import plot_against_power, plot_gallery, plot_path_3d, plot_per_step
+from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import (
     ErrorSummary,
     FrameJob,
@@ -29,48 +29,28 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.image.spots import detect_spots_otsu
+from spotnav.experiments.scenes import BEAMS, PATH_SEEDS, bump_grid, thesis_world, with_true_edge
 from spotnav.optics.camera import camera_depth_mm, decode_values, project_points
 from spotnav.optics.render import Renderer
-from spotnav.pose.estimate import PoseEstimate
-from spotnav.pose.precise import localize_precise
-from spotnav.pose.reconstruct import fit_ellipse, triangle_from_ellipse
-from spotnav.pose.thesis import locate_from_spots, spot_candidates
-from spotnav.setup.config import Setup
+from spotnav.setup.config import Camera, Instrument, Setup, World
 from spotnav.setup.examples import THESIS_EXPOSURE_STOPS
-from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend, rotation_about_y
-from spotnav.setup.microscope import Camera
-from spotnav.setup.paths import (
-    HELIX,
-    SQUARE_CORNERS_MM,
-    helix_tips,
-    poses_through_insertion,
-    square_tips,
-)
-from spotnav.setup.sections import Bump, Instrument, Light, Render, World
-from spotnav.setup.uncertainty import Uncertainty
+from spotnav.setup.geometry import InstrumentPose
+from spotnav.setup.paths import HELIX, SQUARE_CORNERS_MM, path_poses
 
 __all__ = [
     "EXPOSURES",
     "GALLERY_POSE",
     "POWERS_W",
     "THESIS",
-    "Experiment",
-    "Options",
-    "bump_grid",
     "gallery_centre",
-    "run_ellipse",
     "run_paths",
     "run_world",
     "saturating_exposure_stops",
 ]
 
 POWERS_W = (0.01, 0.1, 0.25, 0.5, 1.0, 1.5, 2.0)
-THESIS_PX_PER_MM = 300.0 * 5000 / 36.0 / 110.0  # thesis-notes 3
 CALIBRATION_TIP_MM = (0.0, 0.0, 4.5)
 CALIBRATION_SEED = 99_999
-PATH_SEEDS = {"square": 0, "helix": 10_000}
-BEAMS = {"1 beam": 1, "3 beams": 3}
 PLAIN, CALIBRATED, PRECISE = "thesis method", "thesis + 5.5", "precise"
 VARIANTS = (PLAIN, CALIBRATED, PRECISE)
 
@@ -99,43 +79,6 @@ THESIS_POWER = {  # Tables 6.13-6.16: power -> (mean, max)
 EXPOSURES = {"default exposure": 0.0, "thesis's exposure": THESIS_EXPOSURE_STOPS}
 EXPOSURE_SUFFIX = {"default exposure": "", "thesis's exposure": "_thesis_exposure"}  # figure names
 THESIS_TABLE_NUMBERS = {"square": ("6.9", "6.10", "6.13", "6.14"), "helix": ("6.11", "6.12", "6.15", "6.16")}
-
-
-@dataclass(frozen=True)
-class Options:
-    """What every experiment gets: output folder, image size, poses per path and the runner."""
-
-    out: Path
-    size_px: int
-    count: int
-    runner: FrameRunner
-
-
-@dataclass(frozen=True)
-class Experiment:
-    """A finished experiment: a Markdown section and one line for the console."""
-
-    name: str
-    markdown: str
-    summary: str
-
-
-def thesis_world(
-    size_px: int, beams: int, power_w: float = 1.0, world: World | None = None, exposure_stops: float = 0.0
-) -> Setup:
-    """Table 6.8's setup at ``size_px``, soft edge, with ``beams`` beams, at ``exposure_stops``."""
-    return Setup(
-        camera=Camera(width_px=size_px, height_px=size_px),
-        instrument=Instrument(beam_count=beams),
-        light=Light(power_w=power_w, blend=0.15),
-        world=world or World(),
-        render=Render(exposure_stops=exposure_stops),
-    )
-
-
-def bump_grid() -> tuple[Bump, ...]:
-    """Section 6.7: 15 bumps, radius 0.25 mm, height 0.1 mm, 3 rows by 5 columns over the area of interest."""
-    return tuple(Bump(x, y, 0.25, 0.1) for y in (-2.0, 0.0, 2.0) for x in (-3.0, -1.5, 0.0, 1.5, 3.0))
 
 
 # --- running configurations ------------------------------------------------------------------------------
@@ -172,23 +115,6 @@ def _run_configs(
     return results, factors
 
 
-def with_true_edge(world: Setup) -> Setup:
-    """The world as its own localizer knows it: exactly, the edge model from its simulated light's blend.
-
-    The simulation knows its light as the thesis's method knows beta, and its
-    geometry exactly (``Uncertainty.exact()``); ``spotnav calibrate`` fits the
-    edge and the geometry from images where they are not known.
-    """
-    angle = edge_angle_of_blend(world.instrument.beam_half_angle, world.light.blend)
-    instrument = replace(world.instrument, edge_half_angle_deg=float(np.degrees(angle)))
-    return replace(world, instrument=instrument, uncertainty=Uncertainty.exact())
-
-
-def with_uncertainty(setup: Setup, **uncertainty: float) -> Setup:
-    """The setup with these ``[uncertainty]`` values (the others as they are)."""
-    return replace(setup, uncertainty=replace(setup.uncertainty, **uncertainty))
-
-
 def _calibration_pose(world: Setup) -> InstrumentPose:
     return InstrumentPose.through_insertion(np.array(CALIBRATION_TIP_MM), world.instrument.insertion_in_eye)
 
@@ -198,11 +124,6 @@ def _calibration_pose(world: Setup) -> InstrumentPose:
 
 def _cell(value: float, digits: int = 3) -> str:
     return "no pose" if not np.isfinite(value) else f"{value:.{digits}f}"
-
-
-def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
-    return lines + ["| " + " | ".join(row) + " |" for row in rows]
 
 
 def _variant_summaries(results: Mapping[str, list[FrameResult]]) -> dict[str, ErrorSummary | None]:
@@ -270,193 +191,11 @@ def _statuses(results: Sequence[FrameResult]) -> str:
     return ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
 
 
-def write_results_csv(path: Path, rows: Sequence[tuple[dict[str, object], FrameResult]]) -> None:
-    """Every pose: its labels, truth, estimate, errors per axis, rotation errors and timings."""
-    columns = ["true_x", "true_y", "true_z", "true_dir_x", "true_dir_y", "true_dir_z", "status", "spots"]
-    columns += ["x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z", "error_mm", "error_x", "error_y", "error_z"]
-    columns += ["rot_error_y_deg", "rot_error_z_deg", "axis_error_deg", "sigma_mm", "rms_px"]
-    columns += ["render_ms", "localize_ms", "detail"]
-    with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        labels = list(rows[0][0]) if rows else []
-        writer.writerow(labels + columns)
-        for tags, r in rows:
-            estimate = r.estimate
-            tip = estimate.tip_in_eye if estimate.tip_in_eye is not None else np.full(3, np.nan)
-            axis = estimate.axis if estimate.axis is not None else np.full(3, np.nan)
-            numbers = [*r.truth.tip_in_eye, *r.truth.axis]
-            tail = [*tip, *axis, r.error_mm, *r.error_xyz_mm, *r.rotation_error_deg, estimate.sigma_mm, estimate.rms_px]
-            writer.writerow(
-                [*tags.values(), *(f"{v:.6f}" for v in numbers), estimate.status, estimate.spots]
-                + [("" if not np.isfinite(v) else f"{v:.6f}") for v in tail]
-                + [f"{r.render_ms:.1f}", f"{r.localize_ms:.1f}", estimate.detail]
-            )
-
-
 def _tips(results: Sequence[FrameResult]) -> np.ndarray:
     return np.array([r.estimate.tip_in_eye if r.estimate.ok else np.full(3, np.nan) for r in results])
 
 
-# --- 6.2 and 6.3: the ellipse tests --------------------------------------------------------------------------
-
-
-ELLIPSE_CASES = {
-    # name: (surface, axis, thesis ellipse (x, y, axis, axis, rotation), thesis (alpha, s1, s2), thesis tip)
-    "plane, perpendicular (6.2.2, Tables 6.1-6.2)": (
-        "plane",
-        (0.0, 0.0, -1.0),
-        (3636.825, 1363.171, 598.410, 598.418, 83.006),
-        (0.291, 9.849, 1889.081),
-        "(2.974, 2.997, 4.987) / (3.026, 3.003, 4.987)",
-    ),
-    "plane, 20 deg about y (6.2.3, Tables 6.3-6.4)": (
-        "plane",
-        tuple(rotation_about_y(np.radians(20.0)) @ np.array([0.0, 0.0, -1.0])),
-        (2927.043, 1363.152, 637.629, 679.726, 90.000),
-        (20.010, 707.246, 1888.253),
-        "(-0.738, 3.000, 4.985) / (2.996, 3.000, 4.985)",
-    ),
-    "sphere, perpendicular (6.3.1, Tables 6.5-6.6)": (
-        "sphere",
-        (0.0, 0.0, -1.0),
-        (3624.604, 1372.510, 508.126, 540.028, 89.993),
-        (19.539, 550.810, 1509.331),
-        "(1.060, 1.063, 4.020) / (2.997, 3.002, 4.991)",
-    ),
-}
-ELLIPSE_TIP = (3.0, 3.0, 5.0)
-ELLIPSE_COLUMNS = (
-    "case beams true_x true_y true_z x_mm y_mm z_mm error_mm error_x error_y error_z "
-    "centre_u_px centre_v_px minor_px major_px rotation_deg alpha_deg s1_px s2_px"
-).split()
-
-
-def _ellipse_world(size_px: int, beams: int, surface: str) -> Setup:
-    """Sections 6.2-6.3: sharp edge, untextured surface, 1 W."""
-    return Setup(
-        camera=Camera(width_px=size_px, height_px=size_px),
-        instrument=Instrument(beam_count=beams),
-        light=Light(power_w=1.0, blend=0.0),
-        world=World(surface=surface),
-        render=Render(texture="flat"),
-    )
-
-
-def measure_ellipse(job: FrameJob) -> dict[str, object]:
-    """One ellipse test frame: the fitted ellipse, triangle and apex candidates, in the thesis's units.
-
-    Returns a dict with ``ellipse`` (centre u, v and full axes in 5000-px image pixels, rotation in
-    degrees), ``triangle`` (alpha deg, s1, s2 in the thesis's pixels), ``candidates`` (2, 3) mm and
-    ``pose`` (the full method's estimate, nearest candidate for one beam, Algorithm 2 for three).
-    """
-    world = job.world
-    surface = world.world.surface
-    image = render_frame(job)
-    detection = detect_spots_otsu(image, response=world.camera.pixel_response)
-    precise = localize_precise(image, with_true_edge(world)) if surface == "sphere" else None
-    if world.instrument.beam_count == 3:
-        return {"pose": locate_from_spots(detection, world, surface), "spots": len(detection.spots), "precise": precise}
-    if len(detection.spots) != 1:
-        return {"pose": None, "spots": len(detection.spots), "precise": precise}
-    spot = detection.spots[0]
-    candidates = spot_candidates(spot, world, surface)
-    if candidates is None:
-        return {"pose": None, "spots": 1}
-    to_thesis_px = 5000.0 / world.camera.width_px
-    center = (spot.contour_px.mean(axis=0) - world.camera.principal_point_px) * to_thesis_px + 2499.5
-    ellipse = candidates.ellipse
-    axes = np.array([ellipse.semi_minor, ellipse.semi_major]) * 2 * THESIS_PX_PER_MM
-    if surface == "plane":  # fitted in image pixels, as the thesis does (6.2)
-        ellipse = fit_ellipse(spot.contour_px)
-        center = (ellipse.center - world.camera.principal_point_px) * to_thesis_px + 2499.5
-        axes = np.array([ellipse.semi_minor, ellipse.semi_major]) * 2 * to_thesis_px
-    # As the thesis prints OpenCV's output: the minor axis first, and its direction.
-    rotation = (np.degrees(np.arctan2(ellipse.major_direction[1], ellipse.major_direction[0])) + 90.0) % 180.0
-    alpha, s1, s2 = triangle_from_ellipse(candidates.ellipse.semi_major, candidates.ellipse.semi_minor, np.radians(9))
-    return {
-        "ellipse": (*center, *axes, rotation),
-        "triangle": (np.degrees(alpha), s1 * THESIS_PX_PER_MM, s2 * THESIS_PX_PER_MM),
-        "candidates": candidates.apexes,
-        "spots": 1,
-        "precise": precise,
-    }
-
-
-def _precise_text(estimate: PoseEstimate | None, truth: np.ndarray) -> str:
-    if estimate is None:
-        return "n/a: assumes the sphere"
-    if not estimate.ok:
-        return f"{estimate.status}: {estimate.detail}"
-    return f"{np.linalg.norm(estimate.tip_in_eye - truth):.4f} mm (sigma {estimate.sigma_mm:.4f})"
-
-
-def run_ellipse(options: Options) -> Experiment:
-    """Sections 6.2 and 6.3 (Tables 6.1-6.6), and the same poses with three beams."""
-    jobs = []
-    for surface, axis, *_ in ELLIPSE_CASES.values():
-        pose = InstrumentPose(np.array(ELLIPSE_TIP), np.array(axis))
-        for beams in (1, 3):
-            world = _ellipse_world(options.size_px, beams, surface)
-            jobs.append(FrameJob(world, pose, 7, (Variant(PLAIN, world),)))
-    outputs = options.runner.map(measure_ellipse, jobs, "ellipse")
-    lines = [
-        "## Sections 6.2-6.3: the ellipse tests (Tables 6.1-6.6)",
-        "",
-        f"Tip {ELLIPSE_TIP} mm, sharp edge, untextured surface, 1 W, {options.size_px} px. Ellipse centres "
-        "in 5000-px image pixels; full axes (minor first, as OpenCV gave them to the thesis), s1 and s2 in the "
-        "thesis's pixels (mm x 378.79); the rotation is the minor axis's direction. The thesis fits the "
-        "plane's ellipse in the image and the sphere's in the tangent plane; so do we. Its sphere-table centre "
-        "is in a frame it does not state. One beam: the candidate nearest the truth, as the thesis picks in "
-        "these tests; three beams: Algorithm 2. The precise method needs the sphere: it runs on 6.3's frames.",
-        "",
-    ]
-    header = ["case", "source", "centre u", "centre v", "axis 1", "axis 2", "rotation [deg]", "alpha [deg]", "s1", "s2"]
-    rows, tips_rows, worst = [], [], 0.0
-    truth = np.array(ELLIPSE_TIP)
-    csv_rows: list[list[object]] = []
-    for index, (name, (_, _, ellipse, triangle, thesis_tips)) in enumerate(ELLIPSE_CASES.items()):
-        one, three = outputs[2 * index], outputs[2 * index + 1]
-        rows.append([name, "thesis", *(f"{v:.3f}" for v in ellipse), *(f"{v:.3f}" for v in triangle)])
-        if "ellipse" in one:
-            rows.append(["", "spotnav", *(f"{v:.3f}" for v in one["ellipse"]), *(f"{v:.3f}" for v in one["triangle"])])
-            candidates = np.asarray(one["candidates"])
-            errors = np.linalg.norm(candidates - truth, axis=1)
-            worst = max(worst, float(errors.min()))
-            ours = " / ".join("(" + ", ".join(f"{v:.3f}" for v in c) + ")" for c in candidates)
-            one_text = f"{ours}; nearest {errors.min():.4f} mm"
-            nearest = candidates[np.argmin(errors)]
-            csv_rows.append(
-                [name, 1, *truth, *nearest, errors.min(), *(nearest - truth), *one["ellipse"], *one["triangle"]]
-            )
-        else:
-            rows.append(["", "spotnav", *["no fit"] * 8])
-            one_text = f"no single whole spot ({one['spots']} found)"
-        pose = three["pose"]
-        if pose is not None and pose.ok:
-            three_text = f"{np.linalg.norm(pose.tip_in_eye - truth):.4f} mm ({pose.spots} spots)"
-            error = pose.tip_in_eye - truth
-            csv_rows.append([name, 3, *truth, *pose.tip_in_eye, np.linalg.norm(error), *error] + [""] * 8)
-        else:
-            three_text = "no pose" if pose is None else f"{pose.status}: {pose.detail}"
-        tips_rows.append(
-            [name, thesis_tips, one_text, three_text, *(_precise_text(o["precise"], truth) for o in (one, three))]
-        )
-    lines += markdown_table(header, rows)
-    header = ["case", "thesis: candidates", "thesis method, 1 beam: candidates", "thesis method, 3 beams"]
-    lines += ["", *markdown_table([*header, "precise, 1 beam", "precise, 3 beams"], tips_rows)]
-    with (options.out / "ellipse.csv").open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(ELLIPSE_COLUMNS)
-        writer.writerows([[f"{v:.6f}" if isinstance(v, float) else v for v in row] for row in csv_rows])
-    return Experiment("ellipse", "\n".join(lines), f"ellipse tests: nearest candidate within {worst:.4f} mm")
-
-
 # --- 6.4-6.6 and 6.9: the paths and the power sweep ----------------------------------------------------------
-
-
-def path_poses(path: str, count: int, insertion: np.ndarray) -> list[InstrumentPose]:
-    tips = square_tips(count) if path == "square" else helix_tips(count)
-    return poses_through_insertion(tips, insertion)
 
 
 def run_paths(options: Options) -> Experiment:

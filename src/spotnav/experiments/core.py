@@ -7,14 +7,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from spotnav.experiments.chapter6 import Experiment, Options, markdown_table, with_true_edge, write_results_csv
 from spotnav.experiments.figures import plot_per_step
+from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import FrameJob, Variant, run_frame, summarize
-from spotnav.setup.config import Setup
+from spotnav.experiments.scenes import with_true_edge
+from spotnav.setup.config import Camera, Light, Setup
 from spotnav.setup.geometry import InstrumentPose, approximation_deviation
-from spotnav.setup.microscope import Camera
 from spotnav.setup.paths import poses_through_insertion, working_volume_tips
-from spotnav.setup.sections import Light
 
 __all__ = ["THESIS_TABLE_4_1_UM", "approximation_rows", "run_approximation", "run_volume"]
 

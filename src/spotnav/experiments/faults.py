@@ -13,9 +13,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spotnav.experiments.chapter6 import Experiment, Options, markdown_table, thesis_world, with_true_edge
 from spotnav.experiments.figures import plot_fault_study
+from spotnav.experiments.report import Experiment, Options, markdown_table
 from spotnav.experiments.runner import FrameJob, FrameResult, Variant, count_refusals, run_frame, summarize
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.setup.config import Setup
 from spotnav.setup.paths import HELIX, helix_tips, poses_through_insertion
 

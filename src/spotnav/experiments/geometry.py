@@ -21,17 +21,9 @@ import numpy as np
 
 from spotnav.errors import SpotnavError
 from spotnav.experiments.calibration import known_calibration
-from spotnav.experiments.chapter6 import (
-    PATH_SEEDS,
-    Experiment,
-    Options,
-    markdown_table,
-    path_poses,
-    thesis_world,
-    write_results_csv,
-)
 from spotnav.experiments.faults import SILENT_ERROR_MM, combine_changes, count_silent_failures
 from spotnav.experiments.figures import plot_geometry_study
+from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import (
     FrameJob,
     FrameResult,
@@ -41,8 +33,10 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
+from spotnav.experiments.scenes import PATH_SEEDS, thesis_world
 from spotnav.pose.conefit.parameters import PARAMETER_GROUPS, SHARED_SIZE, setup_with_geometry
 from spotnav.setup.config import Setup, Uncertainty, World
+from spotnav.setup.paths import path_poses
 
 __all__ = [
     "GEOMETRY_CASES",
@@ -158,7 +152,7 @@ def run_geometry(options: Options) -> Experiment:
                 calibration = known_calibration(
                     options.runner, world, nominal, label, axes=True, count=CALIBRATION_FRAMES
                 )
-            except (SpotnavError, ValueError) as error:
+            except SpotnavError as error:
                 notes.append(f"- {case.name}, {beams} beams: calibrate refused: {error}")
             else:
                 variants.append(Variant(VARIANTS[2], calibration.setup, "precise"))

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from spotnav.experiments.chapter6 import Experiment, Options, markdown_table, thesis_world, with_true_edge
+from spotnav.experiments.report import Experiment, Options, markdown_table
 from spotnav.experiments.runner import (
     FrameJob,
     FrameResult,
@@ -23,8 +23,9 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.setup.config import Setup
-from spotnav.setup.paths import helix_tips, poses_through_insertion
+from spotnav.setup.paths import path_poses
 
 __all__ = ["EXPOSURE_STOPS", "FRAME_BLURS_PX", "run_light"]
 
@@ -74,7 +75,7 @@ def run_light(options: Options) -> Experiment:
 def _helix(options: Options, world: Setup, seed: int, label: str) -> list[FrameResult]:
     """The helix's ``options.count`` tips rendered in ``world`` (noise seeds from ``seed``), localized by the precise
     method with the world as its setup."""
-    poses = poses_through_insertion(helix_tips(options.count), world.instrument.insertion_in_eye)
+    poses = path_poses("helix", options.count, world.instrument.insertion_in_eye)
     variants = (Variant("precise", with_true_edge(world), "precise"),)
     jobs = [FrameJob(world, pose, seed + i, variants) for i, pose in enumerate(poses)]
     return [output[0] for output in options.runner.map(run_frame, jobs, label)]

@@ -23,15 +23,6 @@ import numpy as np
 from spotnav.app.track import Tracker
 from spotnav.errors import SpotnavError
 from spotnav.experiments.calibration import KNOWN_FRAMES, known_calibration
-from spotnav.experiments.chapter6 import (
-    PATH_SEEDS,
-    Experiment,
-    Options,
-    markdown_table,
-    path_poses,
-    thesis_world,
-    with_true_edge,
-)
 from spotnav.experiments.geometry import (
     GeometryCase,
     change_beam,
@@ -39,6 +30,7 @@ from spotnav.experiments.geometry import (
     change_eye_radius,
     shift_insertion,
 )
+from spotnav.experiments.report import Experiment, Options, markdown_table
 from spotnav.experiments.runner import (
     FrameJob,
     FrameResult,
@@ -48,9 +40,10 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.setup.config import Setup
+from spotnav.experiments.scenes import PATH_SEEDS, thesis_world, with_true_edge
+from spotnav.setup.config import Setup, Uncertainty
 from spotnav.setup.geometry import InstrumentPose
-from spotnav.setup.uncertainty import Uncertainty
+from spotnav.setup.paths import path_poses
 
 __all__ = [
     "MISMATCH_CASES",
@@ -136,7 +129,7 @@ def run_mismatch(options: Options) -> Experiment:
             variants = [Variant("exact", exact, "precise"), Variant("as known", as_known, "precise")]
             try:
                 calibration = known_calibration(options.runner, world, as_known, label, axes=True, count=KNOWN_FRAMES)
-            except (SpotnavError, ValueError) as error:
+            except SpotnavError as error:
                 calibrated = f"calibrate refused: {str(error).split(';')[0]}"
             else:
                 variants.append(Variant("calibrated", calibration.setup, "precise"))

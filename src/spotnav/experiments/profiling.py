@@ -25,11 +25,12 @@ from spotnav.app import track
 from spotnav.app.progress import progress
 from spotnav.app.track import Tracker, frozen_heap
 from spotnav.experiments.bench import HELIX_FRAMES, STAGES
-from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.frame import localize_timed, render_timed
+from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.render import Renderer
 from spotnav.pose import pipeline, precise
 from spotnav.pose.localize import localize
-from spotnav.setup.paths import helix_tips, poses_through_insertion
+from spotnav.setup.paths import path_poses
 
 __all__ = ["PARTS", "PROFILED_STAGES", "FunctionTime", "StageProfile", "profile_markdown", "run_profile"]
 
@@ -186,12 +187,12 @@ def run_profile(sizes: Sequence[int], frames: int = 40, beams: int = 1, top: int
             setup = thesis_world(size, beams)
             localizer = with_true_edge(setup)  # the simulation knows its geometry
             renderer = Renderer(setup)
-            poses = poses_through_insertion(helix_tips(HELIX_FRAMES)[:frames], setup.instrument.insertion_in_eye)
-            images = [renderer.render(pose, seed=index) for index, pose in enumerate(poses)]
+            poses = path_poses("helix", HELIX_FRAMES, setup.instrument.insertion_in_eye)[:frames]
+            images = [render_timed(renderer, pose, index)[0] for index, pose in enumerate(poses)]
             tracker = Tracker(localizer)  # compiles (or loads) the kernels first
             acquired: tuple[list[cProfile.Profile], list[float]] = ([], [])
             for image in progress(images, desc=f"profile {size} px", unit="frame"):
-                localize(image, localizer, "thesis")
+                localize_timed(image, localizer, "thesis")  # as spotnav bench times it, before the precise method
                 _, profile, elapsed = _profiled(localize, image, localizer, "precise")
                 acquired[0].append(profile)
                 acquired[1].append(elapsed)

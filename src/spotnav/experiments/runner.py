@@ -6,7 +6,6 @@ Each worker keeps its renderer's static images between jobs of the same world.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -16,9 +15,9 @@ from typing import Any
 import numpy as np
 
 from spotnav.app.progress import progress
+from spotnav.experiments.frame import localize_timed, render_timed, run_timed_frame
 from spotnav.optics.render import Renderer
 from spotnav.pose.estimate import PoseEstimate
-from spotnav.pose.localize import localize
 from spotnav.pose.thesis import fit_height_correction
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, angles_between, axis_rotations
@@ -29,10 +28,12 @@ __all__ = [
     "FrameResult",
     "FrameRunner",
     "Variant",
+    "calibrate_height",
     "count_refusals",
     "error_cells",
     "localize_variants",
-    "render_timed",
+    "render_frame",
+    "run_frame",
     "run_frames",
     "summarize",
 ]
@@ -182,16 +183,13 @@ def error_cells(summary: ErrorSummary) -> list[str]:
 
 
 def run_frame(job: FrameJob) -> tuple[FrameResult, ...]:
-    """Render one job's frame and localize it with each of its variants."""
-    image, render_ms = render_timed(job)
-    return localize_variants(image, job, render_ms, job.variants)
-
-
-def render_timed(job: FrameJob) -> tuple[np.ndarray, float]:
-    """The job's frame and its rendering time, ms."""
-    start = time.perf_counter()
-    image = Renderer(job.world).render(job.pose, seed=job.seed)
-    return image, 1000 * (time.perf_counter() - start)
+    """Render one job's frame and localize it with each of its variants (:func:`run_timed_frame`)."""
+    localizers = [(variant.setup, variant.method) for variant in job.variants]
+    frame = run_timed_frame(Renderer(job.world), job.pose, job.seed, localizers)
+    return tuple(
+        FrameResult(job.pose, estimate, frame.render_ms, localize_ms)
+        for estimate, localize_ms in zip(frame.estimates, frame.localize_ms, strict=True)
+    )
 
 
 def localize_variants(
@@ -200,9 +198,8 @@ def localize_variants(
     """Localize a rendered frame of ``job`` with each of ``variants``, timed."""
     results = []
     for variant in variants:
-        start = time.perf_counter()
-        estimate = localize(image, variant.setup, variant.method)
-        results.append(FrameResult(job.pose, estimate, render_ms, 1000 * (time.perf_counter() - start)))
+        estimate, localize_ms = localize_timed(image, variant.setup, variant.method)
+        results.append(FrameResult(job.pose, estimate, render_ms, localize_ms))
     return tuple(results)
 
 
@@ -211,7 +208,7 @@ def calibrate_height(job: FrameJob) -> float:
 
     NaN when the frame shows no usable spot or the factor leaves the setup's range [0.5, 2].
     """
-    image = Renderer(job.world).render(job.pose, seed=job.seed)
+    image = render_frame(job)
     fitted = fit_height_correction(image, job.variants[0].setup, job.pose.tip_in_eye)
     if not fitted.ok:
         return float("nan")
@@ -221,7 +218,7 @@ def calibrate_height(job: FrameJob) -> float:
 
 def render_frame(job: FrameJob) -> np.ndarray:
     """Render the job's frame only."""
-    return render_timed(job)[0]
+    return render_timed(Renderer(job.world), job.pose, job.seed)[0]
 
 
 class FrameRunner:

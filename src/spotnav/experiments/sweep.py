@@ -1,9 +1,9 @@
 """Design sweeps: render and localize thousands of frames over a grid or a sample of setups, on Dask.
 
-A sweep file (TOML, :data:`EXAMPLE_SWEEP`) names the base setup, the
-parameters to vary (:data:`SWEEP_PARAMETERS`: a grid of values, and/or
-uniform random ranges), the paths, frames per path, the methods and a seed.
-The frames are cut into chunks; each chunk is one task that renders and
+A sweep file (TOML, :data:`EXAMPLE_SWEEP`; read by
+:func:`spotnav.experiments.sweep_file.sweep_from_toml`) names the base
+setup, the parameters to vary, the paths, frames per path, the methods and
+a seed. The frames are cut into chunks; each chunk is one task that renders and
 localizes its frames where it runs (no image leaves the worker) and returns
 one row per frame and method. Each finished chunk is written at once as a
 Parquet file under ``DIR/chunks``, so an interrupted sweep resumes without
@@ -21,8 +21,7 @@ import itertools
 import math
 import os
 import time
-import tomllib
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -32,93 +31,38 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from spotnav.app.progress import progress
-from spotnav.errors import InputError, SpotnavError
-from spotnav.experiments.chapter6 import with_true_edge
-from spotnav.files.poses import read_path_csv
+from spotnav.experiments.frame import run_timed_frame
+from spotnav.experiments.scenes import with_true_edge
+from spotnav.experiments.sweep_file import (
+    SWEEP_PARAMETERS,
+    Sweep,
+    SweepError,
+    apply_parameters,
+    design_points,
+    sweep_from_toml,
+)
 from spotnav.optics.render import Renderer
-from spotnav.pose.localize import METHODS, localize
-from spotnav.setup.config import Setup, setup_from_toml
-from spotnav.setup.geometry import InstrumentPose, angles_between
-from spotnav.setup.paths import helix_tips, poses_through_insertion, square_tips
-from spotnav.setup.uncertainty import Uncertainty
+from spotnav.setup.config import Setup, Uncertainty
+from spotnav.setup.geometry import angles_between
+from spotnav.setup.paths import path_poses
 
 __all__ = [
     "EXAMPLE_SWEEP",
-    "SWEEP_PARAMETERS",
     "TIMING_COLUMNS",
     "Chunk",
-    "Sweep",
-    "SweepError",
-    "apply_parameters",
-    "design_points",
+    "SweepRun",
     "plan_chunks",
     "read_sweep_table",
     "run_chunk",
     "run_sweep",
-    "sweep_from_toml",
 ]
 
-# The parameters a sweep may vary: ``section.key`` of the setup, and ``size_px`` (the camera's width and height).
-SWEEP_PARAMETERS: dict[str, type] = {
-    "size_px": int,
-    "instrument.beam_half_angle_deg": float,
-    "instrument.beam_count": int,
-    "instrument.beam_tilt_deg": float,
-    "light.power_w": float,
-    "light.blend": float,
-    "render.full_well_e": float,
-    "render.read_noise_e": float,
-    "render.exposure_stops": float,
-    "eye.radius_mm": float,
-    "world.eye_radius_mm": float,
-}
-PATHS = ("square", "helix")
 TIMING_COLUMNS = ("render_ms", "localize_ms")
 _CHUNKS, _TABLE, _FILE = "chunks", "frames.parquet", "sweep.toml"
 # The local cluster's workers: one thread each, and none for the numeric libraries. Dask's default
 # also sets MALLOC_TRIM_THRESHOLD_, which turns off glibc's adaptive mmap threshold: every frame-sized
 # array is then mapped and faulted in afresh, and rendering ran 3x slower on each worker.
 _WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
-
-
-class SweepError(InputError):
-    """A sweep file's value is missing, of the wrong type or out of range, or a sweep cannot run."""
-
-
-@dataclass(frozen=True)
-class Sweep:
-    """A validated sweep (see :func:`sweep_from_toml`).
-
-    Attributes
-    ----------
-    base : Setup
-        The setup every design point starts from.
-    grid : tuple of (name, values)
-        Every combination of these values is a design point.
-    random : tuple of (name, (low, high))
-        Each grid point is repeated ``samples`` times, with these parameters
-        drawn uniformly (integers inclusive of both ends).
-    samples : int
-        Design points per grid point (with different noise even without random parameters).
-    paths : tuple of str
-        ``square``, ``helix`` or CSV files of tips (through the insertion point).
-    frames : int
-        Frames per path and design point.
-    methods : tuple of str
-    chunk_frames : int
-        Frames per task.
-    seed : int
-    """
-
-    base: Setup
-    grid: tuple[tuple[str, tuple[float | int, ...]], ...]
-    random: tuple[tuple[str, tuple[float, float]], ...]
-    samples: int
-    paths: tuple[str, ...]
-    frames: int
-    methods: tuple[str, ...]
-    chunk_frames: int
-    seed: int
 
 
 @dataclass(frozen=True)
@@ -135,187 +79,6 @@ class Chunk:
     def name(self) -> str:
         """The chunk's file name under ``DIR/chunks``."""
         return f"chunk-{self.index:06d}.parquet"
-
-
-def _value(key: str, value: Any, kind: type) -> float | int:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise SweepError(f"{key} must hold finite numbers, got {value!r}")
-    if kind is int and not float(value).is_integer():
-        raise SweepError(f"{key} must hold integers, got {value!r}")
-    return kind(value)
-
-
-def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``{"light": {"power_w": v}}`` -> ``{"light.power_w": v}`` (TOML's dotted keys are nested tables)."""
-    flat = {}
-    for key, value in table.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            flat |= _flatten(value, f"{name}.")
-        else:
-            flat[name] = value
-    return flat
-
-
-def _parameter(section: str, name: str) -> type:
-    if name not in SWEEP_PARAMETERS:
-        raise SweepError(f"{section}.{name} is not a sweep parameter, allowed: {', '.join(SWEEP_PARAMETERS)}")
-    return SWEEP_PARAMETERS[name]
-
-
-def _integer(key: str, value: Any, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise SweepError(f"{key} must be an integer >= {low}, got {value!r}")
-    return value
-
-
-def _read_grid(table: Any) -> tuple[tuple[str, tuple[float | int, ...]], ...]:
-    if not isinstance(table, Mapping):
-        raise SweepError("[grid] must be a table of parameter = [values]")
-    grid = []
-    for name, values in _flatten(table).items():
-        kind = _parameter("grid", name)
-        if not isinstance(values, list) or not values:
-            raise SweepError(f"grid.{name} must be a non-empty list of values, got {values!r}")
-        grid.append((name, tuple(_value(f"grid.{name}", v, kind) for v in values)))
-    return tuple(grid)
-
-
-def _read_random(table: Any, grid_names: Iterable[str]) -> tuple[int, tuple[tuple[str, tuple[float, float]], ...]]:
-    if not isinstance(table, Mapping):
-        raise SweepError("[random] must be a table with samples = N and parameter = [low, high]")
-    table = _flatten(table)
-    samples = _integer("random.samples", table.pop("samples", 1), 1)
-    random = []
-    for name, bounds in table.items():
-        kind = _parameter("random", name)
-        if not isinstance(bounds, list) or len(bounds) != 2:
-            raise SweepError(f"random.{name} must be [low, high], got {bounds!r}")
-        low, high = (_value(f"random.{name}", v, kind) for v in bounds)
-        if not low <= high:
-            raise SweepError(f"random.{name} must have low <= high, got {bounds!r}")
-        if name in grid_names:
-            raise SweepError(f"{name} is both in [grid] and in [random]")
-        random.append((name, (float(low), float(high))))
-    return samples, tuple(random)
-
-
-def _read_frames(table: Any, base_dir: Path) -> dict[str, Any]:
-    """The ``[frames]`` table as :class:`Sweep`'s keywords ``paths``, ``frames``, ``methods``, ``chunk_frames``."""
-    if not isinstance(table, Mapping):
-        raise SweepError("[frames] must be a table")
-    allowed = {"paths", "count", "methods", "chunk"}
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise SweepError(f"frames.{unknown[0]} is not a known key, allowed: {', '.join(sorted(allowed))}")
-    paths = table.get("paths", ["helix"])
-    if not isinstance(paths, list) or not paths or not all(isinstance(p, str) for p in paths):
-        raise SweepError(f"frames.paths must be a non-empty list of square, helix or CSV files, got {paths!r}")
-    paths = [p if p in PATHS else str(base_dir / p) for p in paths]
-    for path in paths:
-        if path not in PATHS:
-            try:
-                read_path_csv(path)
-            except (OSError, SpotnavError) as error:
-                raise SweepError(f"frames.paths: {path}: {error}") from None
-    methods = table.get("methods", ["thesis", "precise"])
-    if not isinstance(methods, list) or not methods or not all(isinstance(m, str) and m in METHODS for m in methods):
-        raise SweepError(f"frames.methods must be a non-empty list from {', '.join(METHODS)}, got {methods!r}")
-    return {
-        "paths": tuple(paths),
-        "frames": _integer("frames.count", table.get("count", 20), 1),
-        "methods": tuple(dict.fromkeys(methods)),
-        "chunk_frames": _integer("frames.chunk", table.get("chunk", 10), 1),
-    }
-
-
-def sweep_from_toml(text: str, base_dir: Path | str = ".") -> Sweep:
-    """Parse and validate a sweep file (see :data:`EXAMPLE_SWEEP`).
-
-    Every design point is built and validated here, so a bad combination
-    fails before any frame is rendered.
-
-    Parameters
-    ----------
-    text : str
-        The sweep file's TOML.
-    base_dir : path
-        Where the file's relative paths (``setup``, path CSVs) start.
-
-    Raises
-    ------
-    SweepError
-        Naming the first offending key (a ``SetupError`` for the setup's own keys).
-    """
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise SweepError(f"not valid TOML: {error}") from None
-    known = {"seed", "setup", "grid", "random", "frames"}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise SweepError(f"{unknown[0]} is not a known key, allowed: {', '.join(sorted(known))}")
-    base_dir = Path(base_dir)
-    base = Setup()
-    if "setup" in data:
-        if not isinstance(data["setup"], str):
-            raise SweepError(f"setup must be the path of a setup file, got {data['setup']!r}")
-        setup_path = base_dir / data["setup"]
-        try:
-            base = setup_from_toml(setup_path.read_text())
-        except OSError as error:
-            raise SweepError(f"setup: cannot read {setup_path}: {error.strerror}") from None
-    grid = _read_grid(data.get("grid", {}))
-    samples, random = _read_random(data.get("random", {}), [name for name, _ in grid])
-    sweep = Sweep(
-        base=base,
-        grid=grid,
-        random=random,
-        samples=samples,
-        seed=_integer("seed", data.get("seed", 0), 0),
-        **_read_frames(data.get("frames", {}), base_dir),
-    )
-    for point in design_points(sweep):
-        apply_parameters(sweep.base, point)
-    return sweep
-
-
-def design_points(sweep: Sweep) -> list[dict[str, float | int]]:
-    """The sweep's design points in plan order: each grid combination ``samples`` times, with its random draws.
-
-    The draws come from ``sweep.seed`` alone, so the plan is the same on every run.
-    """
-    names = [name for name, _ in sweep.grid]
-    rng = np.random.default_rng(sweep.seed)
-    points = []
-    for values in itertools.product(*(values for _, values in sweep.grid)):
-        for _ in range(sweep.samples):
-            point: dict[str, float | int] = dict(zip(names, values, strict=True))
-            for name, (low, high) in sweep.random:
-                if SWEEP_PARAMETERS[name] is int:
-                    point[name] = int(rng.integers(int(low), int(high), endpoint=True))
-                else:
-                    point[name] = float(rng.uniform(low, high))
-            points.append(point)
-    return points
-
-
-def apply_parameters(base: Setup, point: Mapping[str, float | int]) -> Setup:
-    """``base`` with a design point's parameters set (see :data:`SWEEP_PARAMETERS`).
-
-    Raises
-    ------
-    SetupError
-        If a value is out of the setup's range (naming the key).
-    """
-    setup = base
-    for name, value in point.items():
-        if name == "size_px":
-            setup = replace(setup, camera=setup.camera.resized(int(value), int(value)))
-        else:
-            section, key = name.split(".")
-            setup = replace(setup, **{section: replace(getattr(setup, section), **{key: value})})
-    return setup
 
 
 def _parameter_values(setup: Setup) -> dict[str, float]:
@@ -342,18 +105,6 @@ def plan_chunks(sweep: Sweep) -> list[Chunk]:
     return chunks
 
 
-def _path_poses(path: str, frames: int, setup: Setup) -> list[InstrumentPose]:
-    if path == "square":
-        tips = square_tips(frames)
-    elif path == "helix":
-        tips = helix_tips(frames)
-    else:
-        tips = read_path_csv(path)[:frames]
-        if len(tips) < frames:
-            raise SweepError(f"{path} has {len(tips)} tips, the sweep asks for {frames} frames")
-    return poses_through_insertion(tips, setup.instrument.insertion_in_eye)
-
-
 def _frame_seed(sweep: Sweep, chunk: Chunk, frame: int) -> int:
     """The frame's noise seed: from the sweep's seed and the frame's place in the plan only."""
     key = f"{sweep.seed}/{chunk.point}/{sweep.paths.index(chunk.path)}/{frame}".encode()
@@ -371,7 +122,7 @@ def run_chunk(sweep: Sweep, chunk: Chunk) -> list[dict[str, Any]]:
 
     The precise methods know the simulated geometry exactly and assume the
     edge that the simulated light makes (as if calibrated,
-    :func:`spotnav.experiments.chapter6.with_true_edge`) unless the base setup
+    :func:`spotnav.experiments.scenes.with_true_edge`) unless the base setup
     names an edge angle.
     """
     point = design_points(sweep)[chunk.point]
@@ -381,18 +132,14 @@ def run_chunk(sweep: Sweep, chunk: Chunk) -> list[dict[str, Any]]:
     else:
         assumed = replace(world, uncertainty=Uncertainty.exact())
     renderer = Renderer(world)
-    poses = _path_poses(chunk.path, sweep.frames, world)
+    poses = path_poses(chunk.path, sweep.frames, world.instrument.insertion_in_eye, resample=False)
     parameters = _parameter_values(world)
+    localizers = [(assumed if method.startswith("precise") else world, method) for method in sweep.methods]
     rows = []
     for frame in range(chunk.start, chunk.stop):
         truth = poses[frame]
-        start = time.perf_counter()
-        image = renderer.render(truth, seed=_frame_seed(sweep, chunk, frame))
-        render_ms = 1000 * (time.perf_counter() - start)
-        for method in sweep.methods:
-            start = time.perf_counter()
-            estimate = localize(image, assumed if method.startswith("precise") else world, method)
-            localize_ms = 1000 * (time.perf_counter() - start)
+        timed = run_timed_frame(renderer, truth, _frame_seed(sweep, chunk, frame), localizers)
+        for method, estimate, localize_ms in zip(sweep.methods, timed.estimates, timed.localize_ms, strict=True):
             tip = estimate.tip_in_eye if estimate.tip_in_eye is not None else np.full(3, np.nan)
             axis = estimate.axis if estimate.axis is not None else np.full(3, np.nan)
             rows.append(
@@ -404,7 +151,7 @@ def run_chunk(sweep: Sweep, chunk: Chunk) -> list[dict[str, Any]]:
                     "error_mm": float(np.linalg.norm(tip - truth.tip_in_eye)),
                     "axis_error_deg": float(np.degrees(angles_between(axis, truth.axis))) if estimate.ok else math.nan,
                     "sigma_mm": float(estimate.sigma_mm),
-                    "render_ms": render_ms,
+                    "render_ms": timed.render_ms,
                     "localize_ms": localize_ms,
                 }
             )
@@ -619,4 +366,4 @@ count = 20                    # frames per path and design point
 methods = ["thesis", "precise"]
 chunk = 10                    # frames per Dask task
 """
-"""Example sweep file (:func:`sweep_from_toml` parses it)."""
+"""Example sweep file (:func:`~spotnav.experiments.sweep_file.sweep_from_toml` parses it)."""

@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from spotnav.experiments.chapter6 import markdown_table
 from spotnav.experiments.figures import plot_error_against
-from spotnav.experiments.sweep import SWEEP_PARAMETERS, read_sweep_table
+from spotnav.experiments.report import markdown_table
+from spotnav.experiments.sweep import read_sweep_table
+from spotnav.experiments.sweep_file import SWEEP_PARAMETERS
 
 __all__ = ["SUMMARY_COLUMNS", "error_curves", "plot_name", "summary_rows", "varied_parameters", "write_sweep_report"]
 
@@ -93,7 +94,7 @@ def write_sweep_report(directory: Path | str) -> str:
 
     Raises
     ------
-    spotnav.experiments.sweep.SweepError
+    spotnav.experiments.sweep_file.SweepError
         If the folder holds no sweep results.
     """
     directory = Path(directory)
