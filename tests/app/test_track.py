@@ -235,17 +235,17 @@ import spotnav.image.selection as se, spotnav.image.falls as fa, spotnav.image.p
 import spotnav.pose.checks as k
 import spotnav.pose.conefit.model as cm, spotnav.pose.conefit.problem as cp, spotnav.pose.conefit.covariance as cc
 import spotnav.pose.conefit.solution as cn, spotnav.pose.conefit.solvers as cs
-import spotnav.setup.geometry as g, spotnav.optics.camera as m
+import spotnav.setup.geometry as g, spotnav.optics.camera as m, spotnav.optics.occlusion as o
 import spotnav.pose.reconstruct as r, spotnav.optics.edgeblur as b, spotnav.optics.pixelnoise as n
 import spotnav.app.track as t
 kernels = [t._predicted_rays, d._edge_on_rays, d.curve_rays,
            cs._fit_recipe, cs._at_box, cc._frame_uncertainty,
            b.seen_edge, b.frame_blur_for_width, b.frame_blur_shift, n.pooled_frame_blur, k._fit_spread,
-           g.cone_sphere_points, m._behind_segment,
+           g.cone_sphere_points, o._behind_segment,
            sp._histograms, sp.otsu_threshold,
            cm._instrument_axis, r._fit_ellipse, cp._start_frames, cp._frame_starts, cp._spot_rows, cp._frame_order,
            cs._tip_box, cn._free_trace, g._unit_rows, sp._background_level, ch._one_row_means]
-modules = (d, sp, ch, fr, fb, pr, se, fa, pa, cm, cp, cc, cn, cs, k, g, m, r, t, b, n)
+modules = (d, sp, ch, fr, fb, pr, se, fa, pa, cm, cp, cc, cn, cs, k, g, m, o, r, t, b, n)
 every = [f for mod in modules for f in vars(mod).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.setup.paths import helix_tips, poses_through_insertion

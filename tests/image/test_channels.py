@@ -17,7 +17,7 @@ from spotnav.image.channels import (
     linear_luminance,
     to_gray8,
 )
-from spotnav.optics.camera import decoding_table, encoding_table
+from spotnav.optics.response import decoding_table, encoding_table
 
 
 def test_a_tone_curve_clips_where_it_writes_full_scale_and_another_channel_is_read() -> None:

@@ -11,8 +11,8 @@ from spotnav.image.falls import _long_runs
 from spotnav.image.photometry import edge_light
 from spotnav.image.rays import detect_edge_subpixel
 from spotnav.image.spots import detect_spots_otsu
-from spotnav.optics.camera import decoding_table, encoding_table
 from spotnav.optics.render import Renderer
+from spotnav.optics.response import decoding_table, encoding_table
 from spotnav.setup.geometry import InstrumentPose
 
 

@@ -8,18 +8,16 @@ from hypothesis import strategies as st
 from spotnav.optics.camera import (
     CHANGE_SIZE,
     camera_model,
-    decode_values,
-    decoding_table,
-    encode_light,
     perturbed_model,
     pixel_rays,
-    pixels_behind_segment,
     project_points,
     sphere_point_rates,
     sphere_points,
     unproject_pixels_to_plane,
     unproject_pixels_to_sphere,
 )
+from spotnav.optics.occlusion import pixels_behind_segment
+from spotnav.optics.response import decode_values, decoding_table, encode_light
 from spotnav.setup.microscope import Camera
 
 CAMERA = Camera()  # the thesis's: 5000 px, 36 mm sensor, 300 mm lens, 110 mm

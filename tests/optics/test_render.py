@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.optics.camera import pixels_behind_segment, project_points
+from spotnav.optics.camera import project_points
+from spotnav.optics.occlusion import pixels_behind_segment
 from spotnav.optics.render import Renderer, bump_height, exposure_gain
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, cone_sphere_curve

@@ -30,8 +30,9 @@ from spotnav.experiments.runner import (
     summarize,
 )
 from spotnav.experiments.scenes import BEAMS, PATH_SEEDS, bump_grid, thesis_world, with_true_edge
-from spotnav.optics.camera import camera_depth_mm, decode_values, project_points
+from spotnav.optics.camera import camera_depth_mm, project_points
 from spotnav.optics.render import Renderer
+from spotnav.optics.response import decode_values
 from spotnav.setup.config import Camera, Instrument, Setup, World
 from spotnav.setup.examples import THESIS_EXPOSURE_STOPS
 from spotnav.setup.geometry import InstrumentPose

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from spotnav.optics.camera import decoding_table, encoding_table
+from spotnav.optics.response import decoding_table, encoding_table
 
 __all__ = ["linear_luminance", "to_gray8"]
 

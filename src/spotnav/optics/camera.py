@@ -28,14 +28,12 @@ __all__ = [
     "camera_depth_mm",
     "camera_model",
     "camera_of_model",
-    "decode_values",
-    "decoding_table",
-    "encode_light",
-    "encoding_table",
+    "check_last_axis",
+    "model_centre",
+    "model_optical_axis",
     "perturbed_model",
     "pixel_ray",
     "pixel_rays",
-    "pixels_behind_segment",
     "project_point",
     "project_points",
     "project_rows",
@@ -208,6 +206,18 @@ def _bowl_point(model: np.ndarray, x: float, y: float, radius: float) -> tuple[f
 
 
 @njit(cache=True)
+def model_centre(model: np.ndarray) -> np.ndarray:
+    """The camera's centre in the eye frame (3,), mm, of a :func:`camera_model` (a view, not a copy)."""
+    return model[_CENTRE : _CENTRE + 3]
+
+
+@njit(cache=True)
+def model_optical_axis(model: np.ndarray) -> np.ndarray:
+    """The camera's optical axis in the eye frame (3,), the rotation's third row, of a :func:`camera_model`."""
+    return model[_R + 6 : _R + 9]
+
+
+@njit(cache=True)
 def project_rows(model: np.ndarray, points: np.ndarray) -> np.ndarray:
     """:func:`project_points` of rows (N, 3) of points in the eye frame, mm, through a compiled ``model``
     (:func:`camera_model`), compiled for other kernels: pixels (N, 2), NaN behind the camera."""
@@ -234,77 +244,8 @@ def sphere_points(model: np.ndarray, pixels: np.ndarray, radius: float) -> np.nd
     return points
 
 
-# The AgX-like tone curve: log2 exposure over the width of Blender's AgX range (16.5 stops), full scale at nine
-# tenths of it, through a sigmoid polynomial (increasing on [0, 1]).
-_AGX_STOPS = 4.026069 + 12.47393
-_AGX_FULL_SCALE = 0.9
-_AGX_SIGMOID = (15.5, -40.14, 31.96, -6.868, 0.4298, 0.1191, -0.00232)
-
-
-def _agx(light: np.ndarray) -> np.ndarray:
-    t = np.clip(_AGX_FULL_SCALE + np.log2(np.maximum(light, 2.0**-_AGX_STOPS)) / _AGX_STOPS, 0.0, 1.0)
-    return np.clip(np.polyval(_AGX_SIGMOID, t), 0.0, 1.0)
-
-
-_AGX_LIGHT = np.concatenate([[0.0], np.logspace(-_AGX_STOPS * np.log10(2.0), 0.0, 4096)])
-_AGX_VALUES = _agx(_AGX_LIGHT)
-_AGX_KNOTS = np.concatenate([[0], np.flatnonzero(np.diff(_AGX_VALUES) > 0) + 1])  # strictly increasing values
-
-
-def encode_light(light: np.ndarray, response: str | float) -> np.ndarray:
-    """Pixel values in [0, 1] of linear light in [0, 1], by the response (contract, "The frames' encoding").
-
-    ``"agx"`` is an AgX-like tone curve, a sigmoid in log exposure (Blender's
-    AgX view transform at about +11 stops puts a spot near the top of its
-    range and the dim background near the bottom).
-    """
-    light = np.clip(np.asarray(light, dtype=float), 0.0, 1.0)
-    if response == "srgb":
-        return np.where(light <= 0.0031308, 12.92 * light, 1.055 * light ** (1 / 2.4) - 0.055)
-    if response == "linear":
-        return light
-    if response == "agx":
-        return _agx(light)
-    return light ** (1.0 / float(response))
-
-
-def decode_values(values: np.ndarray, response: str | float) -> np.ndarray:
-    """Linear light of pixel values in [0, 1]: the inverse of :func:`encode_light`."""
-    values = np.clip(np.asarray(values, dtype=float), 0.0, 1.0)
-    if response == "srgb":
-        return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4)
-    if response == "linear":
-        return values
-    if response == "agx":
-        return np.interp(values, _AGX_VALUES[_AGX_KNOTS], _AGX_LIGHT[_AGX_KNOTS])
-    return values ** float(response)
-
-
-@lru_cache(maxsize=16)
-def decoding_table(response: str | float, bits: int) -> np.ndarray:
-    """Linear light (full scale 1) of every ``bits``-bit pixel value under ``response``, shape (2**bits,), float32.
-
-    The inverse of :func:`encoding_table` (cached, read-only).
-    """
-    table = decode_values(np.arange(2**bits) / (2**bits - 1), response).astype(np.float32)
-    table.setflags(write=False)
-    return table
-
-
-@lru_cache(maxsize=16)
-def encoding_table(response: str | float, bits: int) -> np.ndarray:
-    """The ``bits``-bit pixel value of linear light quantized to 1/65535 under ``response``, shape (65536,).
-
-    ``table[round(65535 * light)]`` encodes ``light`` in [0, 1] (cached, read-only).
-    """
-    values = encode_light(np.linspace(0.0, 1.0, 65536), response)
-    dtype = np.uint8 if bits == 8 else np.uint16
-    table = np.round((2**bits - 1) * values).astype(dtype)
-    table.setflags(write=False)
-    return table
-
-
-def _check_last_axis(name: str, array: np.ndarray, size: int) -> np.ndarray:
+def check_last_axis(name: str, array: np.ndarray, size: int) -> np.ndarray:
+    """``array`` as floats, checked to have shape (..., ``size``); a ``ValueError`` naming ``name`` if not."""
     array = np.asarray(array, dtype=float)
     if array.ndim == 0 or array.shape[-1] != size:
         raise ValueError(f"{name} must have shape (..., {size}), got {array.shape}")
@@ -325,14 +266,14 @@ def project_points(camera: Camera, points_in_eye: np.ndarray) -> np.ndarray:
     ndarray, shape (..., 2)
         ``(u, v)`` in pixels; NaN for points behind the camera.
     """
-    points_in_eye = _check_last_axis("points_in_eye", points_in_eye, 3)
+    points_in_eye = check_last_axis("points_in_eye", points_in_eye, 3)
     rows = np.ascontiguousarray(points_in_eye.reshape(-1, 3))
     return project_rows(camera_model(camera), rows).reshape(*points_in_eye.shape[:-1], 2)
 
 
 def camera_depth_mm(camera: Camera, points_in_eye: np.ndarray) -> np.ndarray:
     """Depth of eye-frame points along the camera's optical axis (``z_cam``), shape (...), mm."""
-    points_in_eye = _check_last_axis("points_in_eye", points_in_eye, 3)
+    points_in_eye = check_last_axis("points_in_eye", points_in_eye, 3)
     return points_in_eye @ camera.rotation_to_camera[2] + camera.translation_to_camera_mm[2]
 
 
@@ -350,7 +291,7 @@ def pixel_rays(camera: Camera, pixels: np.ndarray) -> np.ndarray:
     ndarray, shape (..., 3)
         Unit vectors from the camera's centre :attr:`Camera.center_in_eye`.
     """
-    pixels = _check_last_axis("pixels", pixels, 2)
+    pixels = check_last_axis("pixels", pixels, 2)
     rows = np.ascontiguousarray(pixels.reshape(-1, 2))
     return _ray_rows(camera_model(camera), rows).reshape(*pixels.shape[:-1], 3)
 
@@ -372,7 +313,7 @@ def unproject_pixels_to_sphere(camera: Camera, pixels: np.ndarray, radius_mm: fl
     ndarray, shape (..., 3)
         Points on the retina in the eye frame, NaN where the ray misses the bowl.
     """
-    pixels = _check_last_axis("pixels", pixels, 2)
+    pixels = check_last_axis("pixels", pixels, 2)
     rows = np.ascontiguousarray(pixels.reshape(-1, 2))
     return sphere_points(camera_model(camera), rows, float(radius_mm)).reshape(*pixels.shape[:-1], 3)
 
@@ -399,64 +340,6 @@ def unproject_pixels_to_plane(camera: Camera, pixels: np.ndarray, height_mm: flo
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(rays[..., 2] < 0, (origin[2] - height_mm) / -rays[..., 2], np.nan)
     return origin + t[..., None] * rays
-
-
-def pixels_behind_segment(
-    camera: Camera, pixels: np.ndarray, start_in_eye: np.ndarray, end_in_eye: np.ndarray, radius_mm: float
-) -> np.ndarray:
-    """Whether each pixel's ray passes within ``radius_mm`` of a segment: the pixels a cylinder hides.
-
-    The instrument's shaft is such a cylinder, from the tip to the insertion
-    point; it lies between the camera and the retina, so every pixel whose
-    ray comes that close sees the shaft.
-
-    Parameters
-    ----------
-    camera : Camera
-    pixels : ndarray, shape (..., 2)
-        ``(u, v)``.
-    start_in_eye, end_in_eye : ndarray, shape (3,)
-        The segment's ends, mm.
-    radius_mm : float
-
-    Returns
-    -------
-    ndarray of bool, shape (...)
-    """
-    pixels = _check_last_axis("pixels", pixels, 2)
-    ends = np.array([start_in_eye, end_in_eye], dtype=float)
-    rows = np.ascontiguousarray(pixels.reshape(-1, 2), dtype=float)
-    hidden = _behind_segment(camera_model(camera), rows, ends, float(radius_mm), camera.focal_px)
-    return hidden.reshape(pixels.shape[:-1])
-
-
-@njit(cache=True)
-def _behind_segment(
-    model: np.ndarray, pixels: np.ndarray, ends: np.ndarray, radius: float, focal_px: float
-) -> np.ndarray:
-    """:func:`pixels_behind_segment` of pixels (N, 2), compiled: the segment runs between ``ends`` (2, 3)."""
-    hidden = np.zeros(len(pixels), dtype=np.bool_)
-    # Pixels beyond the segment's image box (grown by the radius seen at the nearer end) cannot be hidden.
-    ends_px = project_rows(model, ends)
-    depth = np.inf
-    for k in range(2):  # along the optical axis: the rotation's third row
-        depth = min(depth, np.sum(model[_R + 6 : _R + 9] * (ends[k] - model[_CENTRE : _CENTRE + 3])))
-    reach = radius * focal_px / depth + 2.0
-    low_u, high_u = min(ends_px[0, 0], ends_px[1, 0]) - reach, max(ends_px[0, 0], ends_px[1, 0]) + reach
-    low_v, high_v = min(ends_px[0, 1], ends_px[1, 1]) - reach, max(ends_px[0, 1], ends_px[1, 1]) + reach
-    along, offset = ends[1] - ends[0], model[_CENTRE : _CENTRE + 3] - ends[0]
-    c, e = np.sum(along * along), np.sum(along * offset)
-    for n in range(len(pixels)):
-        u, v = pixels[n, 0], pixels[n, 1]
-        if not (low_u <= u <= high_u and low_v <= v <= high_v):
-            continue
-        ray = np.array(pixel_ray(model, u, v))
-        # Closest points of the ray's line and the segment's line, the segment's clamped to its ends.
-        b, d = np.sum(ray * along), np.sum(ray * offset)
-        t = min(max((e - b * d) / max(c - b * b, 1e-12), 0.0), 1.0)
-        s = t * along - offset  # from the camera to the segment's point
-        hidden[n] = np.sum(s * s) - np.sum(s * ray) ** 2 < radius * radius
-    return hidden
 
 
 CHANGE_SIZE = 14  # the camera parameters of perturbed_model

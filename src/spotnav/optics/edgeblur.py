@@ -19,7 +19,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from spotnav.optics.camera import encode_light
+from spotnav.optics.response import encode_light
 
 __all__ = [
     "EDGE_SMOOTHING_PX",

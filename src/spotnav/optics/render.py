@@ -26,13 +26,13 @@ import numpy as np
 
 from spotnav.optics.camera import (
     camera_depth_mm,
-    encoding_table,
     pixel_rays,
-    pixels_behind_segment,
     project_points,
     unproject_pixels_to_plane,
     unproject_pixels_to_sphere,
 )
+from spotnav.optics.occlusion import pixels_behind_segment
+from spotnav.optics.response import encoding_table
 from spotnav.optics.texture import make_texture, sample_albedo
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import (
@@ -73,7 +73,7 @@ def output_table(tone: str, response: str | float, bits: int) -> np.ndarray:
 
     ``tone`` ``"camera"`` encodes by the camera's ``response``; ``"agx"`` by
     the AgX-like tone curve whatever the camera says
-    (:func:`spotnav.optics.camera.encoding_table`).
+    (:func:`spotnav.optics.response.encoding_table`).
     """
     return encoding_table(response if tone == "camera" else "agx", bits)
 

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spotnav.optics.camera import pixels_behind_segment, unproject_pixels_to_sphere
+from spotnav.optics.camera import unproject_pixels_to_sphere
+from spotnav.optics.occlusion import pixels_behind_segment
 from spotnav.pose.checks import MIN_EDGE_POINTS
 from spotnav.setup.config import Setup
 

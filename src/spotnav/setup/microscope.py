@@ -68,7 +68,7 @@ class Camera:
     response : str, float or None
         How pixel values relate to light (contract, "The frames' encoding"):
         ``"srgb"`` (the sRGB curve), ``"linear"``, ``"agx"`` (an AgX-like tone
-        curve, :func:`spotnav.optics.camera.encode_light`), or a number ``g``: values
+        curve, :func:`spotnav.optics.response.encode_light`), or a number ``g``: values
         proportional to light ``** (1 / g)``, ``g`` in [0.2, 5]. ``None``: not
         stated; frames are read as sRGB (:attr:`pixel_response`).
     """
