@@ -41,7 +41,7 @@ class ConeSolution:
     inliers : ndarray of bool, shape (N,)
         Points the least-squares fit kept.
     uncertainty_of : callable
-        Returns the fit's :class:`FitUncertainty`, computed on first use (a
+        Returns the fit's :class:`~spotnav.pose.conefit.covariance.FitUncertainty`, computed on first use (a
         fit that only leads to another, as a start, never needs it; an error
         computing it is raised there); its parts are this solution's
         properties of the same names.
@@ -61,7 +61,7 @@ class ConeSolution:
 
     @cached_property
     def uncertainty(self) -> FitUncertainty:
-        """The fit's uncertainty (see :class:`FitUncertainty`), computed once."""
+        """The fit's uncertainty (see :class:`~spotnav.pose.conefit.covariance.FitUncertainty`), computed once."""
         return self.uncertainty_of()
 
     @property
@@ -76,7 +76,8 @@ class ConeSolution:
 
     @property
     def geometry_gain(self) -> np.ndarray:
-        """How the fixed geometry moves the free parameters (P, G), see :class:`FitUncertainty`."""
+        """How the fixed geometry moves the free parameters (P, G), see
+        :class:`~spotnav.pose.conefit.covariance.FitUncertainty`."""
         return self.uncertainty.geometry_gain
 
     @property
@@ -180,7 +181,7 @@ class ConeSolution:
         Residuals that the points' noise does not explain are a model that
         does not fit the edge: they do not average away over the points, so
         they count as a shift of each spot's whole edge
-        (:func:`scatter_covariance`'s ``contour_sigma``) and, since a light
+        (:func:`~spotnav.pose.conefit.covariance.scatter_covariance`'s ``contour_sigma``) and, since a light
         unlike the setup's moves every spot's edge alike, as that much
         uncertainty of the edge angle (the fixed geometry's prior).
 

@@ -254,7 +254,7 @@ def fit_cones(
 def _tip_box(start: np.ndarray, frame_index: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The box of a fit from ``start`` (P,): the bounds (P,) that keep each free tip coordinate within ``reach`` of
     its start (the other parameters unbounded), and the tips' indices in ``x`` (frame by frame; ``frame_index``
-    (F, 6) as :func:`_parameter_index` gives it)."""
+    (F, 6) as :func:`~spotnav.pose.conefit.problem._parameter_index` gives it)."""
     low, high = np.full(len(start), -np.inf), np.full(len(start), np.inf)
     tips = [i for i in frame_index[:, :3].ravel() if i >= 0]
     tip_index = np.array(tips, dtype=np.int64) if tips else np.empty(0, np.int64)
