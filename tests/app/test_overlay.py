@@ -3,10 +3,10 @@ from __future__ import annotations
 import numpy as np
 from conftest import small_setup
 
-from spotnav.app.overlay import crop_box, draw_overlay
+from spotnav.app.overlay import cone_edge_px, crop_box, draw_overlay
 from spotnav.optics.render import Renderer
 from spotnav.pose.estimate import PoseEstimate
-from spotnav.pose.localize import localize_detailed
+from spotnav.pose.localize import Cone, localize_detailed
 from spotnav.setup.geometry import InstrumentPose
 
 GREEN, CYAN, YELLOW = (0, 220, 0), (0, 230, 255), (255, 255, 0)
@@ -47,3 +47,13 @@ def test_a_frame_without_a_pose_shows_its_status_and_no_cone() -> None:
     canvas = draw_overlay(image, setup, refused)
     assert canvas.shape == (256, 256, 3) and _count(canvas, CYAN) == 0 and _count(canvas, YELLOW) == 0
     assert canvas.max() > 0  # the status text
+
+
+def test_a_cone_whose_apex_lies_outside_the_eye_has_no_edge_to_draw() -> None:
+    setup = small_setup(256)
+    radius = setup.eye.radius_mm
+    outside = Cone(setup.eye.center_in_eye + np.array([0.0, 0.0, radius + 1.0]), np.array([0.0, 0.0, -1.0]), 9.0)
+    on_the_wall = Cone(setup.eye.center_in_eye + np.array([0.0, 0.0, radius]), np.array([0.0, 0.0, -1.0]), 9.0)
+    inside = Cone(np.array([0.0, 0.0, 4.0]), np.array([0.0, 0.0, -1.0]), 9.0)
+    assert cone_edge_px(setup, outside).shape == cone_edge_px(setup, on_the_wall).shape == (0, 2)
+    assert len(cone_edge_px(setup, inside)) > 0

@@ -38,17 +38,16 @@ def _rgb8(image: np.ndarray) -> np.ndarray:
 
 def cone_edge_px(setup: Setup, cone: Cone) -> np.ndarray:
     """The cone's edge on the retina, projected into the image, shape (K, 2) px (empty if it misses)."""
-    try:
-        curve = cone_sphere_curve(
-            cone.apex_in_eye,
-            cone.axis_in_eye,
-            np.radians(cone.half_angle_deg),
-            setup.eye.center_in_eye,
-            setup.eye.radius_mm,
-            _CURVE_POINTS,
-        )
-    except ValueError:  # the apex lies outside the eye
-        return np.zeros((0, 2))
+    if np.linalg.norm(np.asarray(cone.apex_in_eye, float) - setup.eye.center_in_eye) >= setup.eye.radius_mm:
+        return np.zeros((0, 2))  # the apex lies outside the eye: cone_sphere_curve draws no curve for it
+    curve = cone_sphere_curve(
+        cone.apex_in_eye,
+        cone.axis_in_eye,
+        np.radians(cone.half_angle_deg),
+        setup.eye.center_in_eye,
+        setup.eye.radius_mm,
+        _CURVE_POINTS,
+    )
     pixels = project_points(setup.camera, curve)
     return pixels[np.all(np.isfinite(pixels), axis=1)]
 

@@ -1,0 +1,142 @@
+"""A localize batch: ``localize``'s application, a list of images into ``poses.csv``.
+
+:func:`localize_batch` localizes each image with a setup and a method and writes
+its row as it is done; with ``fit_radius`` the precise method's frames wait for
+one joint fit of the eye's radius (each frame's edges kept, not the frame), and
+their rows are written after it. An image that cannot be read is a row with its
+status, never a stop; SIGINT or SIGTERM stops after the image in hand. It returns
+a :class:`BatchResult` for the caller to print.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from spotnav.app.progress import progress
+from spotnav.app.session import StopSignals, ready
+from spotnav.errors import SpotnavError
+from spotnav.files.images import ImageReadError, display_name, read_image
+from spotnav.files.poses import PosesWriter, pose_row
+from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.localize import localize
+from spotnav.pose.self_calibration import RadiusSelfCalibration, prepare_self_calibration, self_calibrate_radius
+from spotnav.setup.config import Setup
+
+__all__ = ["BatchResult", "localize_batch"]
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr)
+
+
+@dataclass
+class BatchResult:
+    """What a localize batch did.
+
+    Attributes
+    ----------
+    out : Path
+        The ``poses.csv`` written.
+    rows : int
+        Images written.
+    statuses : Counter
+        Images per status.
+    stopped_by : str or None
+        The signal that stopped the batch before its last image (None: it did them all).
+    radius : RadiusSelfCalibration or None
+        The joint radius fit (None without ``fit_radius``, or when stopped before it).
+    """
+
+    out: Path
+    rows: int = 0
+    statuses: Counter[str] = field(default_factory=Counter)
+    stopped_by: str | None = None
+    radius: RadiusSelfCalibration | None = None
+
+
+def localize_batch(
+    images: Sequence[str],
+    setup: Setup,
+    method: str,
+    out: str | Path,
+    *,
+    fit_radius: bool = False,
+    report: Callable[[str], None] = _stderr,
+) -> BatchResult:
+    """Localize ``images`` into ``out`` (``poses.csv``), a row each in their order.
+
+    Parameters
+    ----------
+    images : sequence of str
+        Image paths.
+    setup : Setup
+    method : str
+        One of :data:`spotnav.pose.localize.METHODS`.
+    out : str or Path
+    fit_radius : bool
+        Fit one eye radius with all the poses (precise method, at least 20 frames).
+    report : callable
+        Takes each warning during the run (default: stderr).
+
+    Raises
+    ------
+    SpotnavError
+        For ``fit_radius`` with a method other than precise, too few frames for the joint fit, or an output
+        that cannot be written.
+    """
+    if fit_radius and method != "precise":
+        raise SpotnavError("--fit-radius works with --method precise")
+    result = BatchResult(Path(out))
+    camera_size = (setup.camera.width_px, setup.camera.height_px)
+    ready(setup)
+    # fit_radius: rows wait for the joint fit; each frame's edges are kept, not the frame (memory).
+    waiting: list[tuple[str, float]] = []
+    done: dict[int, PoseEstimate] = {}
+    shares: list[tuple[int, tuple]] = []
+    with StopSignals() as signals, PosesWriter(out) as writer:
+        for name in progress(images, desc="localize", unit="image"):
+            if signals.received:
+                break
+            start = time.perf_counter()
+            try:
+                image = read_image(name, expected_size=camera_size)
+            except ImageReadError as error:
+                estimate = PoseEstimate(error.status, detail=str(error))
+            else:
+                if fit_radius:
+                    shares.append((len(waiting), prepare_self_calibration(image, setup)))
+                    waiting.append((name, 1000 * (time.perf_counter() - start)))
+                    continue
+                estimate = localize(image, setup, method)
+            if estimate.status in ("unreadable", "wrong_size"):
+                shown = display_name(name)
+                detail = estimate.detail if estimate.detail.startswith(shown) else f"{shown}: {estimate.detail}"
+                report(f"spotnav: warning: {detail}")
+            elapsed_ms = 1000 * (time.perf_counter() - start)
+            if fit_radius:
+                done[len(waiting)] = estimate
+                waiting.append((name, elapsed_ms))
+            else:
+                writer.write(pose_row(display_name(name), estimate, elapsed_ms))
+                result.statuses[estimate.status] += 1
+        if waiting:
+            failed, share_ms = set(done), 0.0
+            if signals.received:  # no joint fit: each frame's own pose
+                done |= {index: estimate for index, (estimate, _) in shares}
+                report("spotnav: warning: stopped before the joint radius fit: each frame's own pose")
+            else:
+                start = time.perf_counter()
+                fitted = self_calibrate_radius([share for _, share in shares], setup)
+                share_ms = 1000 * (time.perf_counter() - start) / max(len(shares), 1)
+                done |= {index: estimate for (index, _), estimate in zip(shares, fitted.estimates, strict=True)}
+                result.radius = fitted
+            for index, (name, elapsed_ms) in enumerate(waiting):
+                writer.write(pose_row(display_name(name), done[index], elapsed_ms + share_ms * (index not in failed)))
+                result.statuses[done[index].status] += 1
+    result.rows, result.stopped_by = writer.rows, signals.received
+    return result

@@ -1,0 +1,352 @@
+"""A tracking session: ``track``'s application, from a frame source to ``poses.csv`` and what the run did.
+
+:class:`TrackSession` owns the source, the stop conditions (SIGINT and SIGTERM, a
+frame or time limit, frames of the wrong size), the OpenIGTLink server and the
+overlay writer; :meth:`TrackSession.run` tracks every frame, writes each row as
+it is done and returns a :class:`TrackResult` with the counts, the latencies and
+why it stopped. What happens during the run (warnings, the server's address) goes
+to ``report`` as it happens; the summary is the caller's to print.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ipaddress
+import signal
+import socket
+import sys
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from spotnav.app.igtl import DEFAULT_DEVICE, DEFAULT_HOST, PoseServer
+from spotnav.app.overlay import draw_overlay, fitted_spots
+from spotnav.app.progress import progress
+from spotnav.app.track import TrackedFrame, Tracker, frozen_heap, prepare_kernels
+from spotnav.errors import SpotnavError
+from spotnav.files.capture import Frame
+from spotnav.files.poses import TRACK_COLUMNS, PosesWriter, track_row
+from spotnav.files.sequences import CameraSettings, SequenceWriter, iter_frames
+from spotnav.pose.estimate import PoseEstimate
+from spotnav.setup.config import Setup
+
+__all__ = [
+    "WRONG_SIZE_STOP",
+    "IgtlSettings",
+    "StopSignals",
+    "TrackLimits",
+    "TrackResult",
+    "TrackSession",
+    "camera_settings",
+    "compiling_note",
+    "ready",
+]
+
+SLOW_START_S = 2.0  # a start slower than this is compiling: say so
+WRONG_SIZE_STOP = 25  # consecutive frames of the wrong size that stop tracking
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr)
+
+
+@contextlib.contextmanager
+def compiling_note() -> Iterator[None]:
+    """Say what a slow start is doing: Numba compiles the kernels once after an install (about 20 s)."""
+    note = "spotnav: compiling the numerical kernels, once after an install (about 20 s) ..."
+    timer = threading.Timer(SLOW_START_S, partial(print, note, file=sys.stderr, flush=True))
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+
+
+def ready(setup: Setup) -> None:
+    """Compile (or load) the kernels before the first frame, saying so when that takes long."""
+    with compiling_note():
+        prepare_kernels(setup)
+
+
+class StopSignals:
+    """SIGINT and SIGTERM ask a loop to stop after the frame in hand: a requested stop, not a failure.
+
+    A second signal of the same kind while the first is pending ends the run at once, as
+    Python's default would.
+    """
+
+    def __init__(self) -> None:
+        self.received: str | None = None
+        self._previous: dict[int, object] = {}
+
+    def _handle(self, number: int, _frame: object) -> None:
+        if self.received == signal.Signals(number).name:
+            raise KeyboardInterrupt
+        self.received = signal.Signals(number).name
+
+    def __enter__(self) -> StopSignals:
+        for number in (signal.SIGINT, signal.SIGTERM):
+            self._previous[number] = signal.signal(number, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for number, handler in self._previous.items():
+            signal.signal(number, handler)
+
+
+@dataclass(frozen=True)
+class TrackLimits:
+    """When a run stops before its source ends: after ``max_frames`` frames, after ``duration_s`` seconds.
+
+    Raises
+    ------
+    SpotnavError
+        For a limit below 1 frame or not a finite number of seconds > 0 (named as ``track``'s options).
+    """
+
+    max_frames: int | None = None
+    duration_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.max_frames is not None and self.max_frames < 1:
+            raise SpotnavError(f"--max-frames must be at least 1, got {self.max_frames}")
+        if self.duration_s is not None and not (np.isfinite(self.duration_s) and self.duration_s > 0):
+            raise SpotnavError(f"--duration must be a finite number of seconds > 0, got {self.duration_s}")
+
+
+def camera_settings(size_px: Sequence[int] | None, fps: float | None, exposure: float | None) -> CameraSettings:
+    """The live camera's settings asked for, checked (named as ``track``'s options).
+
+    Raises
+    ------
+    SpotnavError
+        For a size below 1 px, a frame rate that is not a finite number > 0, or an exposure that is not finite.
+    """
+    if size_px is not None and min(size_px) < 1:
+        raise SpotnavError(f"--camera-size must be positive, got {' '.join(map(str, size_px))}")
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise SpotnavError(f"--fps must be a finite number > 0, got {fps}")
+    if exposure is not None and not np.isfinite(exposure):
+        raise SpotnavError(f"--exposure must be a finite number, got {exposure}")
+    return CameraSettings(tuple(size_px) if size_px is not None else None, fps, exposure)
+
+
+@dataclass(frozen=True)
+class IgtlSettings:
+    """The OpenIGTLink server to serve the poses on: its port, address, device and how long to wait for a client."""
+
+    port: int
+    host: str = DEFAULT_HOST
+    device: str = DEFAULT_DEVICE
+    wait_s: float = 0.0
+
+
+@dataclass
+class TrackResult:
+    """What a tracking run did.
+
+    Attributes
+    ----------
+    out : Path
+        The ``poses.csv`` written.
+    rows : int
+        Frames written.
+    statuses : Counter
+        Frames per status.
+    latencies : list of float
+        Each frame's latency, ms, from the frame's arrival to its row.
+    wrong_size : int
+        Frames of the wrong size in a row at the end.
+    stop : str
+        Why it stopped before the source ended (``""``: the source ended).
+    verdict : str
+        The sequence's test: what of the setup the frames contradict (``""``: nothing).
+    """
+
+    out: Path
+    rows: int = 0
+    statuses: Counter[str] = field(default_factory=Counter)
+    latencies: list[float] = field(default_factory=list)
+    wrong_size: int = 0
+    stop: str = ""
+    verdict: str = ""
+
+    @property
+    def wrong_size_stop(self) -> bool:
+        """Whether the run stopped on :data:`WRONG_SIZE_STOP` frames of the wrong size in a row."""
+        return self.wrong_size >= WRONG_SIZE_STOP
+
+
+class TrackSession:
+    """Track a source's frames into ``poses.csv``, serving and drawing each pose if asked, until a stop.
+
+    Parameters
+    ----------
+    setup : Setup
+    source : str
+        Video file, folder or glob of images, camera index, URL or GStreamer pipeline
+        (:func:`spotnav.files.sequences.iter_frames`).
+    out : str or Path
+        The ``poses.csv`` to write.
+    through_insertion : bool
+        The axis through the insertion point (``precise``) or free (``precise-free``).
+    limits : TrackLimits, optional
+        Default: none, the run goes to the source's end.
+    camera : CameraSettings, optional
+        What to ask a live camera for (default: nothing).
+    igtl : IgtlSettings, optional
+        Serve each pose on OpenIGTLink.
+    overlay : str or Path, optional
+        Also write every frame with its fit drawn on it: a video or a folder, at ``overlay_fps``.
+    overlay_fps : float
+    report : callable
+        Takes each line to tell the user during the run (default: stderr).
+    """
+
+    def __init__(
+        self,
+        setup: Setup,
+        source: str,
+        out: str | Path,
+        *,
+        through_insertion: bool = True,
+        limits: TrackLimits | None = None,
+        camera: CameraSettings | None = None,
+        igtl: IgtlSettings | None = None,
+        overlay: str | Path | None = None,
+        overlay_fps: float = 30.0,
+        report: Callable[[str], None] = _stderr,
+    ) -> None:
+        self.setup, self.source, self.out = setup, source, Path(out)
+        self.through_insertion = through_insertion
+        self.limits = limits if limits is not None else TrackLimits()
+        self.camera = camera if camera is not None else CameraSettings()
+        self.igtl, self.overlay, self.overlay_fps, self.report = igtl, overlay, overlay_fps, report
+
+    def run(self) -> TrackResult:
+        """Track until the source ends or a stop is due; the rows are written as they are done.
+
+        Raises
+        ------
+        SpotnavError
+            For a source, an output or a server that cannot be used.
+        """
+        setup = self.setup
+        with StopSignals() as signals:
+            with compiling_note():
+                tracker = Tracker(setup, through_insertion=self.through_insertion)
+            size = (setup.camera.width_px, setup.camera.height_px)
+            # The tracker keeps no image: a frame's buffer is reused two frames later; a video is decoded in a
+            # second process, and the tracker rehearses the last frame while it waits.
+            source = iter_frames(
+                self.source,
+                ring=2,
+                camera=self.camera,
+                report=self.report,
+                expected_size=size,
+                while_waiting=tracker.rehearse,
+            )
+            with contextlib.closing(source) as frames:
+                server = None
+                try:
+                    server = self._server(signals)
+                    with PosesWriter(self.out, TRACK_COLUMNS) as out, self._overlay_writer() as overlay, frozen_heap():
+                        result = self._track(tracker, frames, server, signals, out, overlay)
+                finally:
+                    if server is not None:
+                        server.close()
+                        extra = [f"{server.clients_dropped} dropped for not reading"] if server.clients_dropped else []
+                        extra += [f"{server.clients_refused} refused (too many)"] if server.clients_refused else []
+                        self.report(f"OpenIGTLink: {', '.join([f'{server.clients_served} clients served', *extra])}")
+        result.rows = out.rows
+        return result
+
+    def _overlay_writer(self) -> contextlib.AbstractContextManager[SequenceWriter | None]:
+        """The overlay's video (or folder of PNGs), or nothing."""
+        if self.overlay is None:
+            return contextlib.nullcontext()
+        return SequenceWriter(self.overlay, self.overlay_fps)
+
+    def _server(self, signals: StopSignals) -> PoseServer | None:
+        """The OpenIGTLink server asked for (None without it), with what it tells the user."""
+        if self.igtl is None:
+            return None
+        server = PoseServer(self.igtl.port, host=self.igtl.host, device=self.igtl.device)
+        where = f"{server.host}:{server.port}"
+        self.report(f"OpenIGTLink: {server.device} (TRANSFORM) and {server.device}Status (STRING) on {where}")
+        if not ipaddress.ip_address(socket.gethostbyname(server.host)).is_loopback:
+            self.report(
+                f"spotnav: warning: OpenIGTLink has no authentication: anyone who reaches {server.host}:{server.port} "
+                "receives the poses"
+            )
+        if self.igtl.wait_s > 0:
+            self.report(f"OpenIGTLink: waiting up to {self.igtl.wait_s:g} s for a client ...")
+            connected = server.wait_for_client(self.igtl.wait_s, stop=lambda: bool(signals.received))
+            self.report(f"OpenIGTLink: {'a client is connected' if connected else 'no client yet'}")
+        return server
+
+    def _track(
+        self,
+        tracker: Tracker,
+        frames: Iterable[Frame],
+        server: PoseServer | None,
+        signals: StopSignals,
+        out: PosesWriter,
+        overlay: SequenceWriter | None,
+    ) -> TrackResult:
+        """Track every frame, writing each row as it is done, until the source ends or a stop is due."""
+        result = TrackResult(self.out)
+        started = time.monotonic()
+        bar = progress(frames, desc="track", unit="frame")
+        for frame in bar:
+            if signals.received:  # before the first frame (a signal while compiling or opening the source)
+                result.stop = f"stopped by {signals.received}"
+                break
+            if frame.pixels is None:
+                tracked = TrackedFrame(PoseEstimate(frame.error_status, detail=frame.error), "lost")
+            else:
+                tracked = tracker.update(frame.pixels)
+            latency = 1000 * (time.perf_counter() - frame.ready_s)
+            if server is not None:
+                server.send(tracked.estimate, frame.index, frame.timestamp_s, tracked.mode)
+            out.write(track_row(frame, tracked.estimate, tracked.mode, latency))
+            if overlay is not None and frame.pixels is not None:
+                label = f"frame {frame.index}, {tracked.mode}"
+                spots = fitted_spots(tracked.edges_px)
+                canvas = draw_overlay(frame.pixels, tracker.setup, tracked.estimate, spots=spots, label=label)
+                overlay.write(frame.index, canvas)
+            result.statuses[tracked.estimate.status] += 1
+            if tracker.sequence.verdict and not result.verdict:  # said once; every frame's row and status carry it
+                result.verdict = tracker.sequence.verdict
+                self.report(f"spotnav: warning: frame {frame.index}: {result.verdict}")
+            result.latencies.append(latency)
+            bar.set_postfix_str(f"{1000 / max(np.median(result.latencies[-50:]), 1e-3):.0f} Hz, {tracked.mode}")
+            streamed = not frame.image  # a video's or a camera's frame, not a file of a batch
+            result.wrong_size = result.wrong_size + 1 if tracked.estimate.status == "wrong_size" and streamed else 0
+            if result.wrong_size == 1:
+                self.report(f"spotnav: warning: frame {frame.index}: {tracked.estimate.detail}")
+            result.stop = self._stop(signals, out.rows, time.monotonic() - started, result.wrong_size)
+            if result.stop:
+                break
+        bar.close()
+        return result
+
+    def _stop(self, signals: StopSignals, frames: int, elapsed_s: float, wrong_size: int) -> str:
+        """Why tracking stops after this frame, or ``""`` to go on."""
+        limits = self.limits
+        if signals.received:
+            return f"stopped by {signals.received}"
+        if limits.max_frames is not None and frames >= limits.max_frames:
+            return f"--max-frames {limits.max_frames}"
+        if limits.duration_s is not None and elapsed_s >= limits.duration_s:
+            return f"--duration {limits.duration_s:g} s"
+        if wrong_size >= WRONG_SIZE_STOP:
+            return "frames of the wrong size"
+        return ""
