@@ -67,7 +67,8 @@ def _tilt_matrix(tau_x: float, tau_y: float) -> np.ndarray:
     rot_y = np.array([[cy, 0.0, -sy], [0.0, 1.0, 0.0], [sy, 0.0, cy]])
     rot_xy = rot_y @ rot_x
     projection = np.array([[rot_xy[2, 2], 0.0, -rot_xy[0, 2]], [0.0, rot_xy[2, 2], -rot_xy[1, 2]], [0.0, 0.0, 1.0]])
-    return projection @ rot_xy
+    tilt: np.ndarray = projection @ rot_xy
+    return tilt
 
 
 @lru_cache(maxsize=16)
@@ -276,7 +277,8 @@ def decode_values(values: np.ndarray, response: str | float) -> np.ndarray:
     if response == "linear":
         return values
     if response == "agx":
-        return np.interp(values, _AGX_VALUES[_AGX_KNOTS], _AGX_LIGHT[_AGX_KNOTS])
+        light: np.ndarray = np.interp(values, _AGX_VALUES[_AGX_KNOTS], _AGX_LIGHT[_AGX_KNOTS])
+        return light
     return values ** float(response)
 
 
@@ -299,7 +301,7 @@ def encoding_table(response: str | float, bits: int) -> np.ndarray:
     """
     values = encode_light(np.linspace(0.0, 1.0, 65536), response)
     dtype = np.uint8 if bits == 8 else np.uint16
-    table = np.round((2**bits - 1) * values).astype(dtype)
+    table: np.ndarray = np.round((2**bits - 1) * values).astype(dtype)
     table.setflags(write=False)
     return table
 
@@ -333,7 +335,8 @@ def project_points(camera: Camera, points_in_eye: np.ndarray) -> np.ndarray:
 def camera_depth_mm(camera: Camera, points_in_eye: np.ndarray) -> np.ndarray:
     """Depth of eye-frame points along the camera's optical axis (``z_cam``), shape (...), mm."""
     points_in_eye = _check_last_axis("points_in_eye", points_in_eye, 3)
-    return points_in_eye @ camera.rotation_to_camera[2] + camera.translation_to_camera_mm[2]
+    depth: np.ndarray = points_in_eye @ camera.rotation_to_camera[2] + camera.translation_to_camera_mm[2]
+    return depth
 
 
 def pixel_rays(camera: Camera, pixels: np.ndarray) -> np.ndarray:
@@ -398,7 +401,8 @@ def unproject_pixels_to_plane(camera: Camera, pixels: np.ndarray, height_mm: flo
     rays = pixel_rays(camera, pixels)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(rays[..., 2] < 0, (origin[2] - height_mm) / -rays[..., 2], np.nan)
-    return origin + t[..., None] * rays
+    points: np.ndarray = origin + t[..., None] * rays
+    return points
 
 
 def pixels_behind_segment(
@@ -645,7 +649,8 @@ def _rotation_rates(rotation_vector: np.ndarray) -> np.ndarray:
         first, second = (1.0 - np.cos(angle)) / angle**2, (angle - np.sin(angle)) / angle**3
     wx, wy, wz = rotation_vector[0], rotation_vector[1], rotation_vector[2]
     skew = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
-    return np.eye(3) + first * skew + second * (skew @ skew)
+    jacobian: np.ndarray = np.eye(3) + first * skew + second * (skew @ skew)
+    return jacobian
 
 
 @njit(cache=True)
@@ -679,4 +684,5 @@ def camera_of_model(camera: Camera, model: np.ndarray) -> Camera:
 def _nearest_rotation(matrix: np.ndarray) -> np.ndarray:
     """The rotation matrix nearest ``matrix`` (its polar factor), shape (3, 3)."""
     u, _, vt = np.linalg.svd(matrix)
-    return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    rotation: np.ndarray = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    return rotation
