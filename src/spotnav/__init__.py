@@ -41,7 +41,8 @@ def _drop_stale_kernels() -> None:
 _drop_stale_kernels()
 
 from spotnav.optics.render import Renderer  # noqa: E402
-from spotnav.pose.localize import PoseEstimate, localize  # noqa: E402
+from spotnav.pose.estimate import PoseEstimate  # noqa: E402
+from spotnav.pose.localize import localize  # noqa: E402
 from spotnav.setup.config import Setup, setup_from_toml  # noqa: E402
 from spotnav.setup.geometry import InstrumentPose  # noqa: E402
 from spotnav.setup.values import SetupError  # noqa: E402

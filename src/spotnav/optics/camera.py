@@ -65,7 +65,8 @@ def _tilt_matrix(tau_x: float, tau_y: float) -> np.ndarray:
     rot_y = np.array([[cy, 0.0, -sy], [0.0, 1.0, 0.0], [sy, 0.0, cy]])
     rot_xy = rot_y @ rot_x
     projection = np.array([[rot_xy[2, 2], 0.0, -rot_xy[0, 2]], [0.0, rot_xy[2, 2], -rot_xy[1, 2]], [0.0, 0.0, 1.0]])
-    return projection @ rot_xy
+    tilt: np.ndarray = projection @ rot_xy
+    return tilt
 
 
 @lru_cache(maxsize=16)
@@ -274,7 +275,8 @@ def project_points(camera: Camera, points_in_eye: np.ndarray) -> np.ndarray:
 def camera_depth_mm(camera: Camera, points_in_eye: np.ndarray) -> np.ndarray:
     """Depth of eye-frame points along the camera's optical axis (``z_cam``), shape (...), mm."""
     points_in_eye = check_last_axis("points_in_eye", points_in_eye, 3)
-    return points_in_eye @ camera.rotation_to_camera[2] + camera.translation_to_camera_mm[2]
+    depth: np.ndarray = points_in_eye @ camera.rotation_to_camera[2] + camera.translation_to_camera_mm[2]
+    return depth
 
 
 def pixel_rays(camera: Camera, pixels: np.ndarray) -> np.ndarray:
@@ -339,7 +341,8 @@ def unproject_pixels_to_plane(camera: Camera, pixels: np.ndarray, height_mm: flo
     rays = pixel_rays(camera, pixels)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(rays[..., 2] < 0, (origin[2] - height_mm) / -rays[..., 2], np.nan)
-    return origin + t[..., None] * rays
+    points: np.ndarray = origin + t[..., None] * rays
+    return points
 
 
 CHANGE_SIZE = 14  # the camera parameters of perturbed_model
@@ -528,7 +531,8 @@ def _rotation_rates(rotation_vector: np.ndarray) -> np.ndarray:
         first, second = (1.0 - np.cos(angle)) / angle**2, (angle - np.sin(angle)) / angle**3
     wx, wy, wz = rotation_vector[0], rotation_vector[1], rotation_vector[2]
     skew = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
-    return np.eye(3) + first * skew + second * (skew @ skew)
+    jacobian: np.ndarray = np.eye(3) + first * skew + second * (skew @ skew)
+    return jacobian
 
 
 @njit(cache=True)
@@ -562,4 +566,5 @@ def camera_of_model(camera: Camera, model: np.ndarray) -> Camera:
 def _nearest_rotation(matrix: np.ndarray) -> np.ndarray:
     """The rotation matrix nearest ``matrix`` (its polar factor), shape (3, 3)."""
     u, _, vt = np.linalg.svd(matrix)
-    return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    rotation: np.ndarray = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    return rotation

@@ -116,7 +116,8 @@ def _ratio(blur_px: float, lags: tuple[int, int]) -> float:
             once += weights[i] * weights[i + lags[j]]
             twice += weights[i] * weights[i + 2 * lags[j]]
         lag_weights[j] = 6.0 - 8.0 * once / total + 2.0 * twice / total
-    return lag_weights[1] / lag_weights[0]
+    ratio: float = lag_weights[1] / lag_weights[0]
+    return ratio
 
 
 @njit(cache=True)
@@ -142,7 +143,7 @@ def _trimmed_variance(values: np.ndarray) -> float:
     """The variance (about 0) of ``values`` with their outliers left out (iterated)."""
     if len(values) == 0:
         return np.nan
-    variance = np.mean(values * values)
+    variance: float = np.mean(values * values)
     kept = len(values)
     for _ in range(3):
         limit = max(_TRIM * math.sqrt(variance), _MIN_TRIM)

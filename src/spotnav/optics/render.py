@@ -65,7 +65,8 @@ def exposure_gain(exposure_stops: float) -> float:
     At 0 stops, a white surface 5 mm below a 1 W source, facing it, is exactly
     full scale (1.0): irradiance ``1 / (4 pi 25)`` W/mm^2, radiance that over pi.
     """
-    return 100.0 * np.pi * 2.0**exposure_stops
+    gain: float = 100.0 * np.pi * 2.0**exposure_stops
+    return gain
 
 
 def output_table(tone: str, response: str | float, bits: int) -> np.ndarray:
@@ -329,7 +330,7 @@ class Renderer:
         faults = self.setup.faults
         rng = np.random.default_rng([seed, _FAULTS_STREAM])
         more = np.random.default_rng([seed, _FAULTS_STREAM, 1])  # the later disturbances' own stream
-        patches = []
+        patches: list[_Patch | None] = []
         lit = self.irradiance_image(pose, power_w)
         if lit is not None:
             irradiance, (u0, v0, u1, v1) = lit
@@ -342,10 +343,9 @@ class Renderer:
                 darker = faults.dark_patch * self._edge_patch_mask(light.shape[:2], more)
                 light *= 1.0 - darker
                 patches.append(_Patch(u0, v0, -darker * background[v0:v1, u0:u1]))
-            spot = _Patch(u0, v0, light)
-            if faults.motion_blur_px > 0:
-                spot = self._blurred(spot, faults.motion_blur_px, rng)
-            if faults.defocus_px > 0:
+            sharp = _Patch(u0, v0, light)
+            spot = self._blurred(sharp, faults.motion_blur_px, rng) if faults.motion_blur_px > 0 else sharp
+            if faults.defocus_px > 0 and spot is not None:  # a blurred patch is clipped to the image: maybe None
                 spot = self._defocused(spot, faults.defocus_px)
             patches.append(spot)
             centre = np.array([(u0 + u1) / 2.0, (v0 + v1) / 2.0])
@@ -383,7 +383,7 @@ class Renderer:
             cv2.line(mask, tuple(ends[0]), tuple(ends[1]), 1.0, thickness, cv2.LINE_AA, 4)
         return np.minimum(mask, 1.0)[..., None]
 
-    def _blurred(self, patch: _Patch, length_px: float, rng: np.random.Generator) -> _Patch:
+    def _blurred(self, patch: _Patch, length_px: float, rng: np.random.Generator) -> _Patch | None:
         """The patch smeared along a random direction over ``length_px`` (grown to hold the smear)."""
         pad = int(np.ceil(length_px / 2.0)) + 1
         grown = cv2.copyMakeBorder(patch.linear, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
@@ -405,9 +405,10 @@ class Renderer:
         radius = rng.uniform(0.3, 0.6) * half
         v, u = np.mgrid[:height, :width].astype(np.float32)
         distance2 = (u - centre[0]) ** 2 + (v - centre[1]) ** 2
-        return np.exp(-2.0 * distance2 / radius**2)[..., None].astype(np.float32)
+        mask: np.ndarray = np.exp(-2.0 * distance2 / radius**2)[..., None].astype(np.float32)
+        return mask
 
-    def _defocused(self, patch: _Patch, sigma_px: float) -> _Patch:
+    def _defocused(self, patch: _Patch, sigma_px: float) -> _Patch | None:
         """The patch blurred by a Gaussian of ``sigma_px`` (grown to hold the blur): the light out of focus."""
         pad = int(np.ceil(4.0 * sigma_px)) + 1
         grown = cv2.copyMakeBorder(patch.linear, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
@@ -519,4 +520,5 @@ def _noise_sigma(linear: np.ndarray, full_well_e: float, read_noise_e: float) ->
     if full_well_e <= 0:
         return np.zeros_like(linear)
     variance = np.maximum(linear, 0.0) / np.float32(full_well_e) + np.float32((read_noise_e / full_well_e) ** 2)
-    return np.sqrt(variance)
+    sigma: np.ndarray = np.sqrt(variance)
+    return sigma

@@ -55,7 +55,8 @@ def decode_values(values: np.ndarray, response: str | float) -> np.ndarray:
     if response == "linear":
         return values
     if response == "agx":
-        return np.interp(values, _AGX_VALUES[_AGX_KNOTS], _AGX_LIGHT[_AGX_KNOTS])
+        light: np.ndarray = np.interp(values, _AGX_VALUES[_AGX_KNOTS], _AGX_LIGHT[_AGX_KNOTS])
+        return light
     return values ** float(response)
 
 
@@ -78,6 +79,6 @@ def encoding_table(response: str | float, bits: int) -> np.ndarray:
     """
     values = encode_light(np.linspace(0.0, 1.0, 65536), response)
     dtype = np.uint8 if bits == 8 else np.uint16
-    table = np.round((2**bits - 1) * values).astype(dtype)
+    table: np.ndarray = np.round((2**bits - 1) * values).astype(dtype)
     table.setflags(write=False)
     return table

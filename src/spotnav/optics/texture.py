@@ -41,7 +41,8 @@ class AlbedoTexture:
     @property
     def texels_per_mm(self) -> float:
         """Texture resolution."""
-        return self.rgb.shape[1] / (2.0 * self.half_width_mm)
+        texels: int = self.rgb.shape[1]
+        return texels / (2.0 * self.half_width_mm)
 
 
 def _smooth_noise(rng: np.random.Generator, cells: int, size: int) -> np.ndarray:
@@ -101,7 +102,7 @@ def make_texture(kind: str = "retina", seed: int = 0) -> AlbedoTexture:
     """
     size = _TEXELS
     if kind == "flat":
-        rgb = np.broadcast_to(_FUNDUS_RGB, (size, size, 3)).copy()
+        rgb: np.ndarray = np.broadcast_to(_FUNDUS_RGB, (size, size, 3)).copy()
     elif kind == "retina":
         rng = np.random.default_rng(seed)
         # Smooth features at a coarse grid, then upsampled; vessels at full size.
@@ -114,7 +115,8 @@ def make_texture(kind: str = "retina", seed: int = 0) -> AlbedoTexture:
         disc_r = np.hypot(x - _OPTIC_DISC_MM[0], y - _OPTIC_DISC_MM[1])
         disc = np.clip((_OPTIC_DISC_RADIUS_MM - disc_r) / 0.08 + 0.5, 0.0, 1.0)[..., None]
         small = (small * (1.0 - disc) + _DISC_RGB * disc).astype(np.float32)
-        rgb = cv2.resize(small, (size, size), interpolation=cv2.INTER_LINEAR)
+        # float32 as ``small`` is (no copy): cv2's stubs type a resize's depth as any
+        rgb = cv2.resize(small, (size, size), interpolation=cv2.INTER_LINEAR).astype(np.float32, copy=False)
         mottle = 1.0 + 0.04 * _smooth_noise(rng, 300, size)
         vessels = _vessel_map(rng, size)
         for channel, contrast in enumerate((0.3, 0.5, 0.5)):

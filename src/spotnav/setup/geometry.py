@@ -152,7 +152,8 @@ def cone_generators(axis: np.ndarray, half_angle: float, azimuths: np.ndarray) -
     e1, e2 = orthonormal_basis(axis)
     azimuths = np.asarray(azimuths, dtype=float)[:, None]
     radial = np.cos(azimuths) * e1 + np.sin(azimuths) * e2
-    return np.cos(half_angle) * axis + np.sin(half_angle) * radial
+    generators: np.ndarray = np.cos(half_angle) * axis + np.sin(half_angle) * radial
+    return generators
 
 
 def intersect_rays_sphere(
@@ -190,7 +191,8 @@ def intersect_rays_sphere(
     c = np.sum(oc * oc, axis=-1) - radius * radius
     disc = half_b * half_b - c
     root = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
-    return -half_b + root if far else -half_b - root
+    t: np.ndarray = -half_b + root if far else -half_b - root
+    return t
 
 
 def cone_sphere_curve(
@@ -347,9 +349,11 @@ def spot_attenuation(cos_angle: np.ndarray, half_angle: float, blend: float) -> 
     """
     cos_edge = np.cos(half_angle)
     if blend == 0.0:
-        return (cos_angle > cos_edge).astype(float)
+        inside: np.ndarray = (cos_angle > cos_edge).astype(float)
+        return inside
     t = np.clip((cos_angle - cos_edge) / ((1.0 - cos_edge) * blend), 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
+    smoothstep: np.ndarray = t * t * (3.0 - 2.0 * t)
+    return smoothstep
 
 
 def edge_angle_of_blend(half_angle: float, blend: float) -> float:
@@ -397,7 +401,8 @@ def _axis_rotations(axes: np.ndarray) -> np.ndarray:
 def angles_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle between directions, shape of the broadcast leading axes, radians (robust near 0)."""
     a, b = normalize(np.asarray(a, dtype=float)), normalize(np.asarray(b, dtype=float))
-    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+    angles: np.ndarray = np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+    return angles
 
 
 @dataclass(frozen=True)
