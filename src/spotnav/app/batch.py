@@ -10,7 +10,6 @@ a :class:`BatchResult` for the caller to print.
 
 from __future__ import annotations
 
-import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -19,7 +18,7 @@ from pathlib import Path
 
 from spotnav.app.calibrate import RadiusSelfCalibration, prepare_self_calibration, self_calibrate_radius
 from spotnav.app.progress import progress
-from spotnav.app.session import StopSignals, ready
+from spotnav.app.session import StopSignals, ready, to_stderr
 from spotnav.errors import SpotnavError
 from spotnav.files import ImageReadError, PosesWriter, display_name, pose_row, read_image
 from spotnav.pose.estimate import PoseEstimate
@@ -27,10 +26,6 @@ from spotnav.pose.localize import localize
 from spotnav.setup.config import Setup
 
 __all__ = ["BatchResult", "localize_batch"]
-
-
-def _stderr(line: str) -> None:
-    print(line, file=sys.stderr)
 
 
 @dataclass
@@ -65,7 +60,7 @@ def localize_batch(
     out: str | Path,
     *,
     fit_radius: bool = False,
-    report: Callable[[str], None] = _stderr,
+    report: Callable[[str], None] = to_stderr,
 ) -> BatchResult:
     """Localize ``images`` into ``out`` (``poses.csv``), a row each in their order.
 
