@@ -10,7 +10,6 @@ a :class:`BatchResult` for the caller to print.
 
 from __future__ import annotations
 
-import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -18,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from spotnav.app.progress import progress
-from spotnav.app.session import StopSignals, ready
+from spotnav.app.session import StopSignals, ready, to_stderr
 from spotnav.errors import SpotnavError
 from spotnav.files.images import ImageReadError, display_name, read_image
 from spotnav.files.poses import PosesWriter, pose_row
@@ -28,10 +27,6 @@ from spotnav.pose.self_calibration import RadiusSelfCalibration, prepare_self_ca
 from spotnav.setup.config import Setup
 
 __all__ = ["BatchResult", "localize_batch"]
-
-
-def _stderr(line: str) -> None:
-    print(line, file=sys.stderr)
 
 
 @dataclass
@@ -66,7 +61,7 @@ def localize_batch(
     out: str | Path,
     *,
     fit_radius: bool = False,
-    report: Callable[[str], None] = _stderr,
+    report: Callable[[str], None] = to_stderr,
 ) -> BatchResult:
     """Localize ``images`` into ``out`` (``poses.csv``), a row each in their order.
 

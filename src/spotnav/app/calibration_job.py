@@ -9,7 +9,6 @@ caller prints them and writes the setup.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -24,7 +23,7 @@ from spotnav.app.calibrate import (
     calibrate_height_correction,
 )
 from spotnav.app.progress import progress
-from spotnav.app.session import ready
+from spotnav.app.session import ready, to_stderr
 from spotnav.errors import SpotnavError
 from spotnav.files.images import ImageReadError, read_image
 from spotnav.files.poses import read_known_poses
@@ -38,10 +37,6 @@ _SETUP_KEYS = {
     "light_radius_mm": "instrument.light_radius_mm",
     "eye_radius_mm": "eye.radius_mm",
 }
-
-
-def _stderr(line: str) -> None:
-    print(line, file=sys.stderr)
 
 
 @dataclass(frozen=True)
@@ -60,7 +55,7 @@ def run_calibration(
     fit: Sequence[str] = (),
     fix: Sequence[str] = (),
     height_correction: bool = False,
-    report: Callable[[str], None] = _stderr,
+    report: Callable[[str], None] = to_stderr,
 ) -> CalibrationJob:
     """Calibrate ``setup`` from the frames at the known poses of ``poses`` (``known.csv``).
 

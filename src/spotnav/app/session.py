@@ -46,13 +46,15 @@ __all__ = [
     "camera_settings",
     "compiling_note",
     "ready",
+    "to_stderr",
 ]
 
 SLOW_START_S = 2.0  # a start slower than this is compiling: say so
 WRONG_SIZE_STOP = 25  # consecutive frames of the wrong size that stop tracking
 
 
-def _stderr(line: str) -> None:
+def to_stderr(line: str) -> None:
+    """Tell the user ``line`` on stderr (every application's default ``report``)."""
     print(line, file=sys.stderr)
 
 
@@ -222,7 +224,7 @@ class TrackSession:
         igtl: IgtlSettings | None = None,
         overlay: str | Path | None = None,
         overlay_fps: float = 30.0,
-        report: Callable[[str], None] = _stderr,
+        report: Callable[[str], None] = to_stderr,
     ) -> None:
         self.setup, self.source, self.out = setup, source, Path(out)
         self.through_insertion = through_insertion
