@@ -8,7 +8,7 @@ process.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Generator, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -61,7 +61,7 @@ class Frame:
     error_status: str = "unreadable"
 
 
-def grabbed(capture: cv2.VideoCapture, reuse: bool) -> Iterator[tuple[np.ndarray, float, float]]:
+def grabbed(capture: cv2.VideoCapture, reuse: bool) -> Generator[tuple[np.ndarray, float, float], None, None]:
     """``capture``'s frames as OpenCV decodes them (BGR; into one buffer with ``reuse``), each with the
     :func:`time.perf_counter` seconds when its decoding started and the Unix seconds when it was grabbed; the capture
     is released at the end."""

@@ -123,6 +123,9 @@ def _frames_from_process(
         env={**os.environ, "PYTHONPATH": os.pathsep.join(paths)},
         start_new_session=True,
     )
+    to_decoder = decoder.stdin
+    if to_decoder is None:  # impossible: stdin=subprocess.PIPE gives the process a pipe
+        raise ImageReadError(f"{source}: the decoder process has no standard input")
     os.close(records_out)
     os.close(buffers)
     arrived = select.poll()
@@ -147,7 +150,7 @@ def _frames_from_process(
                 raise ImageReadError(note)
             pixels = None if note else ring[index % len(ring)]
             with contextlib.suppress(BrokenPipeError):  # a decoder that died: the next read says so
-                os.write(decoder.stdin.fileno(), b"\0")  # the decoder may go on with the next frame
+                os.write(to_decoder.fileno(), b"\0")  # the decoder may go on with the next frame
             last = last if pixels is None else pixels
             ready = max(decoded, asked)
             yield Frame(index, "", pixels, decode_ms, ready, note, stamp, "wrong_size" if note else "unreadable")
@@ -156,7 +159,7 @@ def _frames_from_process(
             os.sched_setaffinity(0, affinity)
         finally:
             os.close(records)
-            decoder.stdin.close()
+            to_decoder.close()
             try:
                 decoder.wait(_DECODER_JOIN_S)
             except subprocess.TimeoutExpired:

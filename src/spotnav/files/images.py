@@ -64,7 +64,10 @@ def image_size(path: str | Path) -> tuple[int, int] | None:
             with PIL.Image.open(path) as image:
                 return image.size
     except PIL.Image.DecompressionBombError:
-        raise ImageReadError(f"{name}: its header claims over {2 * PIL.Image.MAX_IMAGE_PIXELS} pixels") from None
+        limit = PIL.Image.MAX_IMAGE_PIXELS
+        if limit is None:  # impossible: Pillow raises this error only against a set limit
+            raise
+        raise ImageReadError(f"{name}: its header claims over {2 * limit} pixels") from None
     except PIL.UnidentifiedImageError:
         return None
     except OSError as error:

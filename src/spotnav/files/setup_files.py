@@ -11,6 +11,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -41,7 +42,7 @@ def read_setup(path: str | Path) -> Setup:
         raise SetupError(f"{path}: {error}") from None
 
 
-def setup_to_dict(setup: Setup) -> dict:
+def setup_to_dict(setup: Setup) -> dict[str, Any]:
     """The setup as plain data (for JSON)."""
     return asdict(setup)
 

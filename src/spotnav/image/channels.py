@@ -42,7 +42,8 @@ def to_gray8(image: np.ndarray, response: str | float = "srgb") -> np.ndarray:
     """
     if response != "srgb":
         light = np.minimum(linear_luminance(image, response), 1.0)
-        return encoding_table("srgb", 8)[np.round(light * 65535.0).astype(np.uint16)]
+        encoded: np.ndarray = encoding_table("srgb", 8)[np.round(light * 65535.0).astype(np.uint16)]
+        return encoded
     if image.dtype == np.uint16:
         image = (image.astype(np.float32) * _TO_EIGHT_BITS + np.float32(0.5)).astype(np.uint8)
     elif image.dtype != np.uint8:
@@ -101,7 +102,7 @@ _BLOCK_ROWS = 8  # rows read side by side: their first touches of memory overlap
 
 
 @njit(cache=True)
-def _one_row_means(image: np.ndarray, decimate: int, channels: tuple, cells: np.ndarray, grey: bool) -> None:
+def _one_row_means(image: np.ndarray, decimate: int, channels: tuple[int, ...], cells: np.ndarray, grey: bool) -> None:
     """The cells (H', W', C) of ``image`` (H, W, C), H' = H // decimate and W' = W // decimate, read in one row each,
     as OpenCV's bilinear ``resize`` reads the rows ``decimate // 2 - 1 :: decimate`` at the cells' centres: the mean
     of the 2 middle pixels (one, for an odd ``decimate``) of each cell's row, rounded half up for 8 bits and half to
@@ -124,7 +125,7 @@ def _one_row_means(image: np.ndarray, decimate: int, channels: tuple, cells: np.
                     for c in range(len(channels)):
                         cells[i, j, c] = _pair_mean(image[v, u + left, c], image[v, u + right, c], wide)
                     continue
-                weighted = 0
+                weighted: int | np.int64 = 0
                 for c in range(min(len(channels), 3)):
                     level = _pair_mean(image[v, u + left, c], image[v, u + right, c], wide)
                     if wide:
@@ -134,7 +135,7 @@ def _one_row_means(image: np.ndarray, decimate: int, channels: tuple, cells: np.
 
 
 @njit(cache=True, inline="always")
-def _pair_mean(first: int, second: int, half_even: bool) -> int:
+def _pair_mean(first: int, second: int, half_even: bool) -> np.int64:
     """The mean of two pixel values, rounded half up, or with ``half_even`` half to even."""
     total = np.int64(first) + np.int64(second)
     mean = (total + 1) >> 1
@@ -186,7 +187,7 @@ def linear_luminance(image: np.ndarray, response: str | float = "srgb") -> np.nd
     -------
     ndarray, shape (H, W), float32
     """
-    linear = _decoding(image, response)[0][image]
+    linear: np.ndarray = _decoding(image, response)[0][image]
     if linear.ndim == 2:
         return linear
     if linear.ndim == 3 and linear.shape[2] in (3, 4):

@@ -56,7 +56,7 @@ _FLANK_MODEL_FLOOR = 0.4
 @njit(cache=True)
 def _on_curve(x: float, grid: np.ndarray, values: np.ndarray) -> tuple[float, float]:
     """The piecewise-linear curve through ``(grid, values)`` (increasing) at ``x``, and its slope there."""
-    i = min(max(np.searchsorted(grid, x) - 1, 0), len(grid) - 2)
+    i: int | np.intp = min(max(np.searchsorted(grid, x) - 1, 0), len(grid) - 2)  # type: ignore[assignment]  # typeshed's max(): intp and int have no common type
     slope = (values[i + 1] - values[i]) / (grid[i + 1] - grid[i])
     return values[i] + slope * (x - grid[i]), slope
 

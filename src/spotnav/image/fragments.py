@@ -56,7 +56,7 @@ def _near_sides(points_px: np.ndarray, hull: np.ndarray, tolerance_px: float) ->
     return near
 
 
-def _ellipse_distances(points_px: np.ndarray, ellipse: tuple) -> np.ndarray:
+def _ellipse_distances(points_px: np.ndarray, ellipse: cv2.typing.RotatedRect) -> np.ndarray:
     """Approximate distances (N,) of ``points_px`` (N, 2) from an ellipse as ``cv2.fitEllipse`` gives it, pixels.
 
     Along the ray from the ellipse's centre: ``(rho - 1) r / rho`` with ``rho``
@@ -67,7 +67,8 @@ def _ellipse_distances(points_px: np.ndarray, ellipse: tuple) -> np.ndarray:
     du, dv = points_px[:, 0] - cu, points_px[:, 1] - cv
     x, y = cos * du + sin * dv, -sin * du + cos * dv
     rho = np.hypot(x / max(width / 2.0, 1e-9), y / max(height / 2.0, 1e-9))
-    return (rho - 1.0) * np.hypot(x, y) / np.maximum(rho, 1e-9)
+    distances: np.ndarray = (rho - 1.0) * np.hypot(x, y) / np.maximum(rho, 1e-9)
+    return distances
 
 
 def _rms(values: np.ndarray) -> float:

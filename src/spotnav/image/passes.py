@@ -93,7 +93,7 @@ def _read_edges(
     rays, count = len(ray_angles), len(steps)
     profiles, finite = _sample_rays(pixels, lut, offset, ray_angles, radii, steps)
     edge_radii = np.full(rays, np.nan)
-    valid = np.zeros(rays, dtype=np.bool_)
+    valid: np.ndarray = np.zeros(rays, dtype=np.bool_)  # not NDArray[bool]: numpy's stubs sum one to a bool
     if not finite.any():
         return edge_radii, valid, np.nan, np.nan, 0.0, np.nan, np.nan, 0, valid.copy(), np.nan, np.nan, 0.0
     # The median profile, over about _PROFILE_RAYS lit rays, gives the edge's place and width in the window: rays
@@ -164,12 +164,12 @@ def _read_edges(
     # Next to a ray on the image without a light's edge (a vessel or the shaft over it) the edge is the dark
     # structure's: the rays within _NEAR_DARK_WIDTHS edge widths and _NEAR_DARK_PX of it along the edge are left out.
     spacing = 2.0 * np.pi * np.mean(radii) / rays
-    near = int(np.ceil((_NEAR_DARK_WIDTHS * width * (steps[1] - steps[0]) + _NEAR_DARK_PX) / spacing))
+    near_rays = int(np.ceil((_NEAR_DARK_WIDTHS * width * (steps[1] - steps[0]) + _NEAR_DARK_PX) / spacing))
     blocked = finite & ~lit
     beside_dark = np.zeros(rays, dtype=np.bool_)
     for r in range(rays):
         if valid[r]:
-            for d in range(-near, near + 1):
+            for d in range(-near_rays, near_rays + 1):
                 if blocked[(r + d) % rays]:
                     beside_dark[r] = True
                     break

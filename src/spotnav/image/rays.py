@@ -457,4 +457,5 @@ def edge_window_px(radii: np.ndarray, *, align: bool = False) -> float:
 @njit(cache=True)
 def _window_px(radii: np.ndarray, align: bool) -> float:
     """:func:`edge_window_px`, compiled."""
-    return (2.0 if align else 1.0) * (0.15 * np.mean(radii) + 8.0)
+    window: float = (2.0 if align else 1.0) * (0.15 * np.mean(radii) + 8.0)
+    return window

@@ -18,7 +18,7 @@ def _median(values: np.ndarray, scratch: np.ndarray) -> float:
     upper = _select(scratch, n, n // 2)
     if n % 2:
         return upper
-    lower = scratch[0]
+    lower: float = scratch[0]
     for i in range(1, n // 2):
         lower = max(lower, scratch[i])
     return 0.5 * (lower + upper)
@@ -39,7 +39,7 @@ def _select(values: np.ndarray, n: int, k: int) -> float:
     if n <= _BRANCHLESS_SELECT_MAX:
         while low < high:
             middle = (low + high) // 2
-            pivot = values[middle]
+            pivot: float = values[middle]
             values[middle], values[high] = values[high], pivot
             store = low
             for i in range(low, high):
@@ -55,7 +55,8 @@ def _select(values: np.ndarray, n: int, k: int) -> float:
                 high = store - 1
             else:
                 low = store + 1
-        return values[k]
+        kth: float = values[k]
+        return kth
     while low < high:
         pivot = values[(low + high) // 2]
         i, j = low, high
@@ -74,7 +75,8 @@ def _select(values: np.ndarray, n: int, k: int) -> float:
             low = i
         else:
             break
-    return values[k]
+    kth = values[k]
+    return kth
 
 
 @njit(cache=True)

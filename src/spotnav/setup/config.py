@@ -133,7 +133,8 @@ def _as_list(key: str, value: Any) -> list[Any]:
 
 def _build_bump(index: int, value: Any) -> Bump:
     if isinstance(value, Mapping):
-        return _build_section(f"world.bumps[{index}]", Bump, value)
+        bump: Bump = _build_section(f"world.bumps[{index}]", Bump, value)
+        return bump
     raise SetupError(f"world.bumps[{index}] must be a table with x_mm, y_mm, radius_mm, height_mm")
 
 

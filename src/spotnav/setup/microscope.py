@@ -78,10 +78,11 @@ class Camera:
     sensor_width_mm: float | None = 36.0
     focal_length_mm: float | None = 300.0
     distance_mm: float | None = 110.0
-    matrix: tuple[tuple[float, float, float], ...] | None = None
+    # Rows and translation of any length as given (calibrated() passes its arrays'): __post_init__ checks for 3.
+    matrix: tuple[tuple[float, ...], ...] | None = None
     distortion: tuple[float, ...] | None = None
-    rotation: tuple[tuple[float, float, float], ...] | None = None
-    translation_mm: tuple[float, float, float] | None = None
+    rotation: tuple[tuple[float, ...], ...] | None = None
+    translation_mm: tuple[float, ...] | None = None
     response: str | float | None = None
 
     __hash__ = hash_once
@@ -113,8 +114,8 @@ class Camera:
             self._check_calibrated()
         else:
             for name in IDEAL_KEYS:
-                value = number(f"camera.{name}", getattr(self, name))
-                in_range(f"camera.{name}", value, 0.0, _MAX_LENGTH_MM, low_open=True)
+                length = number(f"camera.{name}", getattr(self, name))
+                in_range(f"camera.{name}", length, 0.0, _MAX_LENGTH_MM, low_open=True)
             ratio = self.focal_length_mm / self.sensor_width_mm  # type: ignore[operator]
             in_range("camera.focal_length_mm / camera.sensor_width_mm", ratio, *_FOCAL_PER_WIDTH)
 
@@ -144,13 +145,13 @@ class Camera:
         translation = vector3("camera.translation_mm", self.translation_mm)
         for index, value in enumerate(translation):
             in_range(f"camera.translation_mm[{index}]", value, -_MAX_LENGTH_MM, _MAX_LENGTH_MM)
-        for name, value in (
+        for name, checked in (
             ("matrix", matrix),
             ("distortion", distortion),
             ("rotation", rotation),
             ("translation_mm", translation),
         ):
-            object.__setattr__(self, name, value)
+            object.__setattr__(self, name, checked)
 
     @classmethod
     def calibrated(

@@ -42,7 +42,7 @@ def read_only(array: np.ndarray) -> np.ndarray:
 def hash_once(self: Any) -> int:
     """A frozen dataclass's hash, of its fields, computed on first use and kept: the per-setup (and per-camera)
     caches ask for it on every frame, and hashing walks every value of the setup anew."""
-    kept = self.__dict__.get("_hash")
+    kept: int | None = self.__dict__.get("_hash")
     if kept is None:
         kept = self.__dict__["_hash"] = hash(tuple(getattr(self, f.name) for f in fields(self)))
     return kept
