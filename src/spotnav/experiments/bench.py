@@ -322,12 +322,12 @@ def stress_markdown(results: Sequence[StressResult]) -> str:
             f"| {every.median_ms:.2f} | {every.p99_ms:.2f} | {every.max_ms:.2f} | {median:.2f} | {slowest:.2f} "
             f"| {r.mean_mm:.4f} | {r.max_mm:.4f} | {r.silent} |"
         )
-    slowest = [f"{r.size_px} px: frame {r.slowest[0]} ({r.slowest[1]})" for r in results]
+    slowest_frames = [f"{r.size_px} px: frame {r.slowest[0]} ({r.slowest[1]})" for r in results]
     return "\n".join(
         [
             *lines,
             "",
             "median, p99 and max: every frame after the first (an acquisition on the whole image)",
-            f"the slowest: {'; '.join(slowest)}",
+            f"the slowest: {'; '.join(slowest_frames)}",
         ]
     )

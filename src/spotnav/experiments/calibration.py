@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from spotnav.app.calibrate import Calibration, KnownFrame, calibrate
+from spotnav.app.calibrate import calibrate
 from spotnav.experiments.frame import render_timed
 from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import (
@@ -31,11 +31,16 @@ from spotnav.experiments.runner import (
 )
 from spotnav.experiments.scenes import BEAMS, PATH_SEEDS, thesis_world, with_true_edge, with_uncertainty
 from spotnav.optics.render import Renderer
+from spotnav.pose.calibration import Calibration
+from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.known_frame import KnownFrame
+from spotnav.pose.precise import EdgeFrame
 from spotnav.pose.self_calibration import prepare_self_calibration, self_calibrate_radius
-from spotnav.setup.config import Instrument, Light, Setup, Uncertainty, World
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import edge_angle_of_blend
 from spotnav.setup.paths import path_poses, poses_through_insertion, working_volume_tips
-from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
+from spotnav.setup.sections import Instrument, Light, World
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS, Uncertainty
 
 __all__ = ["KNOWN_FRAMES", "calibration_text", "known_calibration", "run_calibration"]
 
@@ -77,7 +82,9 @@ def calibration_text(result: Calibration, *names: str) -> str:
     return ", ".join(parts)
 
 
-def run_frame_with_edges(job: FrameJob) -> tuple[tuple[FrameResult, ...], tuple]:
+def run_frame_with_edges(
+    job: FrameJob,
+) -> tuple[tuple[FrameResult, ...], tuple[PoseEstimate, EdgeFrame | None]]:
     """Worker: :func:`run_frame`'s results from one rendering, the first variant (precise) keeping its edges.
 
     The second item is that frame's share of the joint radius fit (:func:`prepare_self_calibration`).
@@ -164,17 +171,20 @@ def run_calibration(options: Options) -> Experiment:
             edge_half_angle_deg=Uncertainty().edge_half_angle_deg,
         )
         known = known_calibration(runner, world, default, f"edge, {b}")
-        variants = (
+        edge_variants = (
             Variant("precise, default edge model", default, "precise"),
             Variant("precise, true edge model", truth, "precise"),
             Variant("precise + calibrate", known.setup, "precise"),
         )
         poses = path_poses("helix", count, world.instrument.insertion_in_eye)
-        jobs = [FrameJob(world, pose, PATH_SEEDS["helix"] + i, variants) for i, pose in enumerate(poses)]
-        outputs = runner.map(run_frame, jobs, f"edge, {b}")
-        fitted = calibration_text(known, "edge_half_angle_deg")
-        rows = [_row(v.label, [o[k] for o in outputs], fitted if k == 2 else "-") for k, v in enumerate(variants)]
-        ratio = summarize([o[2] for o in outputs]).mean_mm / summarize([o[1] for o in outputs]).mean_mm
+        jobs = [FrameJob(world, pose, PATH_SEEDS["helix"] + i, edge_variants) for i, pose in enumerate(poses)]
+        edge_outputs = runner.map(run_frame, jobs, f"edge, {b}")
+        fitted_edge = calibration_text(known, "edge_half_angle_deg")
+        rows = [
+            _row(v.label, [o[k] for o in edge_outputs], fitted_edge if k == 2 else "-")
+            for k, v in enumerate(edge_variants)
+        ]
+        ratio = summarize([o[2] for o in edge_outputs]).mean_mm / summarize([o[1] for o in edge_outputs]).mean_mm
         lines += [
             f"{b}:",
             "",
@@ -185,8 +195,8 @@ def run_calibration(options: Options) -> Experiment:
         ]
         csv_rows += [
             ({"part": "edge", "beams": beams, "variant": v.label, "step": i}, o[k])
-            for k, v in enumerate(variants)
-            for i, o in enumerate(outputs)
+            for k, v in enumerate(edge_variants)
+            for i, o in enumerate(edge_outputs)
         ]
         summary.append(f"edge {b}: after/true {ratio:.2f}")
     write_results_csv(options.out / "calibration.csv", csv_rows)

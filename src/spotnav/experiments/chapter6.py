@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -33,10 +34,12 @@ from spotnav.experiments.scenes import BEAMS, PATH_SEEDS, bump_grid, thesis_worl
 from spotnav.optics.camera import camera_depth_mm, project_points
 from spotnav.optics.render import Renderer
 from spotnav.optics.response import decode_values
-from spotnav.setup.config import Camera, Instrument, Setup, World
+from spotnav.setup.config import Setup
 from spotnav.setup.examples import THESIS_EXPOSURE_STOPS
 from spotnav.setup.geometry import InstrumentPose
+from spotnav.setup.microscope import Camera
 from spotnav.setup.paths import HELIX, SQUARE_CORNERS_MM, path_poses
+from spotnav.setup.sections import Instrument, World
 
 __all__ = [
     "EXPOSURES",
@@ -85,9 +88,12 @@ THESIS_TABLE_NUMBERS = {"square": ("6.9", "6.10", "6.13", "6.14"), "helix": ("6.
 # --- running configurations ------------------------------------------------------------------------------
 
 
+_Key = TypeVar("_Key", bound=tuple[object, ...])  # a configuration's key: (beams,) or (beams, power)
+
+
 def _run_configs(
-    runner: FrameRunner, worlds: Mapping[tuple, Setup], poses: Sequence[InstrumentPose], seed: int, label: str
-) -> tuple[dict[tuple, dict[str, list[FrameResult]]], dict[tuple, float]]:
+    runner: FrameRunner, worlds: Mapping[_Key, Setup], poses: Sequence[InstrumentPose], seed: int, label: str
+) -> tuple[dict[_Key, dict[str, list[FrameResult]]], dict[_Key, float]]:
     """Calibrate each world (section 5.5), then render and localize ``poses`` in it, plain and calibrated.
 
     Returns results by world key and variant label, and the fitted factors (NaN where the
@@ -109,7 +115,7 @@ def _run_configs(
         jobs += [FrameJob(worlds[key], pose, seed + i, tuple(variants)) for i, pose in enumerate(poses)]
         job_keys += [key] * len(poses)
     outputs = runner.map(run_frame, jobs, label)
-    results: dict[tuple, dict[str, list[FrameResult]]] = {key: {} for key in keys}
+    results: dict[_Key, dict[str, list[FrameResult]]] = {key: {} for key in keys}
     for key, job, frame_results in zip(job_keys, jobs, outputs, strict=True):
         for variant, result in zip(job.variants, frame_results, strict=True):
             results[key].setdefault(variant.label, []).append(result)
@@ -421,7 +427,10 @@ def _statuses_lines(by_case: Mapping[str, Mapping[str, list[FrameResult]]]) -> l
 
 
 def _power_table(
-    path: str, beams: str, results: Mapping[tuple, Mapping[str, list[FrameResult]]], factors: Mapping[tuple, float]
+    path: str,
+    beams: str,
+    results: Mapping[tuple[str, float], Mapping[str, list[FrameResult]]],
+    factors: Mapping[tuple[str, float], float],
 ) -> list[str]:
     header = ["power [W]", *(f"{k}: {m}" for k in ("mean", "max") for m in ("thesis (printed)", *VARIANTS))]
     header += [f"poses: {m}" for m in (PLAIN, PRECISE)] + ["factor 5.5"]
@@ -439,7 +448,12 @@ def _power_table(
 
 
 def _plot_path(
-    out: Path, path: str, poses: Sequence[InstrumentPose], at_1w: Mapping[str, Mapping], regime: str, suffix: str
+    out: Path,
+    path: str,
+    poses: Sequence[InstrumentPose],
+    at_1w: Mapping[str, Mapping[str, list[FrameResult]]],
+    regime: str,
+    suffix: str,
 ) -> None:
     truth = np.array([p.tip_in_eye for p in poses])
     title = f"{path.capitalize()} path, 1 W, {regime}"
@@ -490,7 +504,8 @@ def gallery_centre(camera: Camera) -> np.ndarray:
     centre = project_points(camera, np.zeros(3))
     radius_px = 0.5 * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3)))
     rows, cols = np.indices((camera.height_px, camera.width_px))
-    return np.hypot(cols - centre[0], rows - centre[1]) <= radius_px
+    inside: np.ndarray = np.hypot(cols - centre[0], rows - centre[1]) <= radius_px
+    return inside
 
 
 # --- 6.7 and 6.8: a deformed and a larger eye ----------------------------------------------------------------

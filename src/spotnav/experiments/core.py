@@ -11,9 +11,11 @@ from spotnav.experiments.figures import plot_per_step
 from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import FrameJob, Variant, run_frame, summarize
 from spotnav.experiments.scenes import with_true_edge
-from spotnav.setup.config import Camera, Light, Setup
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, approximation_deviation
+from spotnav.setup.microscope import Camera
 from spotnav.setup.paths import poses_through_insertion, working_volume_tips
+from spotnav.setup.sections import Light
 
 __all__ = ["THESIS_TABLE_4_1_UM", "approximation_rows", "run_approximation", "run_volume"]
 
@@ -53,7 +55,7 @@ def run_volume(options: Options) -> Experiment:
     """Round trip over the working volume, one beam, thesis method, sharp and soft edges."""
     base = Setup(camera=Camera(width_px=options.size_px, height_px=options.size_px))
     count = options.count
-    straight = [InstrumentPose([3.0, 3.0, 5.0], [0.0, 0.0, -1.0])]
+    straight = [InstrumentPose(np.array([3.0, 3.0, 5.0]), np.array([0.0, 0.0, -1.0]))]
     volume = poses_through_insertion(working_volume_tips(count), base.instrument.insertion_in_eye)
     header = ["case", "method", "ok", "mean [mm]", "max [mm]", "bias x / y / z [mm]", "render [ms]", "localize [ms]"]
     rows, panels, summaries = [], {}, []

@@ -20,8 +20,10 @@ from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.precise import localize_precise
 from spotnav.pose.reconstruct import fit_ellipse, triangle_from_ellipse
 from spotnav.pose.thesis import locate_from_spots, spot_candidates
-from spotnav.setup.config import Camera, Instrument, Light, Render, Setup, World
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, rotation_about_y
+from spotnav.setup.microscope import Camera
+from spotnav.setup.sections import Instrument, Light, Render, World
 
 __all__ = ["ELLIPSE_CASES", "measure_ellipse", "run_ellipse"]
 

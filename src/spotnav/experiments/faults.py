@@ -211,7 +211,7 @@ def fault_world(case: FaultCase, size_px: int) -> Setup:
 
 
 def _tips(case: FaultCase, count: int) -> np.ndarray:
-    tips = helix_tips(count) + np.array(case.shift_mm)
+    tips: np.ndarray = helix_tips(count) + np.array(case.shift_mm)
     if case.low:
         start, end = HELIX["z_start_mm"], HELIX["z_end_mm"]
         tips[:, 2] = 1.5 + (tips[:, 2] - start) * (3.0 - 1.5) / (end - start)

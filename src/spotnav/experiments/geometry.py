@@ -25,6 +25,7 @@ from spotnav.experiments.faults import SILENT_ERROR_MM, combine_changes, count_s
 from spotnav.experiments.figures import plot_geometry_study
 from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import (
+    ErrorSummary,
     FrameJob,
     FrameResult,
     Variant,
@@ -35,8 +36,10 @@ from spotnav.experiments.runner import (
 )
 from spotnav.experiments.scenes import PATH_SEEDS, thesis_world
 from spotnav.pose.conefit.parameters import PARAMETER_GROUPS, SHARED_SIZE, setup_with_geometry
-from spotnav.setup.config import Setup, Uncertainty, World
+from spotnav.setup.config import Setup
 from spotnav.setup.paths import path_poses
+from spotnav.setup.sections import World
+from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = [
     "GEOMETRY_CASES",
@@ -76,23 +79,31 @@ def shift_insertion(*shift_mm: float) -> Callable[[Setup], Setup]:
     """A change that moves the insertion point by ``shift_mm`` (x, y, z), mm."""
 
     def change(world: Setup) -> Setup:
-        point = tuple(float(v) for v in world.instrument.insertion_in_eye + np.array(shift_mm))
+        x, y, z = world.instrument.insertion_in_eye + np.array(shift_mm)
+        point = (float(x), float(y), float(z))
         return replace(world, instrument=replace(world.instrument, insertion_point_mm=point))
 
     return change
 
 
-def change_camera(**values: float) -> Callable[[Setup], Setup]:
+def change_camera(
+    *,
+    rotation_deg: float = 0.0,
+    centre_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    focal: float = 0.0,
+    principal_px: float = 0.0,
+    k1: float = 0.0,
+) -> Callable[[Setup], Setup]:
     """A change of the camera: ``rotation_deg`` (about its y axis), ``centre_mm`` (x, y, z), ``focal``
     (relative), ``principal_px`` (u, at 2048 px; scaled to the size), ``k1``."""
 
     def change(world: Setup) -> Setup:
         shared = np.zeros(SHARED_SIZE)
-        shared[PARAMETER_GROUPS["camera-rotation"][1]] = np.radians(values.get("rotation_deg", 0.0))
-        shared[list(PARAMETER_GROUPS["camera-position"])] = values.get("centre_mm", (0.0, 0.0, 0.0))
-        shared[PARAMETER_GROUPS["focal-length"][0]] = values.get("focal", 0.0)
-        shared[PARAMETER_GROUPS["principal-point"][0]] = values.get("principal_px", 0.0) * world.camera.width_px / 2048
-        shared[PARAMETER_GROUPS["distortion"][0]] = values.get("k1", 0.0)
+        shared[PARAMETER_GROUPS["camera-rotation"][1]] = np.radians(rotation_deg)
+        shared[list(PARAMETER_GROUPS["camera-position"])] = centre_mm
+        shared[PARAMETER_GROUPS["focal-length"][0]] = focal
+        shared[PARAMETER_GROUPS["principal-point"][0]] = principal_px * world.camera.width_px / 2048
+        shared[PARAMETER_GROUPS["distortion"][0]] = k1
         camera = setup_with_geometry(world, shared).camera
         return replace(world, camera=camera)
 
@@ -137,7 +148,11 @@ def run_geometry(options: Options) -> Experiment:
     """The geometry study: every case of :data:`GEOMETRY_CASES`, one and three beams, on the helix."""
     size = min(options.size_px, MAX_SIZE_PX)
     header = ["case", "beams", "localized", "ok", "mean [mm]", "max [mm]", "within 3 sigma", "silent", "refusals"]
-    rows, cells, csv_rows, notes, summary = [], {}, [], [], []
+    rows: list[list[str]] = []
+    cells: dict[tuple[str, int, str], ErrorSummary] = {}
+    csv_rows: list[tuple[dict[str, object], FrameResult]] = []
+    notes: list[str] = []
+    summary: list[str] = []
     silent_total = {variant: 0 for variant in VARIANTS[1:]}
     for beams in (1, 3):
         nominal = replace(thesis_world(size, beams), uncertainty=Uncertainty())

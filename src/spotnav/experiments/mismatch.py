@@ -41,9 +41,10 @@ from spotnav.experiments.runner import (
     summarize,
 )
 from spotnav.experiments.scenes import PATH_SEEDS, thesis_world, with_true_edge
-from spotnav.setup.config import Setup, Uncertainty
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose
 from spotnav.setup.paths import path_poses
+from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = [
     "MISMATCH_CASES",

@@ -127,7 +127,8 @@ def _function_times(stats: pstats.Stats, frames: int, top: int) -> tuple[tuple[f
     """Each part's own time and the calls, per frame, and the ``top`` functions with the most own time."""
     kernels, opencv = _compiled_kernels(), set(dir(cv2))
     parts, calls, functions = dict.fromkeys(PARTS, 0.0), 0.0, []
-    for (file, line, name), (_, count, own_s, _, _) in stats.stats.items():
+    entries = stats.stats.items()  # type: ignore[attr-defined]  # typeshed's pstats.Stats omits .stats (pstats docs)
+    for (file, line, name), (_, count, own_s, _, _) in entries:
         if (file, line, name) in kernels:
             part, label = PARTS[0], f"{Path(file).stem}.{name}"
         elif file == "~" and name.strip("<>") in opencv:
@@ -151,7 +152,7 @@ def _stage_profile(
     parts, calls, functions = _function_times(stats, len(profiles), top)
     steps = []
     for step, function in _STEPS[stage]:
-        timing = stats.stats.get(_key(function))
+        timing = stats.stats.get(_key(function))  # type: ignore[attr-defined]  # typeshed's pstats.Stats omits .stats
         steps.append((step, 0.0 if timing is None else 1000 * timing[3] / len(profiles)))
     return StageProfile(
         size, stage, len(profiles), float(np.mean(times_ms)), parts, tuple(steps), calls, tuple(functions)

@@ -90,7 +90,8 @@ class FrameResult:
         """Estimate minus truth, shape (3,), mm; NaN unless ``ok``."""
         if self.estimate.tip_in_eye is None:
             return np.full(3, np.nan)
-        return self.estimate.tip_in_eye - self.truth.tip_in_eye
+        error: np.ndarray = self.estimate.tip_in_eye - self.truth.tip_in_eye
+        return error
 
     @property
     def error_mm(self) -> float:

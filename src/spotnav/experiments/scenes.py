@@ -13,8 +13,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from spotnav.setup.config import Bump, Camera, Instrument, Light, Render, Setup, Uncertainty, World
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import edge_angle_of_blend
+from spotnav.setup.microscope import Camera
+from spotnav.setup.sections import Bump, Instrument, Light, Render, World
+from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = ["BEAMS", "PATH_SEEDS", "bump_grid", "thesis_world", "with_true_edge", "with_uncertainty"]
 

@@ -42,9 +42,10 @@ from spotnav.experiments.sweep_file import (
     sweep_from_toml,
 )
 from spotnav.optics.render import Renderer
-from spotnav.setup.config import Setup, Uncertainty
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import angles_between
 from spotnav.setup.paths import path_poses
+from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = [
     "EXAMPLE_SWEEP",
@@ -97,7 +98,7 @@ def _parameter_values(setup: Setup) -> dict[str, float]:
 
 def plan_chunks(sweep: Sweep) -> list[Chunk]:
     """Every design point's paths cut into chunks of ``sweep.chunk_frames`` frames, in plan order."""
-    chunks = []
+    chunks: list[Chunk] = []
     for point, path in itertools.product(range(len(design_points(sweep))), sweep.paths):
         for start in range(0, sweep.frames, sweep.chunk_frames):
             stop = min(start + sweep.chunk_frames, sweep.frames)

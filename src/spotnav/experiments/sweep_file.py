@@ -95,12 +95,13 @@ def _value(key: str, value: Any, kind: type) -> float | int:
         raise SweepError(f"{key} must hold finite numbers, got {value!r}")
     if kind is int and not float(value).is_integer():
         raise SweepError(f"{key} must hold integers, got {value!r}")
-    return kind(value)
+    result: float | int = kind(value)
+    return result
 
 
 def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     """``{"light": {"power_w": v}}`` -> ``{"light.power_w": v}`` (TOML's dotted keys are nested tables)."""
-    flat = {}
+    flat: dict[str, Any] = {}
     for key, value in table.items():
         name = f"{prefix}{key}"
         if isinstance(value, Mapping):
