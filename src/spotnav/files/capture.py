@@ -8,7 +8,7 @@ process.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Generator, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,7 +80,7 @@ def grabbed(capture: cv2.VideoCapture, reuse: bool) -> Iterator[tuple[np.ndarray
         capture.release()
 
 
-def read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
+def read_capture(capture: cv2.VideoCapture, ring: int) -> Generator[Frame, None, None]:
     buffers: list[np.ndarray | None] = [None] * max(ring, 1)
     for index, (decoded, start, stamp) in enumerate(grabbed(capture, bool(ring))):
         slot = index % len(buffers)
