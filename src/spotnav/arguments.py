@@ -43,7 +43,7 @@ def _option(parser: _Parser, name: str, kind: type, text: str, **more: Any) -> N
     parser.add_argument(name, type=kind, help=text, **more)
 
 
-def _scene_command(commands: argparse._SubParsersAction) -> None:
+def _scene_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     scene = commands.add_parser("scene", help="print a setup file")
     scene.add_argument(
         "--example",
@@ -61,7 +61,7 @@ def _scene_command(commands: argparse._SubParsersAction) -> None:
     scene.add_argument("--scene", help="with --opencv: the setup to take the rest from (default: the thesis's)")
 
 
-def _render_command(commands: argparse._SubParsersAction) -> None:
+def _render_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     render = commands.add_parser("render", help="render a camera frame (or a moving instrument) and its truth")
     _scene(render)
     render.add_argument("--tip", nargs=3, type=float, metavar=("X", "Y", "Z"), help="tip in mm, eye frame")
@@ -85,7 +85,7 @@ def _render_command(commands: argparse._SubParsersAction) -> None:
     )
 
 
-def _localize_command(commands: argparse._SubParsersAction) -> None:
+def _localize_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     loc = commands.add_parser("localize", help="localize the tip in images, write poses.csv")
     _scene(loc)
     _method(loc)
@@ -94,7 +94,7 @@ def _localize_command(commands: argparse._SubParsersAction) -> None:
     loc.add_argument("images", nargs="+", metavar="IMAGE")
 
 
-def _track_command(commands: argparse._SubParsersAction) -> None:
+def _track_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     track = commands.add_parser("track", help="track a moving instrument in a video, images or a camera")
     _scene(track)
     source_help = "video file, folder or glob of images, camera index, URL (rtsp://...) or GStreamer pipeline"
@@ -119,7 +119,7 @@ def _track_command(commands: argparse._SubParsersAction) -> None:
     _option(track, "--exposure", float, "ask a live camera for this exposure (CAP_PROP_EXPOSURE units)")
 
 
-def _evaluate_and_show_commands(commands: argparse._SubParsersAction) -> None:
+def _evaluate_and_show_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     evaluate = commands.add_parser("evaluate", help="compare a poses.csv with the truth: error statistics")
     evaluate.add_argument("poses", metavar="POSES.csv", help="poses.csv from localize or track")
     evaluate.add_argument("truth", metavar="TRUTH.csv", help="image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z][,...]")
@@ -133,7 +133,7 @@ def _evaluate_and_show_commands(commands: argparse._SubParsersAction) -> None:
     show.add_argument("frame", metavar="FRAME", help="the camera frame")
 
 
-def _bench_command(commands: argparse._SubParsersAction) -> None:
+def _bench_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     bench = commands.add_parser("bench", help="ms per frame: rendering, full-frame methods and tracking")
     _option(bench, "--sizes", int, "image sizes, px", nargs="+", default=[1024, 2048, 5000])
     _option(bench, "--frames", int, "consecutive helix frames per size (default 100)", default=100)
@@ -165,14 +165,13 @@ def _bench_command(commands: argparse._SubParsersAction) -> None:
     )
 
 
-def _calibrate_command(commands: argparse._SubParsersAction) -> None:
+def _calibrate_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     cal = commands.add_parser("calibrate", help="fit the geometry that frames at known poses determine")
     _scene(cal)
     cal.add_argument("--poses", required=True, help="known.csv: image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z]")
     groups = ", ".join(PARAMETER_GROUPS)
-    group = {"action": "append", "choices": list(PARAMETER_GROUPS), "metavar": "GROUP"}
-    cal.add_argument("--fit", **group, help=f"always fit: {groups}")
-    cal.add_argument("--fix", **group, help="never fit")
+    for flag, meaning in (("--fit", f"always fit: {groups}"), ("--fix", "never fit")):
+        cal.add_argument(flag, action="append", choices=list(PARAMETER_GROUPS), metavar="GROUP", help=meaning)
     _flag(cal, "--fit-radius", "always fit eye.radius_mm (--fit eye-radius)")
     _flag(cal, "--height-correction", "also fit the thesis method's instrument.height_correction (section 5.5)")
     _flag(cal, "--fit-light-radius", "always fit instrument.light_radius_mm (--fit light-radius)")
@@ -180,7 +179,7 @@ def _calibrate_command(commands: argparse._SubParsersAction) -> None:
     cal.add_argument("images", nargs="*", metavar="IMAGE", help="images to use (default: all in known.csv)")
 
 
-def _experiment_commands(commands: argparse._SubParsersAction) -> None:
+def _experiment_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     analyze = commands.add_parser("analyze", help="analyses of the method's geometry")
     analyze.add_argument("topic", choices=["approximation"], help="approximation: Table 4.1")
 

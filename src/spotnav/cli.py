@@ -37,9 +37,10 @@ from spotnav.files.poses import read_known_poses, read_poses_csv, write_truth_js
 from spotnav.files.setup_files import read_opencv_camera, read_setup, setup_to_toml
 from spotnav.optics.render import Renderer
 from spotnav.pose.localize import localize_detailed
-from spotnav.setup.config import Camera, Setup
+from spotnav.setup.config import Setup
 from spotnav.setup.examples import EXAMPLES
 from spotnav.setup.geometry import InstrumentPose, beam_axes
+from spotnav.setup.microscope import Camera
 
 __all__ = ["main"]
 

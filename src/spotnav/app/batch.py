@@ -23,6 +23,7 @@ from spotnav.files.images import ImageReadError, display_name, read_image
 from spotnav.files.poses import PosesWriter, pose_row
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.localize import localize
+from spotnav.pose.precise import EdgeFrame
 from spotnav.pose.self_calibration import RadiusSelfCalibration, prepare_self_calibration, self_calibrate_radius
 from spotnav.setup.config import Setup
 
@@ -92,7 +93,7 @@ def localize_batch(
     # fit_radius: rows wait for the joint fit; each frame's edges are kept, not the frame (memory).
     waiting: list[tuple[str, float]] = []
     done: dict[int, PoseEstimate] = {}
-    shares: list[tuple[int, tuple]] = []
+    shares: list[tuple[int, tuple[PoseEstimate, EdgeFrame | None]]] = []
     with StopSignals() as signals, PosesWriter(out) as writer:
         for name in progress(images, desc="localize", unit="image"):
             if signals.received:

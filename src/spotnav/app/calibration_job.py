@@ -15,18 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from spotnav.app.calibrate import (
-    EDGE_BAND_MARGIN,
-    Calibration,
-    KnownFrame,
-    calibrate,
-    calibrate_height_correction,
-)
+from spotnav.app.calibrate import EDGE_BAND_MARGIN, calibrate, calibrate_height_correction
 from spotnav.app.progress import progress
 from spotnav.app.session import ready, to_stderr
 from spotnav.errors import SpotnavError
 from spotnav.files.images import ImageReadError, read_image
 from spotnav.files.poses import read_known_poses
+from spotnav.pose.calibration import Calibration
+from spotnav.pose.known_frame import KnownFrame
 from spotnav.setup.config import Setup
 from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 

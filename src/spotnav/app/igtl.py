@@ -313,4 +313,5 @@ class PoseServer:
         text = pyigtl.StringMessage(json.dumps(status), timestamp=stamp, device_name=self.device + _STATUS_SUFFIX)
         transform.header_version = 2
         transform.metadata = {"TransformStatus": "OK" if estimate.ok else "INVALID", "Status": estimate.status}
-        return transform.pack() + text.pack()
+        packed: bytes = transform.pack() + text.pack()
+        return packed

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sized
 from typing import Any, TextIO
 
 from tqdm import tqdm
@@ -47,7 +47,7 @@ class PlainProgress:
     ) -> None:
         self.iterable = iterable
         self.desc, self.unit = desc, unit
-        self.total = total if total is not None else (len(iterable) if hasattr(iterable, "__len__") else None)
+        self.total = total if total is not None else (len(iterable) if isinstance(iterable, Sized) else None)
         self.n = initial
         self._initial = initial
         self._postfix = ""
@@ -98,7 +98,7 @@ def progress(
     total: int | None = None,
     initial: int = 0,
     leave: bool = True,
-) -> tqdm | PlainProgress:
+) -> tqdm[Any] | PlainProgress:
     """A progress bar on a terminal (stderr), plain lines otherwise (see the module's docstring)."""
     if sys.stderr.isatty():
         return tqdm(iterable, desc=desc, unit=unit, total=total, initial=initial, leave=leave)

@@ -22,6 +22,8 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from types import FrameType
+from typing import Any
 
 import numpy as np
 
@@ -51,6 +53,8 @@ __all__ = [
 
 SLOW_START_S = 2.0  # a start slower than this is compiling: say so
 WRONG_SIZE_STOP = 25  # consecutive frames of the wrong size that stop tracking
+
+_Handler = Callable[[int, FrameType | None], Any] | int | signal.Handlers | None  # what signal.signal returns
 
 
 def to_stderr(line: str) -> None:
@@ -86,7 +90,7 @@ class StopSignals:
 
     def __init__(self) -> None:
         self.received: str | None = None
-        self._previous: dict[int, object] = {}
+        self._previous: dict[int, _Handler] = {}
 
     def _handle(self, number: int, _frame: object) -> None:
         if self.received == signal.Signals(number).name:
@@ -137,7 +141,7 @@ def camera_settings(size_px: Sequence[int] | None, fps: float | None, exposure: 
         raise SpotnavError(f"--fps must be a finite number > 0, got {fps}")
     if exposure is not None and not np.isfinite(exposure):
         raise SpotnavError(f"--exposure must be a finite number, got {exposure}")
-    return CameraSettings(tuple(size_px) if size_px is not None else None, fps, exposure)
+    return CameraSettings((size_px[0], size_px[1]) if size_px is not None else None, fps, exposure)
 
 
 @dataclass(frozen=True)

@@ -80,7 +80,7 @@ def grabbed(capture: cv2.VideoCapture, reuse: bool) -> Generator[tuple[np.ndarra
         capture.release()
 
 
-def read_capture(capture: cv2.VideoCapture, ring: int) -> Iterator[Frame]:
+def read_capture(capture: cv2.VideoCapture, ring: int) -> Generator[Frame, None, None]:
     buffers: list[np.ndarray | None] = [None] * max(ring, 1)
     for index, (decoded, start, stamp) in enumerate(grabbed(capture, bool(ring))):
         slot = index % len(buffers)

@@ -18,7 +18,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from pathlib import Path
 
 import cv2
@@ -63,7 +63,7 @@ def _current_core(cores: set[int]) -> int:
 
 def read_capture_in_process(
     source: str, capture: cv2.VideoCapture, ring: int, while_waiting: Callable[[np.ndarray], object]
-) -> Iterator[Frame]:
+) -> Generator[Frame, None, None]:
     """:func:`~spotnav.files.sequences.iter_frames`'s video frames from a decoder process, through a ring of
     ``ring + 1`` buffers in shared memory: a frame's buffer is written again once the frame ``ring`` later is handed
     over. In this thread, as :func:`~spotnav.files.capture.read_capture`, without a second core to decode on or
@@ -98,7 +98,7 @@ def _frames_from_process(
     shape: tuple[int, int, int, int],
     cores: tuple[set[int], set[int]],
     while_waiting: Callable[[np.ndarray], object],
-) -> Iterator[Frame]:
+) -> Generator[Frame, None, None]:
     """Start :func:`decode_frames_main` in a new interpreter (not a fork: OpenCV's threads do not survive one) and
     hand over the frames it decodes into ``buffers`` (a file descriptor), this thread on the first of ``cores``
     (own, the decoder's) meanwhile.

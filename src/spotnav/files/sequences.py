@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import glob
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -88,7 +88,7 @@ def iter_frames(
     report: Callable[[str], None] | None = None,
     expected_size: tuple[int, int] | None = None,
     while_waiting: Callable[[np.ndarray], object] | None = None,
-) -> Iterator[Frame]:
+) -> Generator[Frame, None, None]:
     """Decode a sequence in order: a folder or glob of images, a video file, a camera, a URL or a pipeline.
 
     Parameters
@@ -154,7 +154,7 @@ def iter_frames(
     return read_capture(capture, ring)
 
 
-def _read_files(files: Sequence[str], expected_size: tuple[int, int] | None) -> Iterator[Frame]:
+def _read_files(files: Sequence[str], expected_size: tuple[int, int] | None) -> Generator[Frame, None, None]:
     for index, name in enumerate(files):
         start = time.perf_counter()
         stamp = time.time()
