@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from spotnav import Renderer
-from spotnav.experiments.chapter6 import path_poses, thesis_world, with_true_edge
+from spotnav.app.paths import path_poses
+from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.faults import SILENT_ERROR_MM
 from spotnav.pose.precise import localize_precise_with_edges
 from spotnav.setup.config import Light

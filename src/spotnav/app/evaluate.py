@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from spotnav.app.figures import plot_errors_by_status, plot_path_3d
 from spotnav.errors import InputError
-from spotnav.experiments.figures import plot_errors_by_status, plot_path_3d
 from spotnav.files.poses import KnownPose, PoseRow
 
 __all__ = ["Evaluation", "FrameEvaluation", "evaluate_poses", "evaluation_text", "write_evaluation"]

@@ -14,14 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
+from spotnav.app.paths import path_tips
 from spotnav.app.progress import progress
 from spotnav.errors import SpotnavError
-from spotnav.files.poses import read_path_csv, write_truth_csv
+from spotnav.files.poses import write_truth_csv
 from spotnav.files.sequences import SequenceWriter
 from spotnav.optics.render import Renderer
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose
-from spotnav.setup.paths import helix_tips, resample_polyline, square_tips, tremor_offsets
+from spotnav.setup.paths import tremor_offsets
 
 __all__ = ["RenderedSequence", "check_inside", "render_sequence"]
 
@@ -42,14 +43,6 @@ def check_inside(setup: Setup, tip: np.ndarray, name: str) -> None:
             f"{name} {' '.join(f'{v:g}' for v in tip)} lies outside the eye "
             f"(sphere of radius {setup.eye.radius_mm:g} mm centred at (0, 0, {setup.eye.radius_mm:g}))"
         )
-
-
-def _path_tips(path: str, frames: int) -> np.ndarray:
-    if path == "square":
-        return square_tips(frames)
-    if path == "helix":
-        return helix_tips(frames)
-    return resample_polyline(read_path_csv(path), frames)
 
 
 def render_sequence(
@@ -84,7 +77,7 @@ def render_sequence(
         raise SpotnavError(f"--fps must be a finite number > 0, got {fps}")
     if not (np.isfinite(tremor_mm) and 0 <= tremor_mm <= 1):
         raise SpotnavError(f"--tremor must be in [0, 1] mm, got {tremor_mm}")
-    tips = _path_tips(path, frames) + tremor_offsets(frames, fps, tremor_mm, seed)
+    tips = path_tips(path, frames) + tremor_offsets(frames, fps, tremor_mm, seed)
     for tip in tips:
         check_inside(setup, tip, "a path's tip")
     renderer = Renderer(setup)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spotnav.app.paths import path_poses
 from spotnav.app.progress import progress
 from spotnav.app.track import Tracker, frozen_heap
 from spotnav.experiments.faults import SILENT_ERROR_MM
@@ -20,7 +21,6 @@ from spotnav.experiments.frame import localize_timed, render_timed
 from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.render import Renderer
 from spotnav.setup.config import Setup
-from spotnav.setup.paths import path_poses
 
 __all__ = ["STAGES", "BenchRow", "StressResult", "bench_markdown", "run_bench", "run_stress", "stress_markdown"]
 

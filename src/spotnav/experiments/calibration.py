@@ -17,6 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from spotnav.app.calibrate import calibrate
+from spotnav.app.paths import path_poses
 from spotnav.experiments.frame import render_timed
 from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import (
@@ -38,7 +39,7 @@ from spotnav.pose.precise import EdgeFrame
 from spotnav.pose.self_calibration import prepare_self_calibration, self_calibrate_radius
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import edge_angle_of_blend
-from spotnav.setup.paths import path_poses, poses_through_insertion, working_volume_tips
+from spotnav.setup.paths import poses_through_insertion, working_volume_tips
 from spotnav.setup.sections import Instrument, Light, World
 from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS, Uncertainty
 

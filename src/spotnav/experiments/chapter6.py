@@ -17,7 +17,8 @@ from typing import TypeVar
 
 import numpy as np
 
-from spotnav.experiments.figures import plot_against_power, plot_gallery, plot_path_3d, plot_per_step
+from spotnav.app.figures import plot_against_power, plot_gallery, plot_path_3d, plot_per_step
+from spotnav.app.paths import path_poses
 from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import (
     ErrorSummary,
@@ -38,7 +39,7 @@ from spotnav.setup.config import Setup
 from spotnav.setup.examples import THESIS_EXPOSURE_STOPS
 from spotnav.setup.geometry import InstrumentPose
 from spotnav.setup.microscope import Camera
-from spotnav.setup.paths import HELIX, SQUARE_CORNERS_MM, path_poses
+from spotnav.setup.paths import HELIX, SQUARE_CORNERS_MM
 from spotnav.setup.sections import Instrument, World
 
 __all__ = [

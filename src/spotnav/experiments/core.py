@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from spotnav.experiments.figures import plot_per_step
+from spotnav.app.figures import plot_per_step
 from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import FrameJob, Variant, run_frame, summarize
 from spotnav.experiments.scenes import with_true_edge

@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spotnav.experiments.figures import plot_fault_study
+from spotnav.app.figures import plot_fault_study
 from spotnav.experiments.report import Experiment, Options, markdown_table
 from spotnav.experiments.runner import FrameJob, FrameResult, Variant, count_refusals, run_frame, summarize
 from spotnav.experiments.scenes import thesis_world, with_true_edge

@@ -19,10 +19,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from spotnav.app.figures import plot_geometry_study
+from spotnav.app.paths import path_poses
 from spotnav.errors import SpotnavError
 from spotnav.experiments.calibration import known_calibration
 from spotnav.experiments.faults import SILENT_ERROR_MM, combine_changes, count_silent_failures
-from spotnav.experiments.figures import plot_geometry_study
 from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import (
     ErrorSummary,
@@ -37,7 +38,6 @@ from spotnav.experiments.runner import (
 from spotnav.experiments.scenes import PATH_SEEDS, thesis_world
 from spotnav.pose.conefit.parameters import PARAMETER_GROUPS, SHARED_SIZE, setup_with_geometry
 from spotnav.setup.config import Setup
-from spotnav.setup.paths import path_poses
 from spotnav.setup.sections import World
 from spotnav.setup.uncertainty import Uncertainty
 

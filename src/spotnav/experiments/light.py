@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from spotnav.app.paths import path_poses
 from spotnav.experiments.report import Experiment, Options, markdown_table
 from spotnav.experiments.runner import (
     FrameJob,
@@ -25,7 +26,6 @@ from spotnav.experiments.runner import (
 )
 from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.setup.config import Setup
-from spotnav.setup.paths import path_poses
 
 __all__ = ["EXPOSURE_STOPS", "FRAME_BLURS_PX", "run_light"]
 

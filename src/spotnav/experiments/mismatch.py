@@ -20,6 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from spotnav.app.paths import path_poses
 from spotnav.app.track import Tracker
 from spotnav.errors import SpotnavError
 from spotnav.experiments.calibration import KNOWN_FRAMES, known_calibration
@@ -43,7 +44,6 @@ from spotnav.experiments.runner import (
 from spotnav.experiments.scenes import PATH_SEEDS, thesis_world, with_true_edge
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose
-from spotnav.setup.paths import path_poses
 from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = [

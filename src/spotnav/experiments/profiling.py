@@ -22,6 +22,7 @@ import numpy as np
 from numba.core.registry import CPUDispatcher
 
 from spotnav.app import track
+from spotnav.app.paths import path_poses
 from spotnav.app.progress import progress
 from spotnav.app.track import Tracker, frozen_heap
 from spotnav.experiments.bench import HELIX_FRAMES, STAGES
@@ -30,7 +31,6 @@ from spotnav.experiments.scenes import thesis_world, with_true_edge
 from spotnav.optics.render import Renderer
 from spotnav.pose import pipeline, precise
 from spotnav.pose.localize import localize
-from spotnav.setup.paths import path_poses
 
 __all__ = ["PARTS", "PROFILED_STAGES", "FunctionTime", "StageProfile", "profile_markdown", "run_profile"]
 

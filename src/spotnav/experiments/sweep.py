@@ -30,6 +30,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from spotnav.app.paths import path_poses
 from spotnav.app.progress import progress
 from spotnav.experiments.frame import run_timed_frame
 from spotnav.experiments.scenes import with_true_edge
@@ -44,7 +45,6 @@ from spotnav.experiments.sweep_file import (
 from spotnav.optics.render import Renderer
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import angles_between
-from spotnav.setup.paths import path_poses
 from spotnav.setup.uncertainty import Uncertainty
 
 __all__ = [

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from spotnav.experiments.figures import plot_error_against
+from spotnav.app.figures import plot_error_against
 from spotnav.experiments.report import markdown_table
 from spotnav.experiments.sweep import read_sweep_table
 from spotnav.experiments.sweep_file import SWEEP_PARAMETERS

@@ -1,7 +1,7 @@
-"""Instrument paths: the thesis's chapter 6 square and helix, a CSV file's tips, hand tremor, the working volume.
+"""Instrument paths: the thesis's chapter 6 square and helix, a polyline resampled, hand tremor, the working volume.
 
 Every study, ``spotnav render --path`` and the sweeps turn a path's name (``square``, ``helix`` or a CSV file of
-tips) into tips with :func:`path_tips` and into poses through the insertion point with :func:`path_poses`.
+tips) into tips and poses with :func:`spotnav.app.paths.path_tips` and :func:`spotnav.app.paths.path_poses`.
 """
 
 from __future__ import annotations
@@ -9,15 +9,12 @@ from __future__ import annotations
 import numpy as np
 
 from spotnav.errors import InputError
-from spotnav.files.poses import read_path_csv
 from spotnav.setup.geometry import InstrumentPose
 
 __all__ = [
     "HELIX",
     "SQUARE_CORNERS_MM",
     "helix_tips",
-    "path_poses",
-    "path_tips",
     "poses_through_insertion",
     "resample_polyline",
     "square_tips",
@@ -101,38 +98,3 @@ def working_volume_tips(count: int, seed: int = 0) -> np.ndarray:
 def poses_through_insertion(tips: np.ndarray, insertion_in_eye: np.ndarray) -> list[InstrumentPose]:
     """One pose per tip, the axis from the insertion point (the thesis's remote centre of motion)."""
     return [InstrumentPose.through_insertion(tip, insertion_in_eye) for tip in np.asarray(tips, dtype=float)]
-
-
-def path_tips(path: str, frames: int, *, resample: bool = True) -> np.ndarray:
-    """A path's ``frames`` tips, shape (frames, 3), mm.
-
-    Parameters
-    ----------
-    path : str
-        ``square`` (:func:`square_tips`), ``helix`` (:func:`helix_tips`) or a CSV file of tips
-        (:func:`spotnav.files.poses.read_path_csv`).
-    frames : int
-    resample : bool
-        A CSV file's tips: resampled evenly by arc length along them (:func:`resample_polyline`), or else its
-        first ``frames`` tips as they are.
-
-    Raises
-    ------
-    InputError
-        If the CSV file cannot be read, or, not resampled, holds fewer than ``frames`` tips.
-    """
-    if path == "square":
-        return square_tips(frames)
-    if path == "helix":
-        return helix_tips(frames)
-    tips = read_path_csv(path)
-    if resample:
-        return resample_polyline(tips, frames)
-    if len(tips) < frames:
-        raise InputError(f"{path} has {len(tips)} tips, fewer than the {frames} frames asked for")
-    return tips[:frames]
-
-
-def path_poses(path: str, frames: int, insertion_in_eye: np.ndarray, *, resample: bool = True) -> list[InstrumentPose]:
-    """A path's ``frames`` poses (:func:`path_tips`), each axis from the insertion point (the thesis's RCM)."""
-    return poses_through_insertion(path_tips(path, frames, resample=resample), insertion_in_eye)
