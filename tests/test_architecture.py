@@ -49,13 +49,21 @@ def test_modules_stay_small_and_the_command_line_thin() -> None:
     assert lines[Path("cli.py")] <= 400
 
 
-def test_a_user_error_is_not_a_value_error_and_none_is_caught_as_one() -> None:
+# Pillow's plugins raise a plain ValueError for a header they cannot parse (PNG's "Truncated IHDR chunk"), with no
+# narrower class: the one handler of a ValueError, around Pillow's call alone, where OpenCV is left to decide.
+AROUND_A_LIBRARY = {("files/images.py", "image_size")}
+
+
+def test_a_user_error_is_not_a_value_error_and_no_value_error_of_ours_is_caught() -> None:
     assert not issubclass(SpotnavError, ValueError)
-    catching = []
+    catching = set()
     for path in PACKAGE.rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ExceptHandler) and node.type is not None:
-                names = node.type.elts if isinstance(node.type, ast.Tuple) else [node.type]
-                if any(isinstance(name, ast.Name) and name.id == "ValueError" for name in names):
-                    catching.append(f"{path.relative_to(PACKAGE)}:{node.lineno}")
-    assert catching == []
+        for function in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(function, ast.FunctionDef):
+                continue
+            for node in ast.walk(function):
+                if isinstance(node, ast.ExceptHandler) and node.type is not None:
+                    names = node.type.elts if isinstance(node.type, ast.Tuple) else [node.type]
+                    if any(isinstance(name, ast.Name) and name.id == "ValueError" for name in names):
+                        catching.add((str(path.relative_to(PACKAGE)), function.name))
+    assert catching == AROUND_A_LIBRARY
