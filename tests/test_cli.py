@@ -511,7 +511,7 @@ def test_a_bug_is_not_dressed_up_as_a_user_error(tmp_path: Path, monkeypatch: py
     def broken(*_: object) -> None:
         raise ValueError("a bug")
 
-    monkeypatch.setattr("spotnav.pose.localize.localize", broken)
+    monkeypatch.setattr("spotnav.app.batch.localize", broken)
     with pytest.raises(ValueError, match="a bug"):
         main(["localize", "--scene", str(scene), str(frame), "--out", str(tmp_path / "poses.csv")])
 
