@@ -55,9 +55,9 @@ from spotnav.pose.conefit.solution import ConeSolution
 from spotnav.pose.conefit.solvers import fit_cones
 from spotnav.pose.known_frame import KnownFrame, KnownFrameEdges, read_known_frame
 from spotnav.pose.pipeline import pose_problem
-from spotnav.setup.config import CalibrationRecord, Setup, Uncertainty
+from spotnav.setup.config import Setup
 from spotnav.setup.geometry import normalize
-from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
+from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS, CalibrationRecord, Uncertainty
 
 __all__ = [
     "DETERMINED_RATIO",
@@ -490,7 +490,8 @@ def _frame_edge_sigma(
         geometry = fit_cones(_problem(setup, others, axis_mode, model, shared)).shared
         alone = fit_cones(_problem(setup, edges[f : f + 1], axis_mode, [edge], geometry))
         offsets.append(alone.shared[edge] - geometry[edge])
-    square = np.mean(np.square(offsets)) * len(offsets) / chi2.ppf(0.16, len(offsets))
+    # a float for max() (the same np.float64 value; NumPy's stubs give np.mean of a list no float type)
+    square = float(np.mean(np.square(offsets)) * len(offsets) / chi2.ppf(0.16, len(offsets)))
     return float(np.sqrt(max(square - EDGE_CONTOUR_SIGMA**2 / setup.instrument.beam_count, 0.0)))
 
 
@@ -582,4 +583,5 @@ def _geometry_covariance(solution: ConeSolution, insertion_covariance: np.ndarra
         covariance[np.ix_(insertion, insertion)] = insertion_covariance
     scale = geometry_to_file_units(np.ones(SHARED_SIZE))
     covariance = covariance * np.outer(scale, scale)
-    return 0.5 * (covariance + covariance.T)
+    symmetric: np.ndarray = 0.5 * (covariance + covariance.T)
+    return symmetric

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import NotRequired, TypedDict
 
 import numpy as np
 from numba import njit
@@ -133,7 +134,8 @@ def _soft_band_share(setup: Setup, edge_angle: float) -> float:
     (edge,) = PARAMETER_GROUPS["edge-angle"]
     inner = edge_angle - _EDGE_REACH * np.sqrt(geometry_covariance(setup)[edge, edge])
     soft = max(outer - inner, beta - edge_angle_of_blend(beta, DEFAULT_BLEND))
-    return 2.0 * soft / beta
+    share: float = 2.0 * soft / beta
+    return share
 
 
 @dataclass(frozen=True)
@@ -258,8 +260,10 @@ def residuals_px(
             f"tips_in_eye {tips.shape} and residuals {angles.shape} must match points_in_eye {points.shape}"
         )
     tips, angles = np.broadcast_to(tips, points.shape), np.broadcast_to(angles, shape)
-    rows = [np.ascontiguousarray(values).reshape(-1, *values.shape[len(shape) :]) for values in (points, tips, angles)]
-    return _residuals_px(*rows, *_depth_of(camera)).reshape(shape)
+    point_rows, tip_rows, angle_rows = [
+        np.ascontiguousarray(values).reshape(-1, *values.shape[len(shape) :]) for values in (points, tips, angles)
+    ]
+    return _residuals_px(point_rows, tip_rows, angle_rows, *_depth_of(camera)).reshape(shape)
 
 
 def _broadcasts(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
@@ -363,6 +367,15 @@ def _fit_spread(
     )
 
 
+class _FitFigures(TypedDict):
+    """What :func:`judge_fit` carries to every estimate it makes (:class:`PoseEstimate`'s fields)."""
+
+    spots: int
+    rms_px: float
+    fit_ratio: float
+    sigma_mm: NotRequired[float]
+
+
 def judge_fit(
     solution: ConeSolution,
     setup: Setup,
@@ -413,7 +426,7 @@ def judge_fit(
         *_depth_of(setup.camera),
     )
     fit_ratio = rms_rad / noise_rad if noise_rad > 0.0 else float("nan")
-    common = {"spots": spots, "rms_px": rms_px, "fit_ratio": fit_ratio}
+    common: _FitFigures = {"spots": spots, "rms_px": rms_px, "fit_ratio": fit_ratio}
     problems = []  # a fit these make no use of, whatever its residuals say of the setup
     if inlier_fraction < _MIN_INLIER_FRACTION:
         problems.append(f"only {100 * inlier_fraction:.0f} % of the edge fits the cones")

@@ -146,7 +146,7 @@ def localize_detailed(image: np.ndarray, setup: Setup, method: str = DEFAULT_MET
             SpotDetail(i, spot.contour_px, empty, np.zeros(0, bool), np.zeros(0))
             for i, spot in enumerate(detection.spots if detection is not None else ())
         )
-        cones = ()
+        cones: tuple[Cone, ...] = ()
         if estimate.tip_in_eye is not None and estimate.axis is not None:
             cones = _cones(setup, estimate.tip_in_eye, estimate.axis, 0.0, setup.instrument.beam_half_angle)
         return Localization(estimate, spots, cones, no_covariance)
@@ -164,7 +164,7 @@ def localize_detailed(image: np.ndarray, setup: Setup, method: str = DEFAULT_MET
             residuals = np.degrees(fit.residuals[rows])
             details.append(SpotDetail(beam, edge, points.pixels[rows], fit.inliers[rows], residuals))
         spots = tuple(details)
-    cones: tuple[Cone, ...] = ()
+    cones = ()
     covariance = no_covariance
     if fit is not None:
         cones = _cones(setup, fit.tip(), fit.axis(), fit.roll(), edge_angle(setup))

@@ -115,17 +115,23 @@ class EdgeFrame:
     @property
     def edges_px(self) -> tuple[np.ndarray, ...]:
         """Each spot's sub-pixel edge points, in order around it, pixels, shapes (N_k, 2)."""
-        return self.reading.edges_px
+        return self._read().edges_px
 
     @property
     def edge_sigmas(self) -> tuple[float, ...]:
         """Each spot's own whole-edge uncertainty, radians."""
-        return self.reading.sigmas
+        return self._read().sigmas
 
     @property
     def beams(self) -> tuple[int, ...]:
         """The beam that made each spot."""
-        return self.reading.beams
+        return self._read().beams
+
+    def _read(self) -> LightReading:
+        """The light read; before it is, :class:`AttributeError` (a bug in the caller), as reading None's would."""
+        if self.reading is None:
+            raise AttributeError("the frame's light is not read yet")
+        return self.reading
 
 
 def detect_spots(image: np.ndarray, setup: Setup, find_radius_px: float = _FIND_SPOT_RADIUS_PX) -> SpotDetection:
@@ -309,6 +315,8 @@ def prepare_edges(
     planned = plan_spots(detection, setup, through_insertion, max_rays)
     if not planned.ok:
         return planned
+    if planned.plan is None:  # impossible: plan_spots plans every frame it passes
+        raise RuntimeError("a planned frame without its plan")
     reading = read_light(image, setup, planned.plan)
     if isinstance(reading, PoseEstimate):
         return EdgeFrame(replace(reading, spots=planned.start.spots))
@@ -377,9 +385,10 @@ def _fit_unhidden(
     if not visible_edge_points(setup, edges_px, hidden).ok:  # judge the shaft at a fitted pose
         hidden = [np.zeros(len(edge), dtype=bool) for edge in edges_px]
     for _ in range(_SHAFT_PASSES):
-        fit = fit_visible(setup, prepared.reading, hidden, tip, axis, roll)
-        if isinstance(fit, PoseEstimate):
-            return fit
+        fitted = fit_visible(setup, prepared._read(), hidden, tip, axis, roll)
+        if isinstance(fitted, PoseEstimate):
+            return fitted
+        fit = fitted
         tip, axis, roll = fit.tip(), fit.axis(), fit.roll()
         now_hidden = hidden_by_shaft(setup, edges_px, tip, axis, margin_mm)
         views.append(_ShaftView(tip, axis, now_hidden))
@@ -442,6 +451,8 @@ def _fit_free(
     A cone and its mirror image fit one contour almost equally; ``ambiguous`` when they do.
     """
     start = prepared.start
+    if prepared.solution is None or prepared.axis is None:  # impossible: plan_spots sets both on the frames it passes
+        raise RuntimeError("a planned frame without its thesis solution or starting axis")
     # The shaft runs along the free axis (which the constrained fit does not know, off the insertion line).
     hidden = hidden_by_shaft(setup, prepared.edges_px, free.tip(), free.axis())
     starts = [(free.tip(), free.axis(), free.roll())]
@@ -453,7 +464,7 @@ def _fit_free(
         starts.append((start.pose()[0], prepared.axis, prepared.roll))
     fits = []
     for tip, axis, roll in starts:
-        fit = fit_visible(setup, prepared.reading, hidden, tip, axis, roll, through_insertion=False)
+        fit = fit_visible(setup, prepared._read(), hidden, tip, axis, roll, through_insertion=False)
         if isinstance(fit, PoseEstimate):
             return fit, None
         fits.append(fit)

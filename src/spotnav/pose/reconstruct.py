@@ -253,7 +253,14 @@ def apex_candidates(
 @njit(cache=True)
 def _apex_candidates(
     points_in_eye: np.ndarray, normal: np.ndarray, half_angle: float, height_correction: float
-) -> tuple[bool, np.ndarray, np.ndarray, tuple, tuple[float, float, float], tuple[np.ndarray, np.ndarray]]:
+) -> tuple[
+    bool,
+    np.ndarray,
+    np.ndarray,
+    tuple[np.ndarray, float, float, np.ndarray],
+    tuple[float, float, float],
+    tuple[np.ndarray, np.ndarray],
+]:
     """:func:`apex_candidates` of points (N, 3) and a unit ``normal`` (3,), compiled: whether an ellipse fits, the
     apexes (2, 3), the cone axes (2, 3), the ellipse (centre, semi-axes, major direction), the triangle (alpha, s1,
     s2) and the plane (origin, normal)."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -88,6 +89,7 @@ def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCa
 
 def _closest_set(candidates: list[ConeCandidates]) -> tuple[int, ...]:
     """One candidate per contour: the combination whose apexes have the smallest summed pairwise distance."""
+    best_spread: float | np.floating[Any]  # np.inf, then a sum of norms
     best, best_spread = (0,) * len(candidates), np.inf
     for choice in itertools.product((0, 1), repeat=len(candidates)):
         apexes = [c.apexes[i] for c, i in zip(candidates, choice, strict=True)]

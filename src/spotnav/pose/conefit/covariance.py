@@ -95,7 +95,8 @@ def _scaled_pinv(matrix: np.ndarray) -> np.ndarray:
     """
     scale = np.sqrt(np.maximum(np.diag(matrix), 1e-300))
     outer = np.outer(scale, scale)
-    return np.linalg.pinv(matrix / outer) / outer
+    inverse: np.ndarray = np.linalg.pinv(matrix / outer) / outer
+    return inverse
 
 
 def scatter_covariance(
@@ -195,6 +196,8 @@ def _uncertainty(
     """The uncertainty of the fit at ``x`` (see :class:`FitUncertainty`)."""
     information = None if priors is None else 1.0 / np.asarray(priors, dtype=float) ** 2
     points = problem.points
+    if points.spot_sigma is None:  # impossible: EdgePoints.__post_init__ sets it
+        raise RuntimeError("edge points without their spots' sigmas")
     if not problem.free_shared and len(problem.frames) == 1:  # one frame's own parameters: one compiled call
         covariance, data, gain, ids = _frame_uncertainty(
             x,

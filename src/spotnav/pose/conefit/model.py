@@ -307,4 +307,5 @@ def _beam_rate(
         rising, falling = _frame_beams(frame, f, up, arrays), _frame_beams(frame, f, down, arrays)
     else:
         rising, falling = _frame_beams(up, f, shared, arrays), _frame_beams(down, f, shared, arrays)
-    return (rising - falling) / (2 * step)
+    rate: np.ndarray = (rising - falling) / (2 * step)
+    return rate

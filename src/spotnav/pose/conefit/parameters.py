@@ -141,11 +141,12 @@ def setup_with_geometry(setup: Setup, shared: np.ndarray) -> Setup:
     camera = setup.camera
     if np.any(shared[_CAMERA:_CAMERA_END] != 0.0):
         camera = camera_of_model(camera, perturbed_model(camera_model(camera), shared[_CAMERA:_CAMERA_END]))
+    x, y, z = (float(v) for v in setup.instrument.insertion_in_eye + shared[_INSERTION:])
     instrument = replace(
         setup.instrument,
         edge_half_angle_deg=float(np.degrees(edge_angle(setup) + shared[_EDGE])),
         light_radius_mm=max(float(setup.instrument.light_radius_mm + shared[_LIGHT]), 0.0),
-        insertion_point_mm=tuple(float(v) for v in setup.instrument.insertion_in_eye + shared[_INSERTION:]),
+        insertion_point_mm=(x, y, z),
     )
     eye = replace(setup.eye, radius_mm=float(setup.eye.radius_mm + shared[_RADIUS]))
     return replace(setup, camera=camera, eye=eye, instrument=instrument)

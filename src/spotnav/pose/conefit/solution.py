@@ -92,7 +92,7 @@ class ConeSolution:
     @cached_property
     def insertion_in_eye(self) -> np.ndarray:
         """The fitted (or fixed) insertion point, shape (3,), mm (read-only)."""
-        point = self.problem.base[3:6] + self.shared[_INSERTION:]
+        point: np.ndarray = self.problem.base[3:6] + self.shared[_INSERTION:]
         point.setflags(write=False)
         return point
 
@@ -114,7 +114,8 @@ class ConeSolution:
         covariance = self.covariance if geometry else self.data_covariance
         fitted = index >= 0
         if fitted.all():
-            return covariance[index[:, None], index]
+            block: np.ndarray = covariance[index[:, None], index]
+            return block
         block = np.zeros((len(index), len(index)))
         block[np.ix_(fitted, fitted)] = covariance[np.ix_(index[fitted], index[fitted])]
         return block
@@ -151,6 +152,8 @@ class ConeSolution:
         rows = problem.points.frame == frame
         points = problem.points.subset(rows)
         spots, spot = np.unique(points.spot, return_inverse=True)
+        if points.spot_sigma is None:  # impossible: EdgePoints.__post_init__ sets it
+            raise RuntimeError("edge points without their spots' sigmas")
         sigma = points.spot_sigma[spots]
         one = replace(
             problem,
@@ -196,6 +199,8 @@ class ConeSolution:
             joint, index = own.args
             return replace(self, uncertainty_of=partial(_block_uncertainty, joint.with_edge_shift(sigma), index))
         points = self.problem.points
+        if points.spot_sigma is None:  # impossible: EdgePoints.__post_init__ sets it
+            raise RuntimeError("edge points without their spots' sigmas")
         wider = replace(points, spot_sigma=np.hypot(points.spot_sigma, sigma))
         prior = self.problem.prior.copy()
         prior[_EDGE, _EDGE] += sigma**2
@@ -210,7 +215,8 @@ class ConeSolution:
             return np.zeros(len(self.geometry_ids))
         gain = self.geometry_gain[index]
         prior = self.problem.prior[np.ix_(self.geometry_ids, self.geometry_ids)]
-        return np.sum(gain * (gain @ prior), axis=0)
+        share: np.ndarray = np.sum(gain * (gain @ prior), axis=0)
+        return share
 
 
 @njit(cache=True)

@@ -37,7 +37,8 @@ def robust_sigma(values: np.ndarray, centred: bool) -> float:
     The standard deviation of normally distributed values, robust to outliers.
     """
     centre = np.median(values) if centred else 0.0
-    return 1.4826 * np.median(np.abs(values - centre))
+    sigma: float = 1.4826 * np.median(np.abs(values - centre))
+    return sigma
 
 
 @njit(cache=True)
@@ -76,17 +77,17 @@ def _solve(
     if priors is not None:
         spread = max(robust_sigma(problem.residuals(x)[rows], False), 1e-7)
     weight = None if priors is None else spread / priors
-    penalised = None if weight is None else np.isfinite(priors)
+    penalised = None if priors is None else np.isfinite(priors)  # None exactly where weight is
 
     def fun(values: np.ndarray) -> np.ndarray:
-        residuals = problem.residuals(values)[rows]
+        residuals: np.ndarray = problem.residuals(values)[rows]
         if weight is None:
             return residuals
         return np.concatenate([residuals, weight[penalised] * values[penalised]])
 
     def jac(values: np.ndarray) -> np.ndarray | csr_matrix:
         matrix = problem.jacobian_matrix(values, rows)
-        if weight is None:
+        if weight is None or penalised is None:  # both or neither
             return matrix
         extra = np.zeros((int(penalised.sum()), problem.size))
         extra[np.arange(len(extra)), np.flatnonzero(penalised)] = weight[penalised]
@@ -264,7 +265,7 @@ def _tip_box(start: np.ndarray, frame_index: np.ndarray, reach: float) -> tuple[
 
 
 @njit(cache=True)
-def _at_box(x: np.ndarray, box: tuple) -> bool:
+def _at_box(x: np.ndarray, box: tuple[np.ndarray, np.ndarray, np.ndarray]) -> bool:
     """Whether a tip of ``x`` is held at its box's wall; ``box`` is (low, high, the tips' indices in ``x``)."""
     low, high, tip_index = box
     for i in tip_index:
@@ -275,7 +276,12 @@ def _at_box(x: np.ndarray, box: tuple) -> bool:
 
 @njit(cache=True)
 def _fit_recipe(
-    x: np.ndarray, arrays: ConeArrays, per_frame: int, box: tuple, solver: int, context: object
+    x: np.ndarray,
+    arrays: ConeArrays,
+    per_frame: int,
+    box: tuple[np.ndarray, np.ndarray, np.ndarray],
+    solver: int,
+    context: tuple[ConeProblem, np.ndarray | None] | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """The one robust recipe of :func:`fit_cones`: from ``x``, a soft-L1 solve at the residuals' robust scale, the
     points within 3 robust sigmas of the cones, a least-squares solve on them. Returns the parameters, their
@@ -320,13 +326,20 @@ def _solve_step(
         fitted = _levenberg_marquardt_step(x, arrays, rows, scale, per_frame, box)
         if not _at_box(fitted, box):
             return fitted, True
+    if context is None:  # impossible: compiled code runs _compiled_solve_step, Python's recipe passes the context
+        raise RuntimeError("a solve step in Python needs its context (problem, priors)")
     (problem, priors), (low, high, _) = context, box
     return _solve(problem, x, rows, None if scale <= 0.0 else scale, (low, high), priors), True
 
 
 @njit(cache=True)
 def _levenberg_marquardt_step(
-    x: np.ndarray, arrays: ConeArrays, rows: np.ndarray, scale: float, per_frame: int, box: tuple
+    x: np.ndarray,
+    arrays: ConeArrays,
+    rows: np.ndarray,
+    scale: float,
+    per_frame: int,
+    box: tuple[np.ndarray, np.ndarray, np.ndarray],
 ) -> np.ndarray:
     """The recipe's Levenberg-Marquardt solve: :func:`_levenberg_marquardt` in ``box`` at the step's tolerance.
 
@@ -339,28 +352,28 @@ def _levenberg_marquardt_step(
 
 
 @overload(_solve_step)
-def _compiled_solve_step(
-    solver: object,
-    x: object,
-    arrays: object,
-    rows: object,
-    scale: object,
-    per_frame: object,
-    box: object,
-    context: object,
-) -> Callable:
+def _compiled_solve_step(  # Numba passes the arguments' Numba types; annotated as the compiled step's, see below
+    solver: int,
+    x: np.ndarray,
+    arrays: ConeArrays,
+    rows: np.ndarray,
+    scale: float,
+    per_frame: int,
+    box: tuple[np.ndarray, np.ndarray, np.ndarray],
+    context: tuple[ConeProblem, np.ndarray | None] | None,
+) -> Callable[..., tuple[np.ndarray, bool]]:
     """:func:`_solve_step` in compiled code: Gauss-Newton's and Levenberg-Marquardt's, not done when the latter
     ends on the box's wall (SciPy's trust region then runs in Python)."""
 
     def solve_step(  # Numba asks for the overload's own parameters, annotations included
-        solver: object,
-        x: object,
-        arrays: object,
-        rows: object,
-        scale: object,
-        per_frame: object,
-        box: object,
-        context: object,
+        solver: int,
+        x: np.ndarray,
+        arrays: ConeArrays,
+        rows: np.ndarray,
+        scale: float,
+        per_frame: int,
+        box: tuple[np.ndarray, np.ndarray, np.ndarray],
+        context: tuple[ConeProblem, np.ndarray | None] | None,
     ) -> tuple[np.ndarray, bool]:
         if solver == _GAUSS_NEWTON:
             return _gauss_newton(x, arrays, rows, scale, per_frame, 2 if scale > 0.0 else 1), True
