@@ -155,3 +155,11 @@ def test_fit_ellipse_agrees_with_opencv(centre: tuple, semi: tuple, angle: float
     assert ours.center == pytest.approx([cx, cy], abs=1e-3 * major)
     assert [ours.semi_major, ours.semi_minor] == pytest.approx(sorted(np.array(axes) / 2, reverse=True), rel=1e-3)
     assert ours.semi_major == pytest.approx(major, rel=0.05) and ours.semi_minor == pytest.approx(minor, rel=0.05)
+
+
+def test_a_contour_no_ellipse_fits_is_refused_with_its_reason() -> None:
+    line = np.column_stack([np.linspace(-1.0, 1.0, 12), np.zeros(12), np.zeros(12)])  # collinear: no ellipse
+    refused = apex_candidates(line, np.array([0.0, 0.0, 1.0]), BETA)
+    assert (refused.ok, refused.status, refused.detail) == (False, "unreliable", "no ellipse fits the contour")
+    assert np.isnan(refused.apexes).all() and np.isnan(refused.alpha)
+    assert apex_candidates(line[:4], np.array([0.0, 0.0, 1.0]), BETA).status == "unreliable"

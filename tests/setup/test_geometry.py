@@ -209,9 +209,15 @@ def test_assign_beams_finds_each_beam(axis: np.ndarray, roll: float, first: int,
     true_axes = beam_axes(axis, 3, tilt, roll)
     order = [(first + k) % 3 for k in range(count)]
     result = assign_beams(true_axes[order], axis)
-    assert result is not None
-    beams, fitted_roll = result
-    np.testing.assert_allclose(beam_axes(axis, 3, tilt, fitted_roll)[beams], true_axes[order], atol=1e-9)
+    assert result.ok
+    np.testing.assert_allclose(beam_axes(axis, 3, tilt, result.roll)[list(result.beams)], true_axes[order], atol=1e-9)
+
+
+def test_two_spots_of_one_beam_are_ambiguous() -> None:
+    axis = np.array([0.0, 0.0, -1.0])
+    same = beam_axes(axis, 3, np.radians(15.0))[[0, 0]]
+    result = assign_beams(same, axis)
+    assert (result.status, result.beams, np.isnan(result.roll)) == ("ambiguous", (), True)
 
 
 @given(

@@ -88,7 +88,7 @@ def measure_ellipse(job: FrameJob) -> dict[str, object]:
         return {"pose": None, "spots": len(detection.spots), "precise": precise}
     spot = detection.spots[0]
     candidates = spot_candidates(spot, world, surface)
-    if candidates is None:
+    if not candidates.ok:
         return {"pose": None, "spots": 1}
     to_thesis_px = 5000.0 / world.camera.width_px
     center = (spot.contour_px.mean(axis=0) - world.camera.principal_point_px) * to_thesis_px + 2499.5

@@ -146,10 +146,10 @@ def read_known_frame(frame: KnownFrame, setup: Setup) -> KnownFrameEdges:
         )
         # Around their centroid, not the tip: a camera that is not where the setup says moves them all alike.
         assignment = assign_beams(centres - centres.mean(axis=0), axis)
-        if assignment is None:
+        if not assignment.ok:
             detail = f"{frame.name}: cannot tell which spot each beam made"
-            return KnownFrameEdges("ambiguous", tip, axis, spots=len(spots), detail=detail)
-        beams, roll = assignment
+            return KnownFrameEdges(assignment.status, tip, axis, spots=len(spots), detail=detail)
+        beams, roll = list(assignment.beams), assignment.roll
     # Each spot's edge is read knowing its beam: where the spot clips, the beam's soft band is the light's model.
     reading = read_light(frame.image, setup, plan_found_spots(setup, spots, beams, tip, axis, roll, RAYS))
     if isinstance(reading, PoseEstimate):

@@ -37,7 +37,7 @@ from spotnav.pose.pipeline import (
 from spotnav.pose.shaft import hidden_by_shaft, visible_edge_points
 from spotnav.pose.thesis import ThesisSolution, solve_thesis
 from spotnav.setup.config import Setup
-from spotnav.setup.geometry import angles_between, assign_beams, normalize
+from spotnav.setup.geometry import BeamAssignment, angles_between, assign_beams, normalize
 
 __all__ = [
     "EdgeFrame",
@@ -343,10 +343,12 @@ def plan_spots(detection: SpotDetection, setup: Setup, through_insertion: bool, 
     if not through_insertion and len(solution.candidates) == 3:
         # Three symmetric beam axes sum along the instrument's axis, wherever the insertion point is.
         axis = normalize(chosen_axes.sum(axis=0))
-    assignment = ([0], 0.0) if setup.instrument.beam_count == 1 else assign_beams(chosen_axes, axis)
-    if assignment is None:
-        return EdgeFrame(PoseEstimate("ambiguous", spots=start.spots, detail="cannot tell which spot each beam made"))
-    beams, roll = assignment
+    one_beam = BeamAssignment("ok", (0,), 0.0)
+    assignment = one_beam if setup.instrument.beam_count == 1 else assign_beams(chosen_axes, axis)
+    if not assignment.ok:
+        detail = "cannot tell which spot each beam made"
+        return EdgeFrame(PoseEstimate(assignment.status, spots=start.spots, detail=detail))
+    beams, roll = list(assignment.beams), assignment.roll
     plan = plan_found_spots(setup, solution.spots, beams, start.pose()[0], axis, roll, max_rays)
     return EdgeFrame(start, plan=plan, axis=axis, roll=roll, solution=solution)
 

@@ -186,6 +186,11 @@ class ConeCandidates:
     plane_origin_in_eye, plane_normal_in_eye : ndarray, shape (3,)
         The fitting plane: through the contour's centroid, with the surface's
         unit normal there, pointing toward the apexes.
+    status : str
+        ``"ok"``, or why the contour gives no cone (one of :data:`spotnav.pose.estimate.STATUSES`); every value
+        above is NaN then.
+    detail : str
+        What was wrong, for a refused contour.
     """
 
     apexes: np.ndarray
@@ -196,6 +201,21 @@ class ConeCandidates:
     s2: float
     plane_origin_in_eye: np.ndarray
     plane_normal_in_eye: np.ndarray
+    status: str = "ok"
+    detail: str = ""
+
+    @property
+    def ok(self) -> bool:
+        """Whether the contour gave its two cones."""
+        return self.status == "ok"
+
+    @classmethod
+    def refused(cls, status: str, detail: str) -> ConeCandidates:
+        """The candidates of a contour that gives none: NaN everywhere, and why."""
+        nan2, nan3 = np.full(2, np.nan), np.full(3, np.nan)
+        ellipse = Ellipse(nan2, float("nan"), float("nan"), nan2)
+        nan = float("nan")
+        return cls(np.full((2, 3), np.nan), np.full((2, 3), np.nan), ellipse, nan, nan, nan, nan3, nan3, status, detail)
 
 
 def sphere_normal(points_in_eye: np.ndarray, sphere_center: np.ndarray) -> np.ndarray:
@@ -205,8 +225,8 @@ def sphere_normal(points_in_eye: np.ndarray, sphere_center: np.ndarray) -> np.nd
 
 def apex_candidates(
     points_in_eye: np.ndarray, surface_normal: np.ndarray, half_angle: float, height_correction: float = 1.0
-) -> ConeCandidates | None:
-    """Both apex candidates of a contour on the surface (Algorithm 1), or None where no ellipse fits it.
+) -> ConeCandidates:
+    """Both apex candidates of a contour on the surface (Algorithm 1), or refused where no ellipse fits it.
 
     Parameters
     ----------
@@ -224,9 +244,9 @@ def apex_candidates(
 
     Returns
     -------
-    ConeCandidates or None
-        None for fewer than 5 points, points that are not finite, or points no
-        ellipse fits (collinear ones).
+    ConeCandidates
+        ``unreliable`` for fewer than 5 points, points that are not finite, or
+        points no ellipse fits (collinear ones).
 
     Raises
     ------
@@ -237,13 +257,13 @@ def apex_candidates(
     if points_in_eye.ndim != 2 or points_in_eye.shape[1] != 3:
         raise ValueError(f"points_in_eye must have shape (N, 3), got {points_in_eye.shape}")
     if len(points_in_eye) < 5 or not np.isfinite(points_in_eye).all():
-        return None
+        return ConeCandidates.refused("unreliable", "fewer than 5 finite contour points")
     normal = normalize(np.asarray(surface_normal, dtype=float))
     fitted, apexes, cone_axes, ellipse, triangle, planes = _apex_candidates(
         points_in_eye, normal, float(half_angle), float(height_correction)
     )
     if not fitted:
-        return None
+        return ConeCandidates.refused("unreliable", "no ellipse fits the contour")
     centre, semi_major, semi_minor, major_direction = ellipse
     return ConeCandidates(
         apexes, cone_axes, Ellipse(centre, semi_major, semi_minor, major_direction), *triangle, planes[0], planes[1]

@@ -57,7 +57,7 @@ def localize_thesis_with_spots(image: np.ndarray, setup: Setup) -> tuple[PoseEst
     return locate_from_spots(detection, setup), detection
 
 
-def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCandidates | None:
+def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCandidates:
     """Both apex candidates of one spot (Algorithm 1 after detection).
 
     Parameters
@@ -71,18 +71,19 @@ def spot_candidates(spot: Spot, setup: Setup, surface: str = "sphere") -> ConeCa
 
     Returns
     -------
-    ConeCandidates or None
-        ``None`` when the spot is cut by the border or the retina's edge, or no ellipse fits its contour.
+    ConeCandidates
+        ``clipped`` when the spot is cut by the border or the retina's edge, ``unreliable`` when no ellipse fits its
+        contour.
     """
     if spot.touches_border:
-        return None
+        return ConeCandidates.refused("clipped", "the spot touches the image's border")
     if surface == "plane":
         points = unproject_pixels_to_plane(setup.camera, spot.contour_px)
         normal = np.array([0.0, 0.0, 1.0])
     else:
         points = unproject_pixels_to_sphere(setup.camera, spot.contour_px, setup.eye.radius_mm)
         if not np.isfinite(points).all():
-            return None
+            return ConeCandidates.refused("clipped", "the spot runs past the retina's edge")
         normal = sphere_normal(points, setup.eye.center_in_eye)
     return apex_candidates(points, normal, setup.instrument.beam_half_angle, setup.instrument.height_correction)
 
@@ -134,7 +135,7 @@ def solve_thesis(detection: SpotDetection, setup: Setup, surface: str = "sphere"
         return ThesisSolution(
             PoseEstimate("ambiguous", spots=len(spots), detail=f"{len(spots)} spots, expected {beams}")
         )
-    pairs = [(spot, c) for spot, c in ((spot, spot_candidates(spot, setup, surface)) for spot in spots) if c]
+    pairs = [(spot, c) for spot, c in ((spot, spot_candidates(spot, setup, surface)) for spot in spots) if c.ok]
     needed = 1 if beams == 1 else 2
     if len(pairs) < needed:
         if len(pairs) < len(spots):
@@ -212,7 +213,7 @@ def fit_height_correction(image: np.ndarray, setup: Setup, tip_in_eye: np.ndarra
     if len(detection.spots) > setup.instrument.beam_count:
         return HeightFactor("ambiguous", f"the calibration frame shows {len(detection.spots)} spots")
     plain = replace(setup, instrument=replace(setup.instrument, height_correction=1.0))
-    fits = [c for c in (spot_candidates(s, plain) for s in detection.spots) if c]
+    fits = [c for c in (spot_candidates(s, plain) for s in detection.spots) if c.ok]
     if not fits:
         return HeightFactor("clipped" if detection.spots else "no_spot", "the calibration frame shows no whole spot")
     tip_in_eye = np.asarray(tip_in_eye, dtype=float)

@@ -14,6 +14,7 @@ from numba import njit
 
 __all__ = [
     "ApproximationDeviation",
+    "BeamAssignment",
     "InstrumentPose",
     "angles_between",
     "approximation_deviation",
@@ -310,7 +311,31 @@ def _beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float) -> n
     return beams
 
 
-def assign_beams(directions: np.ndarray, axis: np.ndarray) -> tuple[list[int], float] | None:
+@dataclass(frozen=True)
+class BeamAssignment:
+    """Which of three beams made each spot (:func:`assign_beams`), or why that cannot be told.
+
+    Attributes
+    ----------
+    status : str
+        ``"ok"``, or ``"ambiguous"`` when two directions get one beam.
+    beams : tuple of int
+        Beam index per direction, the first beam 0 (empty when ambiguous).
+    roll : float
+        The roll of :func:`beam_axes` that puts beam 0 on the first direction, radians (NaN when ambiguous).
+    """
+
+    status: str
+    beams: tuple[int, ...] = ()
+    roll: float = float("nan")
+
+    @property
+    def ok(self) -> bool:
+        """Whether each direction has its own beam."""
+        return self.status == "ok"
+
+
+def assign_beams(directions: np.ndarray, axis: np.ndarray) -> BeamAssignment:
     """Which of three beams points along each direction, and the roll that puts beam 0 on the first.
 
     Parameters
@@ -322,17 +347,17 @@ def assign_beams(directions: np.ndarray, axis: np.ndarray) -> tuple[list[int], f
 
     Returns
     -------
-    beams, roll
-        Beam index per direction (the first is beam 0) and the roll of
-        :func:`beam_axes`, radians; ``None`` when two directions get one beam.
+    BeamAssignment
+        Beam index per direction (the first is beam 0) and the roll of :func:`beam_axes`, radians; ``ambiguous``
+        when two directions get one beam.
     """
     e1, e2 = orthonormal_basis(axis)
     azimuths = np.arctan2(directions @ e2, directions @ e1)
     step = 2.0 * np.pi / 3.0  # beam j sits at azimuth -(roll + j step)
-    beams = [int(np.round(((azimuths[0] - a) % (2.0 * np.pi)) / step)) % 3 for a in azimuths]
+    beams = tuple(int(np.round(((azimuths[0] - a) % (2.0 * np.pi)) / step)) % 3 for a in azimuths)
     if len(set(beams)) < len(beams):
-        return None
-    return beams, float(-azimuths[0])
+        return BeamAssignment("ambiguous")
+    return BeamAssignment("ok", beams, float(-azimuths[0]))
 
 
 def spot_attenuation(cos_angle: np.ndarray, half_angle: float, blend: float) -> np.ndarray:
