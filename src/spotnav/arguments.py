@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import textwrap
 from typing import Any
 
 from spotnav import __version__
@@ -18,13 +19,35 @@ from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
 from spotnav.pose.localize import DEFAULT_METHOD, METHODS
 from spotnav.setup.examples import EXAMPLES
 
-__all__ = ["build_parser"]
+__all__ = ["DESCRIPTION", "build_parser"]
+
+DESCRIPTION = (
+    "Localize a surgical instrument inside the eye from the cone of light it projects on the retina, as a "
+    "microscope camera sees it: simulate frames, localize the tip, track, calibrate and evaluate."
+)
 
 _Parser = argparse.ArgumentParser
 
 
+class _PlainFormatter(argparse.HelpFormatter):
+    """argparse's help, wrapped between words only: a long word or a hyphenated option is never split."""
+
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        return textwrap.wrap(" ".join(text.split()), width, break_long_words=False, break_on_hyphens=False)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return textwrap.fill(
+            " ".join(text.split()),
+            width,
+            initial_indent=indent,
+            subsequent_indent=indent,
+            break_long_words=False,
+            break_on_hyphens=False,
+        )
+
+
 def _scene(parser: _Parser) -> None:
-    parser.add_argument("--scene", required=True, help="setup TOML")
+    parser.add_argument("--scene", required=True, metavar="SETUP.toml", help="the setup file (TOML)")
 
 
 def _out(parser: _Parser, text: str, *, required: bool = True) -> None:
@@ -32,7 +55,8 @@ def _out(parser: _Parser, text: str, *, required: bool = True) -> None:
 
 
 def _method(parser: _Parser) -> None:
-    parser.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS), help=f"default {DEFAULT_METHOD}")
+    method_help = "the localization method (default %(default)s)"
+    parser.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS), help=method_help)
 
 
 def _flag(parser: _Parser, name: str, text: str) -> None:
@@ -58,7 +82,8 @@ def _scene_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]
         help="a setup whose camera is an OpenCV calibration (camera_matrix, distortion_coefficients, image_width, "
         "image_height in the YAML, XML or JSON that cv2.FileStorage writes)",
     )
-    scene.add_argument("--scene", help="with --opencv: the setup to take the rest from (default: the thesis's)")
+    rest_help = "with --opencv: the setup to take the rest from (default: the thesis's)"
+    scene.add_argument("--scene", metavar="SETUP.toml", help=rest_help)
 
 
 def _render_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -75,7 +100,7 @@ def _render_command(commands: argparse._SubParsersAction[argparse.ArgumentParser
         "insertion point",
     )
     _option(render, "--frames", int, "frames of a --path (default 300)", default=300)
-    _option(render, "--fps", float, "frame rate of a --path, for tremor and video", default=100.0)
+    _option(render, "--fps", float, "frame rate of a --path, for tremor and video (default %(default)g)", default=100.0)
     tremor_help = "hand tremor, 6-12 Hz, peak per axis (default off; 0.05 mm without a value)"
     _option(render, "--tremor", float, tremor_help, nargs="?", const=0.05, default=0.0, metavar="MM")
     _out(
@@ -91,7 +116,8 @@ def _localize_command(commands: argparse._SubParsersAction[argparse.ArgumentPars
     _method(loc)
     _out(loc, "poses.csv path")
     _flag(loc, "--fit-radius", "fit one eye radius with all the poses (precise method, at least 20 frames)")
-    loc.add_argument("images", nargs="+", metavar="IMAGE")
+    images_help = "the frames to localize: 8- or 16-bit PNG, TIFF or JPEG files of the setup's camera size"
+    loc.add_argument("images", nargs="+", metavar="IMAGE", help=images_help)
 
 
 def _track_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -104,7 +130,7 @@ def _track_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]
     track.add_argument("--method", default="precise", choices=["precise", "precise-free"], help=method_help)
     igtl_help = f"send each pose to OpenIGTLink clients such as 3D Slicer (default port {DEFAULT_PORT})"
     _option(track, "--igtl", int, igtl_help, nargs="?", const=DEFAULT_PORT, metavar="PORT")
-    _option(track, "--igtl-wait", float, "wait for a client first (s)", default=0.0, metavar="S")
+    _option(track, "--igtl-wait", float, "wait this long for a client first, s (default 0)", default=0.0, metavar="S")
     host_help = f"address to serve OpenIGTLink on (default {DEFAULT_HOST}; the protocol has no authentication)"
     track.add_argument("--igtl-host", default=DEFAULT_HOST, metavar="ADDRESS", help=host_help)
     device_help = f"the TRANSFORM's device name (default {DEFAULT_DEVICE}, PLUS's FromToTo convention)"
@@ -122,7 +148,11 @@ def _track_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]
 def _evaluate_and_show_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     evaluate = commands.add_parser("evaluate", help="compare a poses.csv with the truth: error statistics")
     evaluate.add_argument("poses", metavar="POSES.csv", help="poses.csv from localize or track")
-    evaluate.add_argument("truth", metavar="TRUTH.csv", help="image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z][,...]")
+    truth_help = (
+        "the truth: a CSV with columns image,x_mm,y_mm,z_mm[,dir_x,dir_y,dir_z][,...] (render's truth.csv), or the "
+        "frame.json that render writes beside one frame"
+    )
+    evaluate.add_argument("truth", metavar="TRUTH", help=truth_help)
     _out(evaluate, "folder for errors.csv (per frame), errors.png and track.png (3D)", required=False)
 
     show = commands.add_parser("show", help="draw a frame's edge points, fitted cones, tip and status over it")
@@ -135,10 +165,12 @@ def _evaluate_and_show_commands(commands: argparse._SubParsersAction[argparse.Ar
 
 def _bench_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     bench = commands.add_parser("bench", help="ms per frame: rendering, full-frame methods and tracking")
-    _option(bench, "--sizes", int, "image sizes, px", nargs="+", default=[1024, 2048, 5000])
+    _option(bench, "--sizes", int, "image sizes, px (default 1024 2048 5000)", nargs="+", default=[1024, 2048, 5000])
     _option(bench, "--frames", int, "consecutive helix frames per size (default 100)", default=100)
-    bench.add_argument("--beams", type=int, choices=[1, 3], default=1)
-    full_help = "time the full-frame methods every Nth frame (on its copy in memory, else right after rendering)"
+    bench.add_argument("--beams", type=int, choices=[1, 3], default=1, help="beams of the instrument (default 1)")
+    full_help = (
+        "time the full-frame methods every Nth frame (on its copy in memory, else right after rendering; default 5)"
+    )
     _option(bench, "--full-every", int, full_help, default=5)
     memory_help = (
         "keep this much of the rendered frames to track again (and time the full-frame methods on) from "
@@ -156,7 +188,7 @@ def _bench_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]
         "track the helix with its spot hidden every --hide-every frames: every frame's time, re-acquisitions, "
         "errors and silent failures",
     )
-    _option(bench, "--hide-every", int, "with --stress, hide the spot every Nth frame", default=8)
+    _option(bench, "--hide-every", int, "with --stress, hide the spot every Nth frame (default 8)", default=8)
     _flag(
         bench,
         "--profile",
@@ -190,10 +222,11 @@ def _experiment_commands(commands: argparse._SubParsersAction[argparse.ArgumentP
     _out(rep, "output folder (default results/quick or results/full)", required=False)
     _option(rep, "--size", int, "image size in px (default 1024 quick, 5000 full)")
     _option(rep, "--poses", int, "poses per path (default 25 quick, 100 full)")
-    _option(rep, "--workers", int, "processes (default: all cores)", default=os.cpu_count() or 1)
+    cores = os.cpu_count() or 1
+    _option(rep, "--workers", int, f"processes (default: all cores, {cores} here)", default=cores)
 
     sweep = commands.add_parser("sweep", help="design sweep over setups, on a Dask cluster: frames.parquet")
-    sweep.add_argument("file", nargs="?", metavar="FILE", help="sweep TOML (see --example)")
+    sweep.add_argument("file", nargs="?", metavar="SWEEP.toml", help="the sweep file (see --example)")
     _flag(sweep, "--example", "print a small, commented sweep file")
     _out(sweep, "output folder", required=False)
     sweep.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask cluster")
@@ -206,9 +239,9 @@ def _experiment_commands(commands: argparse._SubParsersAction[argparse.ArgumentP
     report.add_argument("directory", metavar="DIR", help="a sweep's --out folder")
 
 
-def build_parser(description: str) -> argparse.ArgumentParser:
-    """``spotnav``'s parser, its summary line ``description``; ``command`` names the subcommand parsed."""
-    parser = argparse.ArgumentParser(prog="spotnav", description=description)
+def build_parser(description: str = DESCRIPTION) -> argparse.ArgumentParser:
+    """``spotnav``'s parser, its summary line ``description`` (plain text); ``command`` names the subcommand parsed."""
+    parser = argparse.ArgumentParser(prog="spotnav", description=description, formatter_class=_PlainFormatter)
     parser.add_argument("--version", action="version", version=f"spotnav {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _scene_command(commands)
@@ -219,4 +252,6 @@ def build_parser(description: str) -> argparse.ArgumentParser:
     _bench_command(commands)
     _calibrate_command(commands)
     _experiment_commands(commands)
+    for command in commands.choices.values():
+        command.formatter_class = _PlainFormatter
     return parser

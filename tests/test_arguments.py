@@ -1,0 +1,123 @@
+"""The command line's help is the reference: it agrees with the README's synopsis, describes every argument and its
+default, and reads as plain text wrapped between words."""
+
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+
+import pytest
+
+from spotnav.arguments import DESCRIPTION, build_parser
+
+README = Path(__file__).parents[1] / "README.md"
+_OPTION = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
+
+
+def _subcommands() -> dict[str, argparse.ArgumentParser]:
+    parser = build_parser()
+    (commands,) = (action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+    return dict(commands.choices)
+
+
+def _arguments(parser: argparse.ArgumentParser) -> list[argparse.Action]:
+    return [action for action in parser._actions if not isinstance(action, argparse._HelpAction)]
+
+
+def _readme_synopsis(text: str) -> dict[str, str]:
+    """Each subcommand's synopsis in the README's "Every command and its options" block: its lines joined, comments
+    left out."""
+    block = text.split("Every command and its options:", 1)[1].split("```sh\n", 1)[1].split("```", 1)[0]
+    synopsis: dict[str, str] = {}
+    command = None
+    for line in block.splitlines():
+        words = re.split(r"\s#", line, maxsplit=1)[0]
+        if line.startswith("spotnav "):
+            command = words.split()[1]
+            synopsis[command] = synopsis.get(command, "") + " " + words
+        elif line[:1].isspace() and command is not None:
+            synopsis[command] += " " + words
+        else:
+            command = None  # another tool's line (make)
+    return synopsis
+
+
+def _options(parser: argparse.ArgumentParser) -> set[str]:
+    return {name for action in _arguments(parser) for name in action.option_strings if name.startswith("--")}
+
+
+def test_every_option_in_help_is_in_the_readme_synopsis_and_the_other_way_round() -> None:
+    synopsis = _readme_synopsis(README.read_text(encoding="utf-8"))
+    commands = _subcommands()
+    assert sorted(synopsis) == sorted(commands)
+    differences = {}
+    for name, parser in commands.items():
+        in_help, in_readme = _options(parser), set(_OPTION.findall(synopsis[name]))
+        if in_help != in_readme:
+            differences[name] = {"help only": sorted(in_help - in_readme), "README only": sorted(in_readme - in_help)}
+        for action in _arguments(parser):
+            if not action.option_strings:  # a positional: its metavar (or one of its choices) in the synopsis
+                names = [str(action.metavar or action.dest), *map(str, action.choices or ())]
+                if not any(word.lower() in synopsis[name].lower() for word in names):
+                    differences[name] = {"help only": names, "README only": []}
+    assert differences == {}
+
+
+def test_the_synopsis_reader_sees_a_missing_option() -> None:
+    # The comparison above can fail: a synopsis without one of bench's options differs from bench's help.
+    text = README.read_text(encoding="utf-8").replace(" [--memory-mb 4096]", "", 1)
+    assert "--memory-mb" not in _readme_synopsis(text)["bench"]
+    assert "--memory-mb" in _options(_subcommands()["bench"])
+
+
+def _help_text(action: argparse.Action) -> str:
+    text = action.help or ""
+    return text % {"default": action.default} if "%(" in text else text
+
+
+def _shown(value: object) -> list[str]:
+    """How a default may be written in a help text: 100.0 as 100, a list as its items."""
+    if isinstance(value, list):
+        return [" ".join(map(str, value))]
+    if isinstance(value, float):
+        return [f"{value:g}", str(value)]
+    return [str(value)]
+
+
+def test_every_argument_has_a_description_and_states_its_default() -> None:
+    missing = []
+    for name, parser in _subcommands().items():
+        for action in _arguments(parser):
+            label = f"{name} {'/'.join(action.option_strings) or action.dest}"
+            text = _help_text(action)
+            if not text.strip():
+                missing.append(f"{label}: no description")
+            default = action.default
+            if default is None or default is False or default is argparse.SUPPRESS:
+                continue
+            if "default" not in text or not any(shown in text for shown in _shown(default)):
+                missing.append(f"{label}: default {default!r} not stated")
+    assert missing == []
+
+
+@pytest.mark.parametrize("columns", [50, 80, 120])
+def test_help_is_plain_text_wrapped_between_words(columns: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Every description reads whole in --help at any terminal width: no word or hyphenated option split across
+    # lines, no reStructuredText markup.
+    monkeypatch.setenv("COLUMNS", str(columns))
+    parser = build_parser()
+    pages = {"spotnav": (parser.format_help(), [DESCRIPTION])}
+    for name, sub in _subcommands().items():
+        pages[name] = (sub.format_help(), [_help_text(action) for action in _arguments(sub)])
+    for name, (page, texts) in pages.items():
+        flowing = " ".join(page.split())
+        for text in texts:
+            assert " ".join(text.split()) in flowing, (name, text)
+        assert not re.search(r"``|:(func|mod|class|data):", page), name
+    assert "(default 100)" in " ".join(_subcommands()["render"].format_help().split())
+
+
+def test_evaluate_help_names_both_truth_files() -> None:
+    page = " ".join(_subcommands()["evaluate"].format_help().split())
+    assert "truth.csv" in page and "frame.json" in page
