@@ -549,3 +549,38 @@ def test_user_errors_found_in_review_are_one_line(tmp_path: Path, capsys: pytest
         assert main(argv) == 2, argv
         error = capsys.readouterr().err
         assert message in error and len(error.strip().splitlines()) == 1, error
+
+
+def _write_evaluation_inputs(folder: Path, frames: int = 20) -> tuple[Path, Path]:
+    truth, poses = folder / "truth.csv", folder / "poses.csv"
+    truth.write_text("image,x_mm,y_mm,z_mm\n" + "".join(f"f{i}.png,{0.01 * i},0,4\n" for i in range(frames)))
+    rows = "".join(f"f{i}.png,ok,{0.01 * i + 0.003},0,4,0,0,-1\n" for i in range(frames))
+    poses.write_text("image,status,x_mm,y_mm,z_mm,dir_x,dir_y,dir_z\n" + rows)
+    return poses, truth
+
+
+def test_a_reader_that_leaves_early_ends_evaluate_quietly_after_its_files(tmp_path: Path) -> None:
+    # Issue 44: `spotnav evaluate ... --out ev | head -1` failed with "[Errno 32] Broken pipe", exit 2, no ev/.
+    _write_evaluation_inputs(tmp_path)
+    spotnav = Path(sys.executable).parent / "spotnav"
+    pipeline = f"{spotnav} evaluate poses.csv truth.csv --out ev | head -1; exit ${{PIPESTATUS[0]}}"
+    result = subprocess.run(["bash", "-c", pipeline], cwd=tmp_path, capture_output=True, text=True, check=False)
+    assert (result.returncode, result.stderr) == (0, "")
+    assert result.stdout == "frames: 20 (20 ok)\n"
+    assert sorted(path.name for path in (tmp_path / "ev").iterdir()) == ["errors.csv", "errors.png", "track.png"]
+
+
+def test_a_closed_stdout_is_not_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The reader gone before anything is printed (`| true`): the pipe breaks on the first write, the files are
+    # written, and the run ends with exit 0 and nothing on stderr.
+    poses, truth = _write_evaluation_inputs(tmp_path)
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    with open(write_end, "w", encoding="utf-8") as closed:
+        monkeypatch.setattr(sys, "stdout", closed)
+        assert main(["evaluate", str(poses), str(truth), "--out", str(tmp_path / "ev")]) == 0
+        monkeypatch.undo()
+    assert capsys.readouterr().err == ""
+    assert (tmp_path / "ev" / "errors.csv").read_text().count("\n") == 21

@@ -9,6 +9,7 @@ applications are in :mod:`spotnav.app`.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections import Counter
@@ -249,10 +250,10 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     evaluation = evaluate_poses(read_poses_csv(args.poses), read_known_poses(args.truth))
+    written = write_evaluation(Path(args.out), evaluation) if args.out else []  # the files first: stdout may close
     print(evaluation_text(evaluation))
-    if args.out:
-        for path in write_evaluation(Path(args.out), evaluation):
-            print(f"wrote {path}", file=sys.stderr)
+    if written:
+        print(f"wrote {', '.join(map(str, written))}")
     return 0
 
 
@@ -326,7 +327,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
     args = build_parser().parse_args(argv)
     try:
-        return _COMMANDS[args.command](args)
+        code = _COMMANDS[args.command](args)
+        sys.stdout.flush()  # a reader that left (| head) shows here, not at the interpreter's exit
+        return code
+    except BrokenPipeError:  # Python's recipe (signal docs, "Note on SIGPIPE"): what was asked is written; end quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except (SpotnavError, OSError) as error:
         message = str(error).splitlines()[0] if str(error) else type(error).__name__
         print(f"spotnav: error: {message}", file=sys.stderr)
