@@ -229,11 +229,11 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     job = run_calibration(
         setup, args.poses, args.images, fit=fit, fix=args.fix or [], height_correction=args.height_correction
     )
-    print("\n".join(job.lines))
     header = f"written by spotnav calibrate from {args.scene} and {args.poses}\n" + "\n".join(job.lines)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(setup_to_toml(job.setup, header), encoding="utf-8")
+    print("\n".join(job.lines))
     print(f"wrote {out}", file=sys.stderr)
     return 0
 
