@@ -21,6 +21,31 @@ def test_read_setup_names_the_file(tmp_path: Path) -> None:
         read_setup(tmp_path / "bad.toml")
 
 
+def test_a_byte_that_is_not_utf8_is_found_by_line_and_column(tmp_path: Path) -> None:
+    # Issue 44: the message gave a byte position ("position 31"); a person finds a line and a column.
+    path = tmp_path / "latin.toml"
+    path.write_bytes(b"[eye]\nradius_mm = 12.5\n# r\xc3\xa9tine, caf\xe9\n")  # an accent in UTF-8, one in Latin-1
+    with pytest.raises(SetupError) as error:
+        read_setup(path)
+    assert str(error.value) == f"{path}: line 3, column 14: byte 0xe9 is not UTF-8 (TOML files are UTF-8)"
+
+
+def test_a_setup_without_the_camera_s_size_warns_of_the_size_assumed(tmp_path: Path) -> None:
+    # The contract's keys take the thesis's values when missing (docs/setup.md), but the camera's size decides which
+    # frames are read at all: every frame of a 512 px camera was wrong_size, silently.
+    warnings: list[str] = []
+    path = tmp_path / "setup.toml"
+    path.write_text("[camera]\nheight_px = 512\n")
+    assert read_setup(path, report=warnings.append).camera.width_px == 5000
+    assert warnings == [
+        f"spotnav: warning: {path} does not give the camera's size: assuming camera.width_px = 5000, the thesis's "
+        "(frames that are not 5000x512 px are wrong_size)"
+    ]
+    path.write_text(setup_to_toml(Setup(), "complete"))
+    read_setup(path, report=warnings.append)
+    assert len(warnings) == 1
+
+
 def test_setup_to_toml_round_trips() -> None:
     setups = [
         Setup(),

@@ -8,7 +8,9 @@ distortion coefficients from a ``cv2.FileStorage`` file (YAML, XML or JSON).
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+import sys
+import tomllib
+from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -23,23 +25,57 @@ from spotnav.setup.values import SetupError
 __all__ = ["read_opencv_camera", "read_setup", "setup_to_dict", "setup_to_toml"]
 
 
-def read_setup(path: str | Path) -> Setup:
+def read_setup(path: str | Path, *, report: Callable[[str], None] | None = None) -> Setup:
     """Read and validate a TOML setup file.
+
+    A missing key takes the thesis's value (docs/setup.md). The camera's size decides which frames are read at all,
+    so a file without ``camera.width_px`` or ``camera.height_px`` is warned of: the warning names the size assumed.
+
+    Parameters
+    ----------
+    path : str or Path
+    report : callable, optional
+        Takes the warning (default: stderr).
 
     Raises
     ------
     SetupError
-        Naming the file, and the key for invalid values.
+        Naming the file, and the key for invalid values (the line and column of a byte that is not UTF-8).
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
-        raise SetupError(f"{path}: cannot read the setup: {getattr(error, 'strerror', None) or error}") from None
+        data = path.read_bytes()
+    except OSError as error:
+        raise SetupError(f"{path}: cannot read the setup: {error.strerror or error}") from None
     try:
-        return setup_from_toml(text)
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise SetupError(f"{path}: {_not_utf8(data, error.start)}") from None
+    try:
+        setup = setup_from_toml(text)
     except SetupError as error:
         raise SetupError(f"{path}: {error}") from None
+    camera = tomllib.loads(text).get("camera", {})
+    sizes = {"width_px": setup.camera.width_px, "height_px": setup.camera.height_px}
+    assumed = [f"camera.{key} = {value}" for key, value in sizes.items() if key not in camera]
+    if assumed:
+        message = (
+            f"spotnav: warning: {path} does not give the camera's size: assuming {' and '.join(assumed)}, the "
+            f"thesis's (frames that are not {sizes['width_px']}x{sizes['height_px']} px are wrong_size)"
+        )
+        if report is None:
+            print(message, file=sys.stderr)
+        else:
+            report(message)
+    return setup
+
+
+def _not_utf8(data: bytes, start: int) -> str:
+    """Where in ``data`` the byte at ``start`` breaks UTF-8, as a person finds it: line and column (1-based)."""
+    line_start = data.rfind(b"\n", 0, start) + 1
+    column = len(data[line_start:start].decode("utf-8", "replace")) + 1
+    line = data.count(b"\n", 0, start) + 1
+    return f"line {line}, column {column}: byte 0x{data[start]:02x} is not UTF-8 (TOML files are UTF-8)"
 
 
 def setup_to_dict(setup: Setup) -> dict[str, Any]:
