@@ -584,3 +584,22 @@ def test_a_closed_stdout_is_not_an_error(
         monkeypatch.undo()
     assert capsys.readouterr().err == ""
     assert (tmp_path / "ev" / "errors.csv").read_text().count("\n") == 21
+
+
+def test_a_setup_without_the_camera_s_width_warns_and_a_batch_of_wrong_sizes_fails(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Issue 44: a setup without width_px silently took 5000, every frame came back wrong_size, and the exit was 0.
+    scene = tmp_path / "setup.toml"
+    scene.write_text(EXAMPLE_SETUP.replace("width_px = 5000", "").replace("height_px = 5000", "height_px = 256"))
+    frames = [str(tmp_path / f"{i}.png") for i in range(3)]
+    for frame in frames:
+        cv2.imwrite(frame, np.zeros((256, 256, 3), np.uint8))
+    assert main(["localize", "--scene", str(scene), *frames, "--out", str(tmp_path / "poses.csv")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == (
+        f"spotnav: warning: {scene} does not give the camera's size: assuming camera.width_px = 5000, the thesis's "
+        "(frames that are not 5000x256 px are wrong_size)"
+    )
+    assert err[-1].startswith("spotnav: error: none of the 3 images could be localized (wrong_size: 3)")
+    assert [row["status"] for row in read_poses(tmp_path / "poses.csv")] == ["wrong_size"] * 3

@@ -161,7 +161,9 @@ def _cmd_localize(args: argparse.Namespace) -> int:
         )
     ended = f" (stopped by {batch.stopped_by})" if batch.stopped_by else ""
     print(f"wrote {args.out}: {batch.rows} images, {_counts(batch.statuses, 'no images')}{ended}", file=sys.stderr)
-    return 0
+    if batch.all_failed:
+        print(batch.all_failed, file=sys.stderr)
+    return batch.exit_code
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
