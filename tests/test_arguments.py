@@ -87,7 +87,7 @@ def _shown(value: object) -> list[str]:
 
 def test_every_argument_has_a_description_and_states_its_default() -> None:
     missing = []
-    for name, parser in _subcommands().items():
+    for name, parser in {"spotnav": build_parser(), **_subcommands()}.items():
         for action in _arguments(parser):
             label = f"{name} {'/'.join(action.option_strings) or action.dest}"
             text = _help_text(action)

@@ -243,7 +243,8 @@ def build_parser(description: str = DESCRIPTION) -> argparse.ArgumentParser:
     """``spotnav``'s parser, its summary line ``description`` (plain text); ``command`` names the subcommand parsed."""
     parser = argparse.ArgumentParser(prog="spotnav", description=description, formatter_class=_PlainFormatter)
     parser.add_argument("--version", action="version", version=f"spotnav {__version__}")
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    command_help = "one of these; spotnav COMMAND --help describes its options"
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help=command_help)
     _scene_command(commands)
     _render_command(commands)
     _localize_command(commands)
