@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 from conftest import small_setup
 
-from spotnav.app.overlay import View, cone_edge_px, crop_box, draw_overlay
+from spotnav.app.overlay import View, box_around, cone_edge_px, crop_box, draw_overlay
 from spotnav.optics.camera import project_points
 from spotnav.optics.render import Renderer
 from spotnav.pose.estimate import PoseEstimate
@@ -62,14 +62,21 @@ def test_a_cone_whose_apex_lies_outside_the_eye_has_no_edge_to_draw() -> None:
 
 def test_a_view_enlarges_its_box_by_a_whole_factor_and_maps_pixel_centres() -> None:
     view = View.enlarged((100, 50, 180, 110), (512, 512))
-    assert view.zoom == 6  # 80 px: 512 // 80 = 6, under 800 // 80 = 10
+    assert view.zoom == 3  # 80 px: within half the frame, 256 // 80 = 3
+    assert View.enlarged((100, 50, 180, 110), (5000, 5000)).zoom == 10  # within 800 px
     assert View.enlarged((0, 0, 300, 40), (512, 512)).zoom == 1
     frame = np.arange(512 * 512 * 3, dtype=np.uint32).reshape(512, 512, 3).astype(np.uint8)
     canvas = view.cut(frame)
-    assert canvas.shape == (60 * 6, 80 * 6, 3)
-    # A frame pixel's centre lands in the middle of its 6 x 6 block, which holds that pixel's value.
+    assert canvas.shape == (60 * 3, 80 * 3, 3)
+    # A frame pixel's centre lands in the middle of its 3 x 3 block, which holds that pixel's value.
     u, v = np.round(view.to_canvas(np.array([123.0, 77.0]))).astype(int)
-    assert np.array_equal(canvas[v, u], frame[77, 123]) and (u, v) == ((123 - 100) * 6 + 2, (77 - 50) * 6 + 2)
+    assert np.array_equal(canvas[v, u], frame[77, 123]) and (u, v) == ((123 - 100) * 3 + 1, (77 - 50) * 3 + 1)
+
+
+def test_a_box_around_points_has_room_for_the_text_and_stays_inside_the_frame() -> None:
+    assert box_around([np.array([[200.0, 200.0], [260.0, 260.0]])], (512, 512)) == (110, 110, 350, 350)
+    assert box_around([np.array([[0.0, 500.0], [3.0, 511.0]])], (512, 512)) == (0, 271, 241, 512)  # moved in
+    assert box_around([np.array([[np.nan, 1.0]])], (512, 256)) == (0, 0, 512, 256)  # nothing to frame
 
 
 def test_the_cones_edge_is_drawn_above_edge_points_that_lie_on_it() -> None:

@@ -50,12 +50,11 @@ def test_show_crop_on_an_ok_frame_draws_the_tip_and_the_cone_above_the_points(se
     assert estimate.ok and shown.note == ""
     canvas, view = shown.canvas, shown.view
     _crop_is_smaller(view, canvas)
-    assert view.zoom >= 2
     # The tip's cross is centred on the tip's projection.
     u, v = np.round(view.to_canvas(project_points(setup.camera, estimate.tip_in_eye))).astype(int)
     assert tuple(canvas[v, u]) == YELLOW
     # The cone is drawn above the edge points: along its projected edge, cyan, with green beside it.
-    assert _count(canvas, CYAN) > 200 and _count(canvas, GREEN) > 200
+    assert _count(canvas, CYAN) > 100 and _count(canvas, GREEN) > 100
     curve = np.round(view.to_canvas(cone_edge_px(setup, shown.localization.cones[0]))).astype(int)
     on_curve = np.all(canvas[curve[:, 1], curve[:, 0]] == CYAN, axis=1)
     assert on_curve.mean() > 0.9
@@ -78,7 +77,7 @@ def test_show_crop_on_a_blurred_frame_crops_around_the_edges_it_read_and_says_wh
     sharp_box = show_frame(sharp, setup, crop=True).view.box
     centre = np.mean(shown.spots[0].edge_px, axis=0)
     assert sharp_box[0] < centre[0] < sharp_box[2] and sharp_box[1] < centre[1] < sharp_box[3]
-    assert shown.note.startswith("orange: the spots' edges as read")
+    assert shown.note == "orange: the edges read, not fitted"
     # The status text: where it is drawn, the picture is not the plain crop's.
     plain = _plain(image, view)
     text_rows = slice(0, 40)
@@ -91,7 +90,7 @@ def test_show_crop_on_a_spot_off_the_fundus_crops_around_its_outline(setup: Setu
     shown = show_frame(image, setup, crop=True)
     assert shown.localization.estimate.status == "clipped"
     _crop_is_smaller(shown.view, shown.canvas)
-    assert shown.note.startswith("orange: the spots' outlines") and _count(shown.canvas, ORANGE) > 50
+    assert shown.note == "orange: the spots' outlines, not read" and _count(shown.canvas, ORANGE) > 50
     assert tuple(shown.canvas[8, 8]) == status_style("clipped").rgb
 
 

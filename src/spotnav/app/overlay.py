@@ -33,7 +33,8 @@ _CURVE_POINTS = 180
 _TEXT_BOX_OPACITY = 0.7
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 _ZOOMED_PX = 800  # a crop is enlarged toward this size (its longer side), by a whole factor
-_SMALLEST_CROP_PX = 64
+_SMALLEST_CROP_PX = 240  # room for the status text
+_TEXT_SHARE = 3  # the text takes at most a third of the picture's height: a long detail is cut short (...)
 
 
 @dataclass(frozen=True)
@@ -60,11 +61,10 @@ class View:
     @classmethod
     def enlarged(cls, box: tuple[int, int, int, int], frame_size: tuple[int, int]) -> View:
         """``box`` enlarged by the largest whole factor that keeps its longer side within ``_ZOOMED_PX`` and within
-        the frame's own (``frame_size``: width, height, pixels), so that a crop is never larger than its frame."""
+        half the frame's longer side (``frame_size``: width, height, pixels): a crop stays smaller than its frame."""
         x0, y0, x1, y1 = box
         longest = max(x1 - x0, y1 - y0, 1)
-        zoom = max(1, min(_ZOOMED_PX // longest, max(frame_size) // longest))
-        return cls(box, zoom)
+        return cls(box, max(1, min(_ZOOMED_PX, max(frame_size) // 2) // longest))
 
     def to_canvas(self, points_px: np.ndarray) -> np.ndarray:
         """Frame pixels ``(u, v)``, shape (..., 2), to the canvas's pixels (pixel centres at integers)."""
@@ -133,14 +133,31 @@ def _wrapped(text: str, width_px: int, scale: float, thick: int) -> list[str]:
     return lines
 
 
+def _fitted_lines(texts: Sequence[str], most: int, width_px: int, scale: float, thick: int) -> list[str]:
+    """Each text wrapped (:func:`_wrapped`), all in at most ``most`` lines (at least one each); a text cut short
+    ends with ``...``."""
+    lines: list[str] = []
+    for number, text in enumerate(texts):
+        wrapped = _wrapped(text, width_px, scale, thick)
+        room = max(1, most - len(lines) - (len(texts) - number - 1))
+        if len(wrapped) > room:
+            last = wrapped[room - 1].split()
+            while len(last) > 1 and cv2.getTextSize(" ".join(last) + " ...", _FONT, scale, thick)[0][0] > width_px:
+                last.pop()
+            wrapped = [*wrapped[: room - 1], " ".join(last) + " ..."]
+        lines += wrapped
+    return lines
+
+
 def _draw_status(canvas: np.ndarray, texts: Sequence[str], colour: tuple[int, int, int], thick: int) -> None:
     """The texts, wrapped, white on a dark box in the top-left corner, after a square of ``colour``; in place."""
     height, width = canvas.shape[:2]
-    scale = max(0.45, max(height, width) / 2000)
+    scale = max(0.4, max(height, width) / 2000)
     (_, text_height), _ = cv2.getTextSize("Ag", _FONT, scale, thick)
     step, pad = round(1.6 * text_height), round(0.5 * text_height)
     swatch = step
-    lines = [line for text in texts for line in _wrapped(text, width - swatch - 3 * pad, scale, thick)]
+    most = height // _TEXT_SHARE // step
+    lines = _fitted_lines(texts, most, width - swatch - 3 * pad, scale, thick)
     widest = max(cv2.getTextSize(line, _FONT, scale, thick)[0][0] for line in lines)
     right, bottom = min(width, swatch + widest + 3 * pad), min(height, step * len(lines) + 2 * pad)
     box = canvas[:bottom, :right]
@@ -231,18 +248,24 @@ def box_around(
     points_px: Sequence[np.ndarray], frame_size: tuple[int, int], margin: float = 0.3
 ) -> tuple[int, int, int, int]:
     """The part of the frame around some points: ``(x0, y0, x1, y1)`` px, ``margin`` of its size (and 10 px) on
-    each side, at least ``_SMALLEST_CROP_PX`` across; the whole frame (``frame_size``: width, height) without any.
+    each side, at least ``_SMALLEST_CROP_PX`` across (moved inward at the frame's border, not cut); the whole frame
+    (``frame_size``: width, height) without any point.
     """
-    width, height = frame_size
+    size = np.array(frame_size)
     chosen = [np.asarray(p, dtype=float).reshape(-1, 2) for p in points_px]
     every = np.concatenate(chosen) if chosen else np.zeros((0, 2))
     every = every[np.all(np.isfinite(every), axis=1)]
     if not len(every):
-        return 0, 0, width, height
+        return 0, 0, int(size[0]), int(size[1])
     low, high = every.min(axis=0), every.max(axis=0)
     pad = np.maximum(margin * float(np.max(high - low)) + 10, (_SMALLEST_CROP_PX - (high - low)) / 2)
-    x0, y0 = np.maximum(np.floor(low - pad), 0).astype(int)
-    x1, y1 = np.minimum(np.ceil(high + pad), [width, height]).astype(int)
+    start, end = np.floor(low - pad), np.ceil(high + pad)
+    back = np.minimum(np.maximum(end - size, 0), np.maximum(start, 0))  # past the far border: back, to the near one
+    start, end = start - back, end - back
+    on = np.minimum(np.maximum(-start, 0), np.maximum(size - end, 0))  # past the near border: on, to the far one
+    start, end = start + on, end + on
+    x0, y0 = np.maximum(start, 0).astype(int)
+    x1, y1 = np.minimum(end, size).astype(int)
     return int(x0), int(y0), int(x1), int(y1)
 
 

@@ -20,9 +20,9 @@ from spotnav.setup.config import Setup
 
 __all__ = ["Shown", "show_frame", "spots_before_refusal"]
 
-_NOTHING_FOUND = "no edge points: no spot stands out"
-_OUTLINES = "orange: the spots' outlines as found (refused before their edges were read)"
-_EDGES_READ = "orange: the spots' edges as read (refused before the fit)"
+_NOTHING_FOUND = "no edge points: no spot found"
+_OUTLINES = "orange: the spots' outlines, not read"
+_EDGES_READ = "orange: the edges read, not fitted"
 _NOTHING_TO_CROP = "nothing to crop around"
 
 
