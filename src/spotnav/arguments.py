@@ -159,7 +159,7 @@ def _evaluate_and_show_commands(commands: argparse._SubParsersAction[argparse.Ar
     _scene(show)
     _method(show)
     _out(show, "the overlay image (PNG)")
-    _flag(show, "--crop", "only the part of the frame around the spots")
+    _flag(show, "--crop", "only the part of the frame around the spots (a refused frame's too), enlarged if small")
     show.add_argument("frame", metavar="FRAME", help="the camera frame")
 
 

@@ -23,9 +23,9 @@ import numpy as np
 from spotnav.app.batch import localize_batch
 from spotnav.app.calibration_job import run_calibration
 from spotnav.app.evaluate import evaluate_poses, evaluation_text, write_evaluation
-from spotnav.app.overlay import crop_box, draw_overlay
 from spotnav.app.sequence_render import check_inside, render_sequence
 from spotnav.app.session import IgtlSettings, TrackLimits, TrackSession, camera_settings, ready
+from spotnav.app.show import show_frame
 from spotnav.arguments import build_parser
 from spotnav.errors import SpotnavError
 from spotnav.experiments import approximation_rows, reproduce
@@ -37,7 +37,6 @@ from spotnav.files.images import read_image, write_image
 from spotnav.files.poses import read_known_poses, read_poses_csv, write_truth_json
 from spotnav.files.setup_files import read_opencv_camera, read_setup, setup_to_toml
 from spotnav.optics.render import Renderer
-from spotnav.pose.localize import localize_detailed
 from spotnav.setup.config import Setup
 from spotnav.setup.examples import EXAMPLES
 from spotnav.setup.geometry import InstrumentPose, beam_axes
@@ -170,19 +169,17 @@ def _cmd_show(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
     image = read_image(args.frame, expected_size=(setup.camera.width_px, setup.camera.height_px))
     ready(setup)
-    result = localize_detailed(image, setup, args.method)
-    canvas = draw_overlay(image, setup, result.estimate, spots=result.spots, cones=result.cones)
-    if args.crop:
-        x0, y0, x1, y1 = crop_box(setup, result)
-        canvas = canvas[y0:y1, x0:x1]
-    write_image(args.out, canvas)
-    estimate = result.estimate
+    shown = show_frame(image, setup, args.method, crop=args.crop)
+    write_image(args.out, shown.canvas)
+    estimate = shown.localization.estimate
     if estimate.tip_in_eye is not None:
         tip = " ".join(f"{v:.4f}" for v in estimate.tip_in_eye)
         print(f"ok: tip {tip} mm, sigma {estimate.sigma_mm:.4f} mm")
     else:
         print(f"{estimate.status}: {estimate.detail}")
-    for spot in result.spots:
+    if shown.note:
+        print(shown.note)
+    for spot in shown.spots:
         line = f"beam {spot.beam}: {len(spot.edge_px)} edge points"
         if len(spot.fitted_px):
             rms = float(np.sqrt(np.mean(spot.residuals_deg**2)))

@@ -3,10 +3,11 @@ from __future__ import annotations
 import numpy as np
 from conftest import small_setup
 
-from spotnav.app.overlay import cone_edge_px, crop_box, draw_overlay
+from spotnav.app.overlay import View, box_around, cone_edge_px, crop_box, draw_overlay
+from spotnav.optics.camera import project_points
 from spotnav.optics.render import Renderer
 from spotnav.pose.estimate import PoseEstimate
-from spotnav.pose.localize import Cone, localize_detailed
+from spotnav.pose.localize import Cone, SpotDetail, localize_detailed
 from spotnav.setup.geometry import InstrumentPose
 
 GREEN, CYAN, YELLOW = (0, 220, 0), (0, 230, 255), (255, 255, 0)
@@ -57,3 +58,37 @@ def test_a_cone_whose_apex_lies_outside_the_eye_has_no_edge_to_draw() -> None:
     inside = Cone(np.array([0.0, 0.0, 4.0]), np.array([0.0, 0.0, -1.0]), 9.0)
     assert cone_edge_px(setup, outside).shape == cone_edge_px(setup, on_the_wall).shape == (0, 2)
     assert len(cone_edge_px(setup, inside)) > 0
+
+
+def test_a_view_enlarges_its_box_by_a_whole_factor_and_maps_pixel_centres() -> None:
+    view = View.enlarged((100, 50, 180, 110), (512, 512))
+    assert view.zoom == 3  # 80 px: within half the frame, 256 // 80 = 3
+    assert View.enlarged((100, 50, 180, 110), (5000, 5000)).zoom == 10  # within 800 px
+    assert View.enlarged((0, 0, 300, 40), (512, 512)).zoom == 1
+    frame = np.arange(512 * 512 * 3, dtype=np.uint32).reshape(512, 512, 3).astype(np.uint8)
+    canvas = view.cut(frame)
+    assert canvas.shape == (60 * 3, 80 * 3, 3)
+    # A frame pixel's centre lands in the middle of its 3 x 3 block, which holds that pixel's value.
+    u, v = np.round(view.to_canvas(np.array([123.0, 77.0]))).astype(int)
+    assert np.array_equal(canvas[v, u], frame[77, 123]) and (u, v) == ((123 - 100) * 3 + 1, (77 - 50) * 3 + 1)
+
+
+def test_a_box_around_points_has_room_for_the_text_and_stays_inside_the_frame() -> None:
+    assert box_around([np.array([[200.0, 200.0], [260.0, 260.0]])], (512, 512)) == (110, 110, 350, 350)
+    assert box_around([np.array([[0.0, 500.0], [3.0, 511.0]])], (512, 512)) == (0, 271, 241, 512)  # moved in
+    assert box_around([np.array([[np.nan, 1.0]])], (512, 256)) == (0, 0, 512, 256)  # nothing to frame
+
+
+def test_the_cones_edge_is_drawn_above_edge_points_that_lie_on_it() -> None:
+    setup = small_setup(256)
+    cone = Cone(np.array([0.0, 0.0, 4.0]), np.array([0.0, 0.0, -1.0]), 9.0)
+    curve = cone_edge_px(setup, cone)
+    on_it = SpotDetail(0, curve, curve, np.ones(len(curve), bool), np.zeros(len(curve)))
+    estimate = PoseEstimate("unreliable", detail="a test")
+    canvas = draw_overlay(np.zeros((256, 256), np.uint8), setup, estimate, spots=[on_it], cones=[cone])
+    pixels = np.round(curve).astype(int)
+    assert np.all(canvas[pixels[:, 1], pixels[:, 0]] == CYAN, axis=1).mean() > 0.9
+    assert _count(canvas, GREEN) > 50  # the points still show beside the line
+    # A refused fit's cones place the tip's cross at their apex.
+    u, v = np.round(project_points(setup.camera, cone.apex_in_eye)).astype(int)
+    assert tuple(canvas[v, u]) == YELLOW

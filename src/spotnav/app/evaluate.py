@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spotnav.app.figures import plot_errors_by_status, plot_path_3d
+from spotnav.app.figures import plot_errors_by_status, plot_track_by_status
 from spotnav.errors import InputError
 from spotnav.files.poses import KnownPose, PoseRow
 
@@ -186,7 +186,9 @@ def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:
     """Write ``errors.csv``, ``errors.png`` and ``track.png`` into ``out``; return their paths.
 
     ``errors.csv`` has one row per frame, ``errors.png`` the error per frame by
-    status, ``track.png`` the estimated tips against the true path, in 3D.
+    status, ``track.png`` the estimated tips against the true path, in 3D, and
+    the frames without a pose at their true tips; both figures colour each status
+    as :mod:`spotnav.app.status_style` does.
     """
     out.mkdir(parents=True, exist_ok=True)
     table = out / "errors.csv"
@@ -208,5 +210,5 @@ def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:
     estimated = truth + np.array([f.error_xyz_mm for f in evaluation.frames])
     track = out / "track.png"
     title = f"estimated tips ({evaluation.counts.get('ok', 0)} ok frames) against the true path"
-    plot_path_3d(track, truth, {"estimate": estimated}, title)
+    plot_track_by_status(track, truth, estimated, [f.status for f in evaluation.frames], title)
     return [table, figure, track]

@@ -13,6 +13,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from spotnav.app.status_style import status_style
+from spotnav.pose.estimate import STATUSES
+
 __all__ = [
     "plot_against_power",
     "plot_error_against",
@@ -22,6 +25,7 @@ __all__ = [
     "plot_geometry_study",
     "plot_path_3d",
     "plot_per_step",
+    "plot_track_by_status",
 ]
 
 _COLOURS = {"1 beam": "tab:green", "3 beams": "tab:blue"}
@@ -119,25 +123,65 @@ def plot_gallery(path: Path, images: Mapping[str, np.ndarray], title: str) -> No
             ax.axis("off")
 
 
+def _status_order(statuses: Sequence[str]) -> list[str]:
+    """The statuses present, in the order of :data:`~spotnav.pose.estimate.STATUSES` (unknown ones last)."""
+    return sorted(set(statuses), key=lambda s: (STATUSES.index(s) if s in STATUSES else len(STATUSES), s))
+
+
 def plot_errors_by_status(
     path: Path, images: Sequence[str], errors_mm: np.ndarray, statuses: Sequence[str], title: str
 ) -> None:
-    """Tip error per frame, one colour per status; frames without a pose are marked on the axis."""
+    """Tip error per frame: ``ok`` frames as bars; every other status's frames as its own marker on the axis.
+
+    Each status has its own colour and marker (:mod:`spotnav.app.status_style`); the legend gives the count of each.
+    """
     index = np.arange(len(images))
-    with _figure(path, 1, 1, (max(6.0, 0.12 * len(images) + 3), 4), title) as axes:
+    with _figure(path, 1, 1, (max(6.0, 0.12 * len(images) + 3) + 2, 4), title) as axes:
         ax = axes[0, 0]
-        for number, status in enumerate(sorted(set(statuses), key=lambda s: (s != "ok", s))):
+        for status in _status_order(statuses):
             chosen = np.array([s == status for s in statuses])
-            colour = "tab:green" if status == "ok" else f"C{number + 1}"
+            style = status_style(status)
+            label = f"{status} ({chosen.sum()})"
             if status == "ok":
-                ax.bar(index[chosen], errors_mm[chosen], color=colour, label=f"ok ({chosen.sum()})")
+                ax.bar(index[chosen], errors_mm[chosen], color=style.colour, label=label)
             else:
-                label = f"{status} ({chosen.sum()})"
-                ax.plot(index[chosen], np.zeros(chosen.sum()), "x", ms=8, color=colour, label=label)
+                ax.plot(index[chosen], np.zeros(chosen.sum()), linestyle="none", marker=style.marker, ms=8,
+                        color=style.colour, markeredgecolor="black", markeredgewidth=0.5, clip_on=False,
+                        label=label)  # fmt: skip
         ax.set(xlabel="frame (poses.csv order)", ylabel="tip error [mm]")
         if len(images) <= 40:
             ax.set_xticks(index, images, rotation=90, fontsize="x-small")
-        ax.legend(fontsize="small")
+        handles, labels = ax.get_legend_handles_labels()
+        order = np.argsort([not label.startswith("ok ") for label in labels], kind="stable")  # ok's bars first
+        ax.legend([handles[i] for i in order], [labels[i] for i in order], fontsize="small", title="status (frames)",
+                  title_fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))  # fmt: skip
+
+
+def plot_track_by_status(
+    path: Path, truth_tips: np.ndarray, estimated_tips: np.ndarray, statuses: Sequence[str], title: str
+) -> None:
+    """The true path as a line, the ``ok`` frames' estimated tips as dots and every other frame as its status's
+    marker at its true tip, in 3D (colours and markers of :mod:`spotnav.app.status_style`).
+
+    Parameters
+    ----------
+    truth_tips, estimated_tips : ndarray, shape (N, 3)
+        Eye frame, mm; the estimates are NaN without a pose.
+    statuses : sequence of str, length N
+    """
+    with _figure(path, 1, 1, (9.0, 5.5), title, subplot_kw={"projection": "3d"}) as axes:
+        ax = axes[0, 0]
+        ax.plot(*truth_tips.T, color="black", lw=1, label="true path")
+        for status in _status_order(statuses):
+            chosen = np.array([s == status for s in statuses])
+            style = status_style(status)
+            tips = estimated_tips[chosen] if status == "ok" else truth_tips[chosen]
+            where = "" if status == "ok" else ", at the true tip"
+            ax.scatter(*tips.T, s=10 if status == "ok" else 30, marker=style.marker, color=style.colour,
+                       edgecolors="none" if status == "ok" else "black", linewidths=0.4, depthshade=False,
+                       label=f"{status} ({chosen.sum()}){where}")  # fmt: skip
+        ax.set(xlabel="x [mm]", ylabel="y [mm]", zlabel="z [mm]")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.08, 1.0), fontsize="small")
 
 
 def plot_error_against(

@@ -44,6 +44,7 @@ __all__ = [
     "plan_found_spots",
     "pose_problem",
     "read_light",
+    "read_spot_edge",
     "refit_free_axis",
 ]
 
@@ -173,21 +174,9 @@ def read_light(
         The edges, or why one cannot be used: ``unreliable`` or ``blurred`` (:func:`spotnav.pose.checks.judge_edge`).
     """
     angle = edge_angle(setup)
-    response = setup.camera.pixel_response
     edges, sigmas = [], []
-    for fan, beam, radius_px in zip(plan.fans, plan.beams, plan.radii_px, strict=True):
-        light = edge_light(setup, plan.tip_in_eye, plan.beam_axes_in_eye[beam])
-        pool = None if noise_pools is None else noise_pools[beam]
-        edge = detect_edge_along_rays(
-            image,
-            fan.centre_px,
-            fan.ray_angles,
-            fan.radii_px,
-            align=fan.align,
-            response=response,
-            light=light,
-            noise_pool=pool,
-        )
+    for index, (beam, radius_px) in enumerate(zip(plan.beams, plan.radii_px, strict=True)):
+        edge = read_spot_edge(image, setup, plan, index, None if noise_pools is None else noise_pools[beam])
         found = (len(edge.pixels) + edge.misshapen_rays) / edge.rays
         if found < min_edge_fraction:
             detail = f"an edge on only {100 * found:.0f} % of the rays near the predicted spot"
@@ -198,6 +187,24 @@ def read_light(
         edges.append(edge)
         sigmas.append(verdict.sigma)
     return LightReading(tuple(edges), tuple(sigmas), plan.beams)
+
+
+def read_spot_edge(
+    image: np.ndarray, setup: Setup, plan: SpotPlan, index: int, noise_pool: np.ndarray | None = None
+) -> SpotEdge:
+    """One planned spot's edge along its rays, with its beam's light model, not judged (:func:`read_light` judges it;
+    ``spotnav show`` draws it on a frame that was refused)."""
+    fan, beam = plan.fans[index], plan.beams[index]
+    return detect_edge_along_rays(
+        image,
+        fan.centre_px,
+        fan.ray_angles,
+        fan.radii_px,
+        align=fan.align,
+        response=setup.camera.pixel_response,
+        light=edge_light(setup, plan.tip_in_eye, plan.beam_axes_in_eye[beam]),
+        noise_pool=noise_pool,
+    )
 
 
 def pose_problem(
