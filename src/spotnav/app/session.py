@@ -232,8 +232,8 @@ class TrackSession:
     limits : TrackLimits, optional
         Default: none, the run goes to the source's end.
     camera : CameraSettings, optional
-        What to ask a live camera for (default: nothing). Its ``fps`` is asked of a live source only; for the
-        others it is the overlay's frame rate if the source has none.
+        What to ask a live camera for (default: nothing). With an ``overlay`` and a source that is not live, its
+        ``fps`` is the overlay's frame rate if the source has none (images).
     igtl : IgtlSettings, optional
         Serve each pose on OpenIGTLink.
     overlay : str or Path, optional
@@ -285,14 +285,15 @@ class TrackSession:
             with compiling_note():
                 tracker = Tracker(setup, through_insertion=self.through_insertion)
             size = (setup.camera.width_px, setup.camera.height_px)
-            live = is_live(self.source)
+            # --fps asks a live source for its rate; with an overlay, it is the overlay's for a source without one.
+            overlay_fps = self.overlay is not None and not is_live(self.source)
             rates: list[float] = []  # the source's frame rate, if it has one
             # The tracker keeps no image: a frame's buffer is reused two frames later; a video is decoded in a
             # second process, and the tracker rehearses the last frame while it waits.
             source = iter_frames(
                 self.source,
                 ring=2,
-                camera=self.camera if live else replace(self.camera, fps=None),
+                camera=replace(self.camera, fps=None) if overlay_fps else self.camera,
                 report=self.report,
                 expected_size=size,
                 while_waiting=tracker.rehearse,
