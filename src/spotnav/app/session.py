@@ -350,10 +350,11 @@ class TrackSession:
         with RecordingWriter(self.record, setup, report=self.report) as recording:
             yield recording
         frames = max(recording.frames, 1)
+        waited = f" and {recording.wait_s:.1f} s waiting for the disk" if recording.wait_s else ""
         self.report(
             f"recorded {recording.frames} frames in {recording.folder}: {1000 * recording.copy_s / frames:.2f} ms a "
-            f"frame in the tracker's thread, {1000 * recording.write_s / frames:.1f} ms a frame writing in the "
-            "background"
+            f"frame copying in the tracker's thread{waited}, {1000 * recording.write_s / frames:.1f} ms a frame "
+            "writing in the background"
         )
 
     def _server(self, signals: StopSignals) -> PoseServer | None:

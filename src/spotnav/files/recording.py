@@ -56,6 +56,7 @@ _PNG_OPTIONS = [
     *(cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY),
     *(cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE),
 ]
+_SPARE_BUFFERS = 4  # written frames' buffers kept to copy the next ones into (a fresh one costs its page faults)
 _WAIT_SLICE_S = 0.05  # a replay waiting for a frame's time looks at its stop this often
 
 
@@ -97,7 +98,9 @@ class RecordingWriter:
     frames : int
         Frames written.
     copy_s : float
-        Time :meth:`add` took in the caller's thread, s, in total (copying the pixels, and waiting for the disk).
+        Time :meth:`add` took in the caller's thread to copy the frames, s, in total.
+    wait_s : float
+        Time :meth:`add` waited for the disk, s, in total.
     write_s : float
         Time the writing thread took to encode and write the frames, s, in total.
     """
@@ -122,11 +125,12 @@ class RecordingWriter:
         self._csv = csv.writer(self._handle, lineterminator="\n")
         self._csv.writerow(RECORDING_COLUMNS)
         self.max_pending_bytes, self.report = max_pending_bytes, report
-        self.frames, self.copy_s, self.write_s = 0, 0.0, 0.0
+        self.frames, self.copy_s, self.wait_s, self.write_s = 0, 0.0, 0.0, 0.0
         self.error = ""  # why the writing thread stopped writing
         self._said_behind = False
         self._pending_bytes = 0
         self._room = threading.Condition()
+        self._spare: list[np.ndarray] = []  # buffers of frames written, to copy the next ones into
         self._queue: queue.SimpleQueue[_Pending | None] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._write_all, name="spotnav-record", daemon=True)
         self._thread.start()
@@ -142,17 +146,33 @@ class RecordingWriter:
         start = time.perf_counter()
         if self.error:
             raise InputError(f"{self.folder}: recording stopped: {self.error}")
-        pixels = None if frame.pixels is None else frame.pixels.copy()
-        size = 0 if pixels is None else pixels.nbytes
+        size = 0 if frame.pixels is None else frame.pixels.nbytes
+        waited = 0.0
         with self._room:
             if self._pending_bytes + size > max(self.max_pending_bytes, size):
                 if not self._said_behind and self.report is not None:
                     self._said_behind = True
                     self.report(f"spotnav: warning: {self.folder}: the disk is behind: tracking waits for it")
+                waiting = time.perf_counter()
                 self._room.wait_for(lambda: self._pending_bytes + size <= max(self.max_pending_bytes, size))
+                waited = time.perf_counter() - waiting
             self._pending_bytes += size
+            spare = None if frame.pixels is None else self._take_spare(frame.pixels)
+        pixels = None
+        if frame.pixels is not None:
+            pixels = frame.pixels.copy() if spare is None else spare
+            if spare is not None:
+                np.copyto(spare, frame.pixels)
         self._queue.put(_Pending(frame, pixels))
-        self.copy_s += time.perf_counter() - start
+        self.wait_s += waited
+        self.copy_s += time.perf_counter() - start - waited
+
+    def _take_spare(self, pixels: np.ndarray) -> np.ndarray | None:
+        """A written frame's buffer of ``pixels``'s shape and type, taken from the spares (with the lock held)."""
+        for index, spare in enumerate(self._spare):
+            if spare.shape == pixels.shape and spare.dtype == pixels.dtype:
+                return self._spare.pop(index)
+        return None
 
     def close(self) -> None:
         """Wait until every queued frame is on disk, then close ``frames.csv``."""
@@ -175,7 +195,10 @@ class RecordingWriter:
                 self.error = self._write(pending)
             self.write_s += time.perf_counter() - start
             with self._room:
-                self._pending_bytes -= 0 if pending.pixels is None else pending.pixels.nbytes
+                if pending.pixels is not None:
+                    self._pending_bytes -= pending.pixels.nbytes
+                    if len(self._spare) < _SPARE_BUFFERS:
+                        self._spare.append(pending.pixels)
                 self._room.notify_all()
 
     def _write(self, pending: _Pending) -> str:
