@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 import time
 from pathlib import Path
 
@@ -107,6 +108,11 @@ def test_a_slow_disk_keeps_every_frame_and_says_so_once(tmp_path: Path, monkeypa
     assert writer.frames == 20 and len(list((tmp_path / "rec").glob("frame_*.png"))) == 20
     assert len(said) == 1 and "the disk is behind: tracking waits for it" in said[0]
     assert writer.wait_s > 10 * 0.02 > writer.copy_s  # the caller waited for the disk, apart from copying
+    said.clear()
+    writer = record(tmp_path / "more", frames(30), report=said.append)  # room for every frame: none waits
+    assert writer.frames == 30 and writer.wait_s == 0
+    note = re.fullmatch(r".*more: writing the (\d+) frames still in memory \.\.\.", said[0])
+    assert len(said) == 1 and note is not None and 20 <= int(note.group(1)) <= 30  # 20 ms a frame: most wait
 
 
 def test_recordings_that_cannot_be_used_are_user_errors(tmp_path: Path) -> None:

@@ -57,6 +57,7 @@ _PNG_OPTIONS = [
     *(cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE),
 ]
 _SPARE_BUFFERS = 4  # written frames' buffers kept to copy the next ones into (a fresh one costs its page faults)
+_SAY_LEFT = 20  # closing with this many frames still to write says so
 _WAIT_SLICE_S = 0.05  # a replay waiting for a frame's time looks at its stop this often
 
 
@@ -175,8 +176,11 @@ class RecordingWriter:
         return None
 
     def close(self) -> None:
-        """Wait until every queued frame is on disk, then close ``frames.csv``."""
+        """Wait until every queued frame is on disk (saying so when many wait), then close ``frames.csv``."""
         if self._thread.is_alive():
+            left = self._queue.qsize()
+            if left >= _SAY_LEFT and self.report is not None:
+                self.report(f"{self.folder}: writing the {left} frames still in memory ...")
             self._queue.put(None)
             self._thread.join()
         self._handle.close()
