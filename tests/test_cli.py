@@ -266,6 +266,29 @@ def test_track_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture
         assert message in error and len(error.strip().splitlines()) == 1
 
 
+def test_track_records_replays_and_says_what_is_wrong_with_its_new_options_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=256, blend=0.15)
+    frames, recording = tmp_path / "frames", tmp_path / "recording"
+    assert main(["render", "--scene", str(scene), "--path", "helix", "--frames", "4", "--out", str(frames)]) == 0
+    track = ["track", "--scene", str(scene), "--out", str(tmp_path / "poses.csv")]
+    assert main([*track, str(frames), "--record", str(recording)]) == 0
+    assert f"recorded 4 frames in {recording}: " in capsys.readouterr().err
+    recorded = [row["x_mm"] for row in read_poses(tmp_path / "poses.csv")]
+    assert main([*track, str(recording), "--replay-speed", "fast"]) == 0
+    assert [row["x_mm"] for row in read_poses(tmp_path / "poses.csv")] == recorded
+    assert "wrote" in capsys.readouterr().err
+    for argv, message in [
+        ([str(recording), "--replay-speed", "slow"], "--replay-speed must be fast or a number > 0"),
+        ([str(frames), "--record", str(recording)], "holds a recording already: --record a new folder"),
+        ([str(frames), "--igtl", "0", "--igtl-stale", "-1"], "--igtl-stale must be a finite number of seconds >= 0"),
+    ]:
+        assert main([*track, *argv]) == 2
+        error = capsys.readouterr().err
+        assert message in error and len(error.strip().splitlines()) == 1
+
+
 def test_bench_prints_every_stage_and_the_tracking_ratio(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "--sizes", "512", "--frames", "6", "--full-every", "3", "--passes", "2"]) == 0
     out = capsys.readouterr().out

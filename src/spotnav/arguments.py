@@ -13,7 +13,7 @@ import textwrap
 from typing import Any
 
 from spotnav import __version__
-from spotnav.app.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT
+from spotnav.app.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT, DEFAULT_STALE_S
 from spotnav.experiments import EXPERIMENTS
 from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
 from spotnav.pose.localize import DEFAULT_METHOD, METHODS
@@ -141,8 +141,14 @@ def _track_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]
     _option(track, "--duration", float, "stop after S seconds", metavar="S")
     size_help = "ask a live camera for this frame size, px"
     _option(track, "--camera-size", int, size_help, nargs=2, metavar=("W", "H"))
-    _option(track, "--fps", float, "ask a live camera for this frame rate")
+    _option(track, "--fps", float, "ask a live camera for this frame rate; the overlay's if the source has none (30)")
     _option(track, "--exposure", float, "ask a live camera for this exposure (CAP_PROP_EXPOSURE units)")
+    record_help = "also keep every frame losslessly with its capture time in this new folder; replay it: track DIR"
+    track.add_argument("--record", metavar="DIR", help=record_help)
+    speed_help = "a recording's pace: 1 as recorded (default), 2 twice as fast, fast: as fast as it decodes"
+    track.add_argument("--replay-speed", default="1", metavar="fast|X", help=speed_help)
+    stale_help = f"mark the OpenIGTLink pose INVALID after S s without a frame (default {DEFAULT_STALE_S:g}; 0: never)"
+    _option(track, "--igtl-stale", float, stale_help, default=DEFAULT_STALE_S, metavar="S")
 
 
 def _evaluate_and_show_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

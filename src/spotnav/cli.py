@@ -24,7 +24,7 @@ from spotnav.app.batch import localize_batch
 from spotnav.app.calibration_job import run_calibration
 from spotnav.app.evaluate import evaluate_poses, evaluation_text, write_evaluation
 from spotnav.app.sequence_render import check_inside, render_sequence
-from spotnav.app.session import IgtlSettings, TrackLimits, TrackSession, camera_settings, ready
+from spotnav.app.session import IgtlSettings, TrackLimits, TrackSession, camera_settings, ready, replay_speed
 from spotnav.app.show import show_frame
 from spotnav.arguments import build_parser
 from spotnav.errors import SpotnavError
@@ -122,7 +122,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
     setup = read_setup(args.scene)
     limits = TrackLimits(args.max_frames, args.duration)
     camera = camera_settings(args.camera_size, args.fps, args.exposure)
-    igtl = None if args.igtl is None else IgtlSettings(args.igtl, args.igtl_host, args.igtl_device, args.igtl_wait)
+    igtl_args = (args.igtl_host, args.igtl_device, args.igtl_wait, args.igtl_stale)
+    igtl = None if args.igtl is None else IgtlSettings(args.igtl, *igtl_args)
     session = TrackSession(
         setup,
         args.source,
@@ -132,7 +133,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
         camera=camera,
         igtl=igtl,
         overlay=args.overlay,
-        overlay_fps=args.fps or 30.0,
+        record=args.record,
+        replay_speed=replay_speed(args.replay_speed),
     )
     run = session.run()
     latencies = run.latencies

@@ -14,7 +14,7 @@ import pyigtl
 import pytest
 from test_cli import write_scene
 
-from spotnav.app.igtl import DEFAULT_DEVICE, IgtlError, PoseServer
+from spotnav.app.igtl import DEFAULT_DEVICE, SETTLE_S, IgtlError, PoseServer
 from spotnav.cli import main
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.setup.geometry import instrument_to_eye
@@ -26,16 +26,23 @@ class RecordingMessages(dict):
     def __init__(self) -> None:
         super().__init__()
         self.received: list[pyigtl.MessageBase] = []
+        self.arrived: list[float] = []  # time.monotonic() when each arrived
         self.lock = threading.Lock()
 
     def __setitem__(self, key: str, message: pyigtl.MessageBase) -> None:
         with self.lock:
             self.received.append(message)
+            self.arrived.append(time.monotonic())
         super().__setitem__(key, message)
 
     def of(self, device: str) -> list[pyigtl.MessageBase]:
         with self.lock:
             return [m for m in self.received if m.device_name == device]
+
+    def timed(self, device: str) -> list[tuple[float, pyigtl.MessageBase]]:
+        """``device``'s messages with when each arrived."""
+        with self.lock:
+            return [(t, m) for t, m in zip(self.arrived, self.received, strict=True) if m.device_name == device]
 
 
 @contextlib.contextmanager
@@ -232,3 +239,61 @@ def test_instrument_frame_is_right_handed_with_z_along_the_axis() -> None:
         np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-12)
         assert np.isclose(np.linalg.det(rotation), 1.0)
         np.testing.assert_allclose(rotation[:, 2], axis, atol=1e-12)
+
+
+def test_a_pose_that_stops_updating_turns_invalid_as_stale_and_the_next_pose_clears_it() -> None:
+    with PoseServer(0, stale_s=0.5) as server, recording_client(server.port) as messages:
+        assert wait_for(lambda: server.connected)
+        server.send(pose(0), 0, time.time(), "tracked")
+        server.send(pose(1), 1, time.time(), "tracked")
+        sent = time.monotonic()
+        assert wait_for(lambda: len(messages.of(DEFAULT_DEVICE)) == 3)  # the two poses, then the stale one
+        time.sleep(0.3)
+        server.send(pose(2), 2, time.time(), "tracked")
+        assert wait_for(lambda: len(messages.of(DEFAULT_DEVICE)) == 4)
+        time.sleep(0.2)  # under 0.5 s since the last pose: nothing more
+    transforms = messages.timed(DEFAULT_DEVICE)
+    statuses = [json.loads(m.string) for m in messages.of(DEFAULT_DEVICE + "Status")]
+    assert [m.metadata["TransformStatus"] for _, m in transforms] == ["OK", "OK", "INVALID", "OK"]
+    stale_at, stale = transforms[2]
+    assert 0.45 <= stale_at - sent < 0.6 and stale.metadata["Status"] == "stale"
+    np.testing.assert_array_equal(stale.matrix, transforms[1][1].matrix)  # the last pose, marked invalid
+    assert statuses[2]["status"] == "stale" and statuses[2]["frame"] == 1 and statuses[2]["mode"] == "tracked"
+    assert 0.5 <= statuses[2]["seconds_since_frame"] < 0.6 and statuses[2]["detail"].startswith("no frame for 0.5")
+    assert [s["frame"] for s in statuses] == [0, 1, 1, 2] and statuses[3]["status"] == "ok"
+
+
+def test_a_client_that_sends_garbage_is_dropped_and_reported_once_with_its_address() -> None:
+    said: list[str] = []
+    with PoseServer(0, report=said.append) as server, recording_client(server.port) as messages:
+        assert wait_for(lambda: server.connected)
+        garbage = socket.create_connection(("127.0.0.1", server.port))
+        host, port = garbage.getsockname()[:2]
+        address = f"{host}:{port}"
+        garbage.sendall(b"GET / HTTP/1.1\r\nHost: localhost\r\n\r\n")
+        assert wait_for(lambda: server.clients_garbage == 1)
+        with contextlib.suppress(OSError):  # the server has closed it: more garbage is not read, nor reported
+            garbage.sendall(np.random.default_rng(0).bytes(5000))
+        command = pyigtl.StringMessage("hello", device_name="Command")  # a well-formed message: skipped, kept
+        polite = socket.create_connection(("127.0.0.1", server.port))
+        polite.sendall(command.pack() * 3)
+        server.send(pose(0), 0, time.time(), "tracked")
+        assert wait_for(lambda: len(messages.of(DEFAULT_DEVICE)) == 1)
+        time.sleep(0.2)
+        assert server.connected and server.clients_garbage == 1
+        garbage.close()
+        polite.close()
+    assert said == [f"spotnav: warning: OpenIGTLink: {address} sent what is not OpenIGTLink: dropped"]
+
+
+def test_waiting_for_a_client_ignores_one_that_connects_and_closes_at_once() -> None:
+    with PoseServer(0) as server:
+        start = time.monotonic()
+        for _ in range(5):
+            socket.create_connection(("127.0.0.1", server.port)).close()
+        assert not server.wait_for_client(1.0)
+        assert time.monotonic() - start >= 1.0 and server.clients_served == 5
+        with recording_client(server.port):
+            start = time.monotonic()
+            assert server.wait_for_client(10.0)
+            assert SETTLE_S <= time.monotonic() - start < 5.0

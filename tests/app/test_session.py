@@ -1,19 +1,42 @@
 from __future__ import annotations
 
+import csv
 import gc
+import itertools
+import json
+import math
 import time
+from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from test_cli import write_scene
+from test_igtl import free_port, recording_client, wait_for
 
 from spotnav.app import session
+from spotnav.app.igtl import DEFAULT_DEVICE
 from spotnav.app.sequence_render import render_sequence
-from spotnav.app.session import TrackLimits, TrackSession, camera_settings, compiling_note
+from spotnav.app.session import (
+    IgtlSettings,
+    TrackLimits,
+    TrackSession,
+    camera_settings,
+    compiling_note,
+    replay_speed,
+)
 from spotnav.app.track import TrackedFrame, Tracker
 from spotnav.errors import SpotnavError
+from spotnav.files.capture import Frame
+from spotnav.files.images import write_image
+from spotnav.files.recording import FRAMES_CSV, SETUP_TOML, RecordingWriter
+from spotnav.files.sequences import CameraSettings, iter_frames
 from spotnav.files.setup_files import read_setup
+from spotnav.setup.config import Setup
+
+START_S = 1_800_000_000.0  # a capture time, Unix seconds
 
 
 def test_a_slow_start_says_it_is_compiling(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
@@ -62,3 +85,139 @@ def test_unusable_limits_and_camera_settings_are_user_errors(
     with pytest.raises(SpotnavError, match=message):
         TrackLimits(**limits)
         camera_settings(camera.get("size_px"), camera.get("fps"), camera.get("exposure"))
+
+
+@pytest.fixture(scope="module")
+def helix(tmp_path_factory: pytest.TempPathFactory) -> tuple[Setup, Path]:
+    """A 200-frame helix at 256 px, a 100 fps FFV1 video, and its setup."""
+    folder = tmp_path_factory.mktemp("helix")
+    setup = read_setup(write_scene(folder / "setup.toml", size_px=256, blend=0.15))
+    render_sequence(setup, "helix", folder / "helix.mkv", frames=200, fps=100.0, tremor_mm=0.0, seed=0)
+    return setup, folder / "helix.mkv"
+
+
+def read_rows(path: Path) -> list[dict[str, str]]:
+    with path.open() as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_a_recorded_session_replays_to_the_same_poses_with_the_recorded_capture_times(
+    helix: tuple[Setup, Path], tmp_path: Path
+) -> None:
+    setup, video = helix
+    said: list[str] = []
+    live = TrackSession(setup, str(video), tmp_path / "live.csv", record=tmp_path / "rec", report=said.append).run()
+    assert live.rows == 200 and live.statuses["ok"] >= 150  # 256 px: most frames answered
+    recorded = [line for line in said if line.startswith("recorded ")]
+    assert recorded and recorded[0].startswith(f"recorded 200 frames in {tmp_path / 'rec'}: ")
+    before = time.time()
+    replay = TrackSession(setup, str(tmp_path / "rec"), tmp_path / "replay.csv", replay_speed=math.inf).run()
+    assert replay.rows == 200
+    first, again = read_rows(tmp_path / "live.csv"), read_rows(tmp_path / "replay.csv")
+    timing = {"latency_ms", "decode_ms"}
+    assert [{k: v for k, v in row.items() if k not in timing} for row in again] == [
+        {k: v for k, v in row.items() if k not in timing} for row in first
+    ]  # every pose, status, mode and timestamp_s, to the last digit
+    frames = read_rows(tmp_path / "rec" / FRAMES_CSV)
+    assert [r["timestamp_s"] for r in frames] == [r["timestamp_s"] for r in again]
+    assert len(set(r["timestamp_s"] for r in again)) == 200  # the capture times, not the replay's
+    assert float(again[-1]["timestamp_s"]) < before
+    assert read_setup(tmp_path / "rec" / SETUP_TOML) == setup
+
+
+def test_a_replay_at_the_recorded_pace_takes_the_recorded_time(
+    helix: tuple[Setup, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    setup, video = helix
+    with RecordingWriter(tmp_path / "rec", "") as writer:  # six frames 0.1 s apart: 0.5 s
+        for frame in itertools.islice(iter_frames(str(video)), 6):
+            writer.add(replace(frame, timestamp_s=START_S + 0.1 * frame.index))
+    arrived, update = [], Tracker.update
+
+    def timed_update(self: Tracker, image: np.ndarray) -> TrackedFrame:
+        arrived.append(time.perf_counter())
+        return update(self, image)
+
+    monkeypatch.setattr(Tracker, "update", timed_update)
+    for speed, span_s in ((1.0, 0.5), (2.0, 0.25)):
+        arrived.clear()
+        result = TrackSession(setup, str(tmp_path / "rec"), tmp_path / "poses.csv", replay_speed=speed).run()
+        assert result.rows == 6 and arrived[-1] - arrived[0] == pytest.approx(span_s, abs=0.05)
+        stamps = [float(r["timestamp_s"]) for r in read_rows(tmp_path / "poses.csv")]
+        assert stamps == pytest.approx(START_S + 0.1 * np.arange(6), abs=1e-6)
+
+
+def test_the_overlay_is_written_at_the_source_s_frame_rate(helix: tuple[Setup, Path], tmp_path: Path) -> None:
+    setup, video = helix
+    frames = list(itertools.islice(iter_frames(str(video)), 3))
+    with RecordingWriter(tmp_path / "rec", "") as writer:  # a 50 fps recording
+        for frame in frames:
+            writer.add(replace(frame, timestamp_s=START_S + 0.02 * frame.index))
+    for frame in frames:
+        write_image(tmp_path / "images" / f"frame_{frame.index:05d}.png", frame.pixels)  # type: ignore[arg-type]
+    cases = [  # source, the fps asked for, the overlay's fps, the note
+        (str(video), None, 100.0, False),
+        (str(video), 25.0, 100.0, False),  # the source's own rate comes first
+        (str(tmp_path / "rec"), None, 50.0, False),
+        (str(tmp_path / "images"), 25.0, 25.0, False),
+        (str(tmp_path / "images"), None, 30.0, True),
+    ]
+    for number, (source, fps, expected, noted) in enumerate(cases):
+        said: list[str] = []
+        overlay = tmp_path / f"overlay{number}.mkv"
+        limits = TrackLimits(max_frames=3)
+        camera = CameraSettings(fps=fps)
+        TrackSession(setup, source, tmp_path / "poses.csv", limits=limits, camera=camera, overlay=overlay,
+                     report=said.append).run()  # fmt: skip
+        capture = cv2.VideoCapture(str(overlay))
+        assert capture.get(cv2.CAP_PROP_FPS) == pytest.approx(expected, rel=1e-3), source
+        assert capture.get(cv2.CAP_PROP_FRAME_COUNT) == 3
+        capture.release()
+        note = f"spotnav: note: {source} has no frame rate: the overlay is written at 30 fps (--fps F)"
+        assert (note in said) == noted
+
+
+def test_a_stalled_source_turns_the_openigtlink_pose_invalid_until_its_next_frame(
+    helix: tuple[Setup, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    setup, video = helix
+    middle = itertools.islice(iter_frames(str(video)), 100, 108)  # frames that are answered
+    kept = [replace(f, index=f.index - 100, pixels=f.pixels.copy()) for f in middle]  # type: ignore[union-attr]
+    stalled_at: list[float] = []
+
+    def stalling_source(*_: object, **__: object) -> Iterator[Frame]:
+        for frame in kept:
+            if frame.index == 5:  # frames 0-4, one second without a frame, then 5-7
+                stalled_at.append(time.monotonic())
+                time.sleep(1.0)
+            yield replace(frame, ready_s=time.perf_counter(), timestamp_s=time.time())
+
+    monkeypatch.setattr(session, "iter_frames", stalling_source)
+    port = free_port()
+    with recording_client(port) as messages:
+        igtl = IgtlSettings(port, wait_s=10.0, stale_s=0.5)
+        result = TrackSession(setup, str(video), tmp_path / "poses.csv", igtl=igtl).run()
+        assert wait_for(lambda: any(json.loads(m.string)["frame"] == 7 for m in messages.of(DEFAULT_DEVICE + "Status")))
+    rows = read_rows(tmp_path / "poses.csv")
+    assert result.rows == 8 and rows[4]["status"] == rows[5]["status"] == "ok"  # the poses around the stall
+    transforms = messages.timed(DEFAULT_DEVICE)
+    statuses = [json.loads(m.string) for m in messages.of(DEFAULT_DEVICE + "Status")]
+    stale = len(transforms) - 8  # stale at 0.5 s, and again at 1.0 s if the stall outlasts it
+    assert stale in (1, 2) and len(statuses) == len(transforms)
+    assert [s["status"] for s in statuses] == [r["status"] for r in rows[:5]] + ["stale"] * stale + [
+        r["status"] for r in rows[5:]
+    ]
+    for (_, transform), status in zip(transforms, statuses, strict=True):
+        assert transform.metadata["TransformStatus"] == ("OK" if status["status"] == "ok" else "INVALID")
+    last_ok, invalid, next_ok = transforms[4][0], transforms[5][0], transforms[5 + stale][0]
+    assert 0.45 <= invalid - last_ok < 0.6 and invalid - stalled_at[0] < 0.6  # INVALID within 0.6 s
+    assert transforms[5][1].metadata["Status"] == "stale" and statuses[5]["frame"] == 4
+    assert 0.5 <= statuses[5]["seconds_since_frame"] < 0.6 and statuses[5]["detail"].startswith("no frame for 0.5")
+    assert next_ok - stalled_at[0] >= 1.0 and statuses[5 + stale]["frame"] == 5  # OK again with the next frame
+
+
+def test_replay_speed_is_fast_or_a_factor_of_the_recorded_pace() -> None:
+    assert replay_speed("fast") == math.inf and replay_speed("1") == 1.0 and replay_speed("2.5") == 2.5
+    for wrong in ("0", "-1", "slow", "nan", "inf"):
+        with pytest.raises(SpotnavError, match="--replay-speed must be fast or a number > 0"):
+            replay_speed(wrong)

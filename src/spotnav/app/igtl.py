@@ -13,14 +13,24 @@ Every frame sends two messages to every connected client:
   ``mismatch`` frame adds its ``detail``: what of the setup the frame or the
   sequence contradicts, and the command that calibrates it.
 
-Both carry the frame's capture time as their timestamp. The server is spotnav's
-own loop around pyigtl's message classes, on its own thread: it never reads
-what clients send (garbage, half headers and commands are discarded), a client
-that closes or fails is dropped, a client that stops reading is dropped once
-over 1 MiB waits for it and none of it went out for a second, and at most 16
-clients are served at once, so that no client can stall tracking or starve
-another. OpenIGTLink has no authentication: the server listens on the
-loopback interface unless told otherwise.
+Both carry the frame's capture time as their timestamp. A pose that stops
+updating does not stay valid: when no frame has been sent for ``stale_s``
+(0.5 s by default, as SlicerIGT's watchdog), a watchdog on the server's thread
+sends the last pose again as ``INVALID`` (metadata ``Status`` = ``stale``) with
+a STRING ``{"frame": 12, "status": "stale", "mode": "tracked",
+"seconds_since_frame": 0.5, "detail": "no frame for 0.50 s"}`` stamped with
+the time it is sent, and again every ``stale_s`` while no frame comes; the
+next frame's pose clears it.
+
+The server is spotnav's own loop around pyigtl's message classes, on its own
+thread. It acts on nothing clients send: it reads their messages' headers only
+to skip their bodies, and drops a client whose bytes are not OpenIGTLink
+(reported once, with its address). A client that closes or fails is dropped, a
+client that stops reading is dropped once over 1 MiB waits for it and none of
+it went out for a second, and at most 16 clients are served at once, so that
+no client can stall tracking or starve another. OpenIGTLink has no
+authentication: the server listens on the loopback interface unless told
+otherwise.
 """
 
 from __future__ import annotations
@@ -28,6 +38,8 @@ from __future__ import annotations
 import json
 import selectors
 import socket
+import struct
+import sys
 import threading
 import time
 from collections import deque
@@ -45,8 +57,10 @@ __all__ = [
     "DEFAULT_DEVICE",
     "DEFAULT_HOST",
     "DEFAULT_PORT",
+    "DEFAULT_STALE_S",
     "MAX_BACKLOG_BYTES",
     "MAX_CLIENTS",
+    "SETTLE_S",
     "STALL_S",
     "IgtlError",
     "PoseServer",
@@ -60,6 +74,11 @@ _STATUS_SUFFIX = "Status"
 MAX_BACKLOG_BYTES = 1 << 20  # a client with more than this unread ...
 STALL_S = 1.0  # ... that took none of it for this long is dropped
 MAX_CLIENTS = 16
+DEFAULT_STALE_S = 0.5  # no frame for this long: the last pose is sent again as INVALID, stale
+SETTLE_S = 0.25  # a client connected this long is one that stays (wait_for_client)
+# An OpenIGTLink header: version, type, device name, timestamp, body size, CRC (big-endian, 58 bytes).
+_HEADER = struct.Struct(">H12s20sQQQ")
+_MAX_BODY_BYTES = 1 << 32  # a header that announces a longer body is not OpenIGTLink
 _MAX_QUEUED = 10_000  # frames waiting for the server thread (the oldest go first)
 _FLUSH_TIMEOUT_S = 2.0
 _POLL_S = 0.05
@@ -77,6 +96,47 @@ class _Pose:
     mode: str
 
 
+def _is_name(field: bytes, required: bool) -> bool:
+    """Whether a header's name field is printable ASCII padded with NULs (and not empty, if ``required``)."""
+    name = field.rstrip(b"\0")
+    return (bool(name) or not required) and all(32 <= byte < 127 for byte in name)
+
+
+class _Incoming:
+    """What one client sends, read only to tell OpenIGTLink from garbage: each header checked, each body skipped."""
+
+    def __init__(self) -> None:
+        self._header = bytearray()
+        self._skip = 0
+
+    def feed(self, data: bytes) -> bool:
+        """Take the next bytes; returns False once they are not OpenIGTLink."""
+        view = memoryview(data)
+        while view:
+            if self._skip:
+                taken = min(self._skip, len(view))
+                self._skip -= taken
+                view = view[taken:]
+                continue
+            need = _HEADER.size - len(self._header)
+            self._header += view[:need]
+            view = view[need:]
+            if len(self._header) >= 2 and not 1 <= int.from_bytes(self._header[:2]) <= 3:
+                return False
+            if len(self._header) < _HEADER.size:
+                return True
+            _, kind, device, _, body, _ = _HEADER.unpack(self._header)
+            self._header.clear()
+            if not (_is_name(kind, required=True) and _is_name(device, required=False) and body <= _MAX_BODY_BYTES):
+                return False
+            self._skip = body
+        return True
+
+
+def _to_stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
 class PoseServer:
     """An OpenIGTLink server that sends each frame's pose and status (see the module's docstring).
 
@@ -88,6 +148,11 @@ class PoseServer:
         Address to listen on; the loopback interface by default.
     device : str
         The TRANSFORM's device name, ASCII, at most 14 characters (its STRING adds ``Status``).
+    stale_s : float
+        After this long without a frame, s, the last pose is sent again as stale (0: never).
+    report : callable, optional
+        Takes the warning about a client that sent garbage, once per client, from the server's thread (default:
+        stderr).
 
     Raises
     ------
@@ -97,7 +162,17 @@ class PoseServer:
     Use it as a context manager; leaving it sends what is queued (up to 2 s) and stops the server.
     """
 
-    def __init__(self, port: int = DEFAULT_PORT, *, host: str = DEFAULT_HOST, device: str = DEFAULT_DEVICE) -> None:
+    def __init__(
+        self,
+        port: int = DEFAULT_PORT,
+        *,
+        host: str = DEFAULT_HOST,
+        device: str = DEFAULT_DEVICE,
+        stale_s: float = DEFAULT_STALE_S,
+        report: Callable[[str], None] = _to_stderr,
+    ) -> None:
+        if not (np.isfinite(stale_s) and stale_s >= 0):
+            raise IgtlError(f"--igtl-stale must be a finite number of seconds >= 0, got {stale_s}")
         if not 0 <= port < 65536:
             raise IgtlError(f"--igtl port must be in 1..65535, got {port}")
         if not (device.isascii() and device.isprintable() and 0 < len(device + _STATUS_SUFFIX) <= _DEVICE_BYTES):
@@ -112,9 +187,15 @@ class PoseServer:
         self.clients_served = 0
         self.clients_dropped = 0
         self.clients_refused = 0
+        self.clients_garbage = 0  # dropped for sending what is not OpenIGTLink
+        self.stale_s, self.report = stale_s, report
         self.error = ""  # why the server thread stopped, if it failed
         self._clients: dict[socket.socket, bytearray] = {}
         self._progress: dict[socket.socket, float] = {}  # when each client last took data (or joined)
+        self._joined: dict[socket.socket, tuple[float, str]] = {}  # when each client joined, and its address
+        self._incoming: dict[socket.socket, _Incoming] = {}  # used by the server thread only
+        self._last_sent: tuple[float, _Pose] | None = None  # when send() queued the last frame, and it
+        self._stale_at = -np.inf  # when the watchdog last said the pose is stale (server thread only)
         self._queue: deque[_Pose] = deque(maxlen=_MAX_QUEUED)
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -134,11 +215,22 @@ class PoseServer:
             return len(self._queue)
 
     def wait_for_client(self, timeout_s: float, stop: Callable[[], bool] = lambda: False) -> bool:
-        """Wait up to ``timeout_s`` for a client, or until ``stop()``; returns whether one is connected."""
+        """Wait up to ``timeout_s`` for a client that stays, or until ``stop()``; returns whether one came.
+
+        A client that stays is one still connected :data:`SETTLE_S` after it joined: one that connects and
+        closes at once (a port scan, a health check) or sends garbage does not count.
+        """
         deadline = time.monotonic() + timeout_s
-        while not self.connected and time.monotonic() < deadline and not stop():
+        while not self.settled and time.monotonic() < deadline and not stop():
             time.sleep(0.01)
-        return self.connected
+        return self.settled
+
+    @property
+    def settled(self) -> bool:
+        """Whether a client has been connected for :data:`SETTLE_S` at least."""
+        now = time.monotonic()
+        with self._lock:
+            return any(now - joined >= SETTLE_S for joined, _ in self._joined.values())
 
     @property
     def connected(self) -> bool:
@@ -166,8 +258,10 @@ class PoseServer:
         """
         if not self._thread.is_alive() and not self._stop.is_set():
             raise IgtlError(f"OpenIGTLink: the server stopped: {self.error or 'unknown error'}")
+        pose = _Pose(frame, estimate, timestamp_s, mode)
         with self._lock:
-            self._queue.append(_Pose(frame, estimate, timestamp_s, mode))
+            self._queue.append(pose)
+            self._last_sent = (time.monotonic(), pose)
         self._wake()
 
     def close(self) -> None:
@@ -199,6 +293,7 @@ class PoseServer:
                 if self._stop.is_set() and deadline is None:
                     deadline = time.monotonic() + _FLUSH_TIMEOUT_S
                 self._pack_queued()
+                timeout = self._watch() if deadline is None else _POLL_S
                 with self._lock:
                     pending = {sock: bool(buffer) for sock, buffer in self._clients.items()}
                 if deadline is not None and (not any(pending.values()) or time.monotonic() > deadline):
@@ -206,7 +301,7 @@ class PoseServer:
                 for sock, has_data in pending.items():
                     events = selectors.EVENT_READ | (selectors.EVENT_WRITE if has_data else 0)
                     selector.modify(sock, events)
-                for key, events in selector.select(_POLL_S):
+                for key, events in selector.select(timeout):
                     self._handle(key.fileobj, events)  # type: ignore[arg-type]
                 self._drop_stalled()
         except Exception as error:
@@ -215,6 +310,7 @@ class PoseServer:
             with self._lock:
                 clients = list(self._clients)
                 self._clients.clear()
+                self._joined.clear()
             for sock in clients:
                 selector.unregister(sock)
                 sock.close()
@@ -230,8 +326,8 @@ class PoseServer:
                 pass
         else:
             try:
-                if events & selectors.EVENT_READ and not sock.recv(65536):  # the client closed
-                    raise ConnectionResetError
+                if events & selectors.EVENT_READ and not self._receive(sock):
+                    return
                 if events & selectors.EVENT_WRITE:
                     with self._lock:
                         buffer = self._clients[sock]
@@ -244,10 +340,30 @@ class PoseServer:
             except OSError:
                 self._drop(sock)
 
+    def _receive(self, sock: socket.socket) -> bool:
+        """Read what ``sock`` sent; drop it (False) if that is garbage.
+
+        Raises
+        ------
+        OSError
+            If the client closed or failed.
+        """
+        data = sock.recv(65536)
+        if not data:  # the client closed
+            raise ConnectionResetError
+        if self._incoming[sock].feed(data):
+            return True
+        with self._lock:
+            address = self._joined[sock][1]
+        self.clients_garbage += 1
+        self.report(f"spotnav: warning: OpenIGTLink: {address} sent what is not OpenIGTLink: dropped")
+        self._drop(sock)
+        return False
+
     def _accept(self) -> None:
         while True:
             try:
-                sock, _ = self._listener.accept()
+                sock, peer = self._listener.accept()
             except OSError:  # nobody waiting (BlockingIOError) or the client gave up
                 return
             with self._lock:
@@ -265,13 +381,17 @@ class PoseServer:
             with self._lock:
                 self._clients[sock] = bytearray()
                 self._progress[sock] = time.monotonic()
+                self._joined[sock] = (time.monotonic(), f"{peer[0]}:{peer[1]}")
                 self.clients_served += 1
+            self._incoming[sock] = _Incoming()
             self._selector.register(sock, selectors.EVENT_READ)
 
     def _drop(self, sock: socket.socket) -> None:
         with self._lock:
             self._clients.pop(sock, None)
             self._progress.pop(sock, None)
+            self._joined.pop(sock, None)
+        self._incoming.pop(sock, None)
         self._selector.unregister(sock)
         sock.close()
 
@@ -294,24 +414,48 @@ class PoseServer:
             self._queue.clear()
         if not poses:
             return
-        data = b"".join(self._pack(pose) for pose in poses)
+        self._append(b"".join(self._pack(pose) for pose in poses))
+
+    def _append(self, data: bytes) -> None:
+        """Queue ``data`` for every client."""
         with self._lock:
             for buffer in self._clients.values():
                 buffer += data
+
+    def _watch(self) -> float:
+        """The watchdog: say the pose is stale when it is due; returns how long to wait for the next time, s."""
+        with self._lock:
+            last = self._last_sent
+        if last is None or self.stale_s <= 0:
+            return _POLL_S
+        sent_s, pose = last
+        now = time.monotonic()
+        due = sent_s + self.stale_s if self._stale_at < sent_s else self._stale_at + self.stale_s
+        if now >= due:
+            quiet = now - sent_s
+            status = {"frame": pose.frame, "status": "stale", "mode": pose.mode}
+            status |= {"seconds_since_frame": round(quiet, 3), "detail": f"no frame for {quiet:.2f} s"}
+            self._append(self._messages(time.time(), status, "INVALID"))
+            self._stale_at, due = now, now + self.stale_s
+        return min(_POLL_S, max(due - now, 0.0))
 
     def _pack(self, pose: _Pose) -> bytes:
         estimate = pose.estimate
         if estimate.tip_in_eye is not None and estimate.axis is not None and estimate.ok:
             self._last_matrix = instrument_to_eye(estimate.tip_in_eye, estimate.axis, estimate.roll)
         stamp = pose.timestamp_s if np.isfinite(pose.timestamp_s) and pose.timestamp_s >= 0 else time.time()
-        transform = pyigtl.TransformMessage(self._last_matrix, timestamp=stamp, device_name=self.device)
-        status = {"frame": pose.frame, "status": estimate.status, "mode": pose.mode}
+        status: dict[str, object] = {"frame": pose.frame, "status": estimate.status, "mode": pose.mode}
         if np.isfinite(estimate.sigma_mm):
             status["sigma_mm"] = round(float(estimate.sigma_mm), 6)
         if estimate.status == "mismatch":  # what of the setup the frame, or the sequence, contradicts
             status["detail"] = estimate.detail
+        return self._messages(stamp, status, "OK" if estimate.ok else "INVALID")
+
+    def _messages(self, stamp: float, status: dict[str, object], validity: str) -> bytes:
+        """The TRANSFORM of the last pose, marked ``validity``, and the STRING of ``status``, packed."""
+        transform = pyigtl.TransformMessage(self._last_matrix, timestamp=stamp, device_name=self.device)
         text = pyigtl.StringMessage(json.dumps(status), timestamp=stamp, device_name=self.device + _STATUS_SUFFIX)
         transform.header_version = 2
-        transform.metadata = {"TransformStatus": "OK" if estimate.ok else "INVALID", "Status": estimate.status}
+        transform.metadata = {"TransformStatus": validity, "Status": str(status["status"])}
         packed: bytes = transform.pack() + text.pack()
         return packed

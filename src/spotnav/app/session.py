@@ -2,7 +2,8 @@
 
 :class:`TrackSession` owns the source, the stop conditions (SIGINT and SIGTERM, a
 frame or time limit, frames of the wrong size), the OpenIGTLink server and the
-overlay writer; :meth:`TrackSession.run` tracks every frame, writes each row as
+overlay writer, and the recording of the frames; :meth:`TrackSession.run` tracks
+every frame (a recording's at its recorded pace, or faster), writes each row as
 it is done and returns a :class:`TrackResult` with the counts, the latencies and
 why it stopped. What happens during the run (warnings, the server's address) goes
 to ``report`` as it happens; the summary is the caller's to print.
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import ipaddress
+import math
 import signal
 import socket
 import sys
@@ -19,7 +21,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from types import FrameType
@@ -27,14 +29,17 @@ from typing import Any
 
 import numpy as np
 
-from spotnav.app.igtl import DEFAULT_DEVICE, DEFAULT_HOST, PoseServer
+from spotnav.app.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_STALE_S, PoseServer
 from spotnav.app.overlay import draw_overlay, fitted_spots
 from spotnav.app.progress import progress
 from spotnav.app.track import TrackedFrame, Tracker, frozen_heap, prepare_kernels
 from spotnav.errors import SpotnavError
 from spotnav.files.capture import Frame
+from spotnav.files.numbers import parse_float
 from spotnav.files.poses import TRACK_COLUMNS, PosesWriter, track_row
-from spotnav.files.sequences import CameraSettings, SequenceWriter, iter_frames
+from spotnav.files.recording import RecordingWriter
+from spotnav.files.sequences import CameraSettings, SequenceWriter, is_live, iter_frames
+from spotnav.files.setup_files import setup_to_toml
 from spotnav.pose.estimate import PoseEstimate
 from spotnav.setup.config import Setup
 
@@ -48,10 +53,12 @@ __all__ = [
     "camera_settings",
     "compiling_note",
     "ready",
+    "replay_speed",
     "to_stderr",
 ]
 
 SLOW_START_S = 2.0  # a start slower than this is compiling: say so
+DEFAULT_OVERLAY_FPS = 30.0  # the overlay's frame rate when neither the source nor --fps gives one
 WRONG_SIZE_STOP = 25  # consecutive frames of the wrong size that stop tracking
 
 _Handler = Callable[[int, FrameType | None], Any] | int | signal.Handlers | None  # what signal.signal returns
@@ -144,14 +151,33 @@ def camera_settings(size_px: Sequence[int] | None, fps: float | None, exposure: 
     return CameraSettings((size_px[0], size_px[1]) if size_px is not None else None, fps, exposure)
 
 
+def replay_speed(text: str) -> float:
+    """``--replay-speed``'s value: ``fast`` (``math.inf``: each frame as soon as it is decoded) or a factor > 0 of
+    the recorded pace (1: as recorded).
+
+    Raises
+    ------
+    SpotnavError
+        For anything else.
+    """
+    if text.strip().lower() == "fast":
+        return math.inf
+    speed = parse_float(text)
+    if speed is None or not (math.isfinite(speed) and speed > 0):
+        raise SpotnavError(f"--replay-speed must be fast or a number > 0 (1: the recorded pace), got {text!r}")
+    return speed
+
+
 @dataclass(frozen=True)
 class IgtlSettings:
-    """The OpenIGTLink server to serve the poses on: its port, address, device and how long to wait for a client."""
+    """The OpenIGTLink server to serve the poses on: its port, address, device, how long to wait for a client,
+    and after how long without a frame the pose is stale (s)."""
 
     port: int
     host: str = DEFAULT_HOST
     device: str = DEFAULT_DEVICE
     wait_s: float = 0.0
+    stale_s: float = DEFAULT_STALE_S
 
 
 @dataclass
@@ -197,7 +223,7 @@ class TrackSession:
     ----------
     setup : Setup
     source : str
-        Video file, folder or glob of images, camera index, URL or GStreamer pipeline
+        Recording, video file, folder or glob of images, camera index, URL or GStreamer pipeline
         (:func:`spotnav.files.sequences.iter_frames`).
     out : str or Path
         The ``poses.csv`` to write.
@@ -206,12 +232,20 @@ class TrackSession:
     limits : TrackLimits, optional
         Default: none, the run goes to the source's end.
     camera : CameraSettings, optional
-        What to ask a live camera for (default: nothing).
+        What to ask a live camera for (default: nothing). With an ``overlay`` and a source that is not live, its
+        ``fps`` is the overlay's frame rate if the source has none (images).
     igtl : IgtlSettings, optional
         Serve each pose on OpenIGTLink.
     overlay : str or Path, optional
-        Also write every frame with its fit drawn on it: a video or a folder, at ``overlay_fps``.
-    overlay_fps : float
+        Also write every frame with its fit drawn on it: a video or a folder, at the source's frame rate (a
+        video's, a camera's, a recording's from its timestamps); for a source without one, at ``camera.fps``, or
+        :data:`DEFAULT_OVERLAY_FPS` with a note.
+    record : str or Path, optional
+        Also keep every frame, losslessly, with its capture time, in this new folder
+        (:class:`spotnav.files.recording.RecordingWriter`), written in a thread of its own.
+    replay_speed : float
+        A recording's pace (:func:`replay_speed`): 1 as recorded (the default), 2 twice as fast, ``math.inf`` as
+        fast as it decodes. Other sources ignore it.
     report : callable
         Takes each line to tell the user during the run (default: stderr).
     """
@@ -227,14 +261,16 @@ class TrackSession:
         camera: CameraSettings | None = None,
         igtl: IgtlSettings | None = None,
         overlay: str | Path | None = None,
-        overlay_fps: float = 30.0,
+        record: str | Path | None = None,
+        replay_speed: float = 1.0,
         report: Callable[[str], None] = to_stderr,
     ) -> None:
         self.setup, self.source, self.out = setup, source, Path(out)
         self.through_insertion = through_insertion
         self.limits = limits if limits is not None else TrackLimits()
         self.camera = camera if camera is not None else CameraSettings()
-        self.igtl, self.overlay, self.overlay_fps, self.report = igtl, overlay, overlay_fps, report
+        self.igtl, self.overlay, self.record, self.report = igtl, overlay, record, report
+        self.replay_speed = replay_speed
 
     def run(self) -> TrackResult:
         """Track until the source ends or a stop is due; the rows are written as they are done.
@@ -249,42 +285,84 @@ class TrackSession:
             with compiling_note():
                 tracker = Tracker(setup, through_insertion=self.through_insertion)
             size = (setup.camera.width_px, setup.camera.height_px)
+            # --fps asks a live source for its rate; with an overlay, it is the overlay's for a source without one.
+            overlay_fps = self.overlay is not None and not is_live(self.source)
+            rates: list[float] = []  # the source's frame rate, if it has one
             # The tracker keeps no image: a frame's buffer is reused two frames later; a video is decoded in a
             # second process, and the tracker rehearses the last frame while it waits.
             source = iter_frames(
                 self.source,
                 ring=2,
-                camera=self.camera,
+                camera=replace(self.camera, fps=None) if overlay_fps else self.camera,
                 report=self.report,
                 expected_size=size,
                 while_waiting=tracker.rehearse,
+                replay_speed=self.replay_speed,
+                fps=rates.append,
+                stop=lambda: bool(signals.received),
             )
             with contextlib.closing(source) as frames:
                 server = None
                 try:
                     server = self._server(signals)
-                    with PosesWriter(self.out, TRACK_COLUMNS) as out, self._overlay_writer() as overlay, frozen_heap():
-                        result = self._track(tracker, frames, server, signals, out, overlay)
+                    # The recording's thread starts before the first frame: a video's decoder keeps the threads
+                    # started after it to the tracker's core.
+                    with (
+                        PosesWriter(self.out, TRACK_COLUMNS) as out,
+                        self._overlay_writer(rates[0] if rates else None) as overlay,
+                        self._recording() as recording,
+                        frozen_heap(),
+                    ):
+                        result = self._track(tracker, frames, server, signals, out, (overlay, recording))
                 finally:
                     if server is not None:
                         server.close()
-                        extra = [f"{server.clients_dropped} dropped for not reading"] if server.clients_dropped else []
-                        extra += [f"{server.clients_refused} refused (too many)"] if server.clients_refused else []
-                        self.report(f"OpenIGTLink: {', '.join([f'{server.clients_served} clients served', *extra])}")
+                        self._report_clients(server)
         result.rows = out.rows
         return result
 
-    def _overlay_writer(self) -> contextlib.AbstractContextManager[SequenceWriter | None]:
-        """The overlay's video (or folder of PNGs), or nothing."""
+    def _report_clients(self, server: PoseServer) -> None:
+        """Say how many clients the server served, dropped and refused."""
+        extra = [f"{server.clients_dropped} dropped for not reading"] if server.clients_dropped else []
+        extra += [f"{server.clients_garbage} dropped for sending garbage"] if server.clients_garbage else []
+        extra += [f"{server.clients_refused} refused (too many)"] if server.clients_refused else []
+        self.report(f"OpenIGTLink: {', '.join([f'{server.clients_served} clients served', *extra])}")
+
+    def _overlay_writer(self, source_fps: float | None) -> contextlib.AbstractContextManager[SequenceWriter | None]:
+        """The overlay's video (or folder of PNGs) at the source's frame rate, or nothing."""
         if self.overlay is None:
             return contextlib.nullcontext()
-        return SequenceWriter(self.overlay, self.overlay_fps)
+        fps = source_fps or self.camera.fps
+        if fps is None:
+            fps = DEFAULT_OVERLAY_FPS
+            self.report(
+                f"spotnav: note: {self.source} has no frame rate: the overlay is written at {fps:g} fps (--fps F)"
+            )
+        return SequenceWriter(self.overlay, fps)
+
+    @contextlib.contextmanager
+    def _recording(self) -> Iterator[RecordingWriter | None]:
+        """The recording of every frame asked for, or nothing; says what it cost once every frame is on disk."""
+        if self.record is None:
+            yield None
+            return
+        setup = setup_to_toml(self.setup, f"The setup spotnav track used on {self.source}")
+        with RecordingWriter(self.record, setup, report=self.report) as recording:
+            yield recording
+        frames = max(recording.frames, 1)
+        waited = f" and {recording.wait_s:.1f} s waiting for the disk" if recording.wait_s else ""
+        self.report(
+            f"recorded {recording.frames} frames in {recording.folder}: {1000 * recording.copy_s / frames:.2f} ms a "
+            f"frame copying in the tracker's thread{waited}, {1000 * recording.write_s / frames:.1f} ms a frame "
+            "writing in the background"
+        )
 
     def _server(self, signals: StopSignals) -> PoseServer | None:
         """The OpenIGTLink server asked for (None without it), with what it tells the user."""
         if self.igtl is None:
             return None
-        server = PoseServer(self.igtl.port, host=self.igtl.host, device=self.igtl.device)
+        igtl = self.igtl
+        server = PoseServer(igtl.port, host=igtl.host, device=igtl.device, stale_s=igtl.stale_s, report=self.report)
         where = f"{server.host}:{server.port}"
         self.report(f"OpenIGTLink: {server.device} (TRANSFORM) and {server.device}Status (STRING) on {where}")
         if not ipaddress.ip_address(socket.gethostbyname(server.host)).is_loopback:
@@ -305,9 +383,10 @@ class TrackSession:
         server: PoseServer | None,
         signals: StopSignals,
         out: PosesWriter,
-        overlay: SequenceWriter | None,
+        outputs: tuple[SequenceWriter | None, RecordingWriter | None],
     ) -> TrackResult:
-        """Track every frame, writing each row as it is done, until the source ends or a stop is due."""
+        """Track every frame, writing each row (and the overlay, the recording) as it is done, until a stop."""
+        overlay, recording = outputs
         result = TrackResult(self.out)
         started = time.monotonic()
         bar = progress(frames, desc="track", unit="frame")
@@ -323,6 +402,8 @@ class TrackSession:
             if server is not None:
                 server.send(tracked.estimate, frame.index, frame.timestamp_s, tracked.mode)
             out.write(track_row(frame, tracked.estimate, tracked.mode, latency))
+            if recording is not None:
+                recording.add(frame)
             if overlay is not None and frame.pixels is not None:
                 label = f"frame {frame.index}, {tracked.mode}"
                 spots = fitted_spots(tracked.edges_px)

@@ -8,6 +8,7 @@ in a decoder process: :mod:`spotnav.files.decoder`), asking a live source for :c
 from __future__ import annotations
 
 import glob
+import math
 import time
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
@@ -20,6 +21,7 @@ from spotnav.errors import InputError
 from spotnav.files.capture import VIDEO_SUFFIXES, Frame, open_capture, read_capture
 from spotnav.files.decoder import read_capture_in_process
 from spotnav.files.images import ImageReadError, display_name, read_image, write_image
+from spotnav.files.recording import is_recording, read_recording, recording_fps
 
 __all__ = ["IMAGE_SUFFIXES", "CameraSettings", "SequenceWriter", "is_live", "iter_frames"]
 
@@ -88,13 +90,17 @@ def iter_frames(
     report: Callable[[str], None] | None = None,
     expected_size: tuple[int, int] | None = None,
     while_waiting: Callable[[np.ndarray], object] | None = None,
+    replay_speed: float = math.inf,
+    fps: Callable[[float], object] | None = None,
+    stop: Callable[[], bool] = lambda: False,
 ) -> Generator[Frame, None, None]:
-    """Decode a sequence in order: a folder or glob of images, a video file, a camera, a URL or a pipeline.
+    """Decode a sequence in order: a recording, a folder or glob of images, a video file, a camera, a URL or a pipeline.
 
     Parameters
     ----------
     source : str
-        A folder or glob of images, a video file, a camera index (``0``), any
+        A recording's folder (:mod:`spotnav.files.recording`), a folder or glob of images, a video file, a camera
+        index (``0``), any
         URL that OpenCV's FFmpeg opens (``rtsp://...``), or a GStreamer
         pipeline (``... ! appsink``, with an OpenCV built with GStreamer).
     ring : int
@@ -122,6 +128,14 @@ def iter_frames(
         as above. On Linux with two cores or more; elsewhere, and without
         room for the shared buffers, the video is decoded in the caller's
         thread, as are images and live sources.
+    replay_speed : float
+        A recording's pace: 1 as recorded, 2 twice as fast, ``math.inf`` (the default) as fast as it decodes
+        (:func:`spotnav.files.recording.read_recording`).
+    fps : callable, optional
+        Called once, before the first frame, with the source's frame rate (frames per second) if it has one: a
+        video's or a live source's (as it reports it), a recording's (from its timestamps); not for images.
+    stop : callable
+        A recording waiting for a frame's time hands it over at once while this returns true.
 
     Raises
     ------
@@ -129,6 +143,8 @@ def iter_frames(
         If ``source`` names nothing that can be read (an unreadable image
         inside a folder yields a :class:`Frame` with its ``error`` instead),
         or a decoder process ends without the video's end.
+    InputError
+        If a recording's ``frames.csv`` cannot be read.
     ValueError
         If ``camera`` settings are given for a source that is not live.
     """
@@ -137,6 +153,11 @@ def iter_frames(
     wanted = camera.requests() if camera is not None else {}
     if wanted and not is_live(source):
         raise InputError(f"{source}: camera settings need a live camera, URL or pipeline, not files")
+    if is_recording(source):
+        rate = recording_fps(source)
+        if fps is not None and rate is not None:
+            fps(rate)
+        return read_recording(source, speed=replay_speed, expected_size=expected_size, stop=stop)
     files = _sequence_files(source)
     if files is not None:
         if not files:
@@ -149,6 +170,9 @@ def iter_frames(
         for number, value in wanted.items():
             if abs(capture.get(number) - value) > 1e-6 * max(abs(value), 1.0):
                 report(f"{source}: asked for {PROPERTY_NAMES[number]} {value:g}, it reports {capture.get(number):g}")
+    rate = capture.get(cv2.CAP_PROP_FPS)
+    if fps is not None and math.isfinite(rate) and rate > 0:
+        fps(rate)
     if while_waiting is not None and not is_live(source):
         return read_capture_in_process(source, capture, ring, while_waiting)
     return read_capture(capture, ring)
