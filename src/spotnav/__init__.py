@@ -7,7 +7,9 @@ applications (:mod:`spotnav.app`), the studies (:mod:`spotnav.experiments`) and 
 """
 
 import hashlib
+import importlib
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 
 def _drop_stale_kernels() -> None:
@@ -40,14 +42,19 @@ def _drop_stale_kernels() -> None:
 
 _drop_stale_kernels()
 
-from spotnav.optics.render import Renderer  # noqa: E402
-from spotnav.pose.estimate import PoseEstimate  # noqa: E402
-from spotnav.pose.localize import localize  # noqa: E402
-from spotnav.setup.config import Setup, setup_from_toml  # noqa: E402
-from spotnav.setup.geometry import InstrumentPose  # noqa: E402
-from spotnav.setup.values import SetupError  # noqa: E402
-
 __version__ = "0.1.0"
+
+# Where each name of the public API lives: imported on first use (PEP 562), so that ``import spotnav`` and the
+# command line's start (``spotnav --version``) do not pay for NumPy, Numba, SciPy and OpenCV.
+_EXPORTS = {
+    "InstrumentPose": "spotnav.setup.geometry",
+    "PoseEstimate": "spotnav.pose.estimate",
+    "Renderer": "spotnav.optics.render",
+    "Setup": "spotnav.setup.config",
+    "SetupError": "spotnav.setup.values",
+    "localize": "spotnav.pose.localize",
+    "setup_from_toml": "spotnav.setup.config",
+}
 
 __all__ = [
     "InstrumentPose",
@@ -59,3 +66,24 @@ __all__ = [
     "localize",
     "setup_from_toml",
 ]
+
+if TYPE_CHECKING:
+    from spotnav.optics.render import Renderer
+    from spotnav.pose.estimate import PoseEstimate
+    from spotnav.pose.localize import localize
+    from spotnav.setup.config import Setup, setup_from_toml
+    from spotnav.setup.geometry import InstrumentPose
+    from spotnav.setup.values import SetupError
+
+
+def __getattr__(name: str) -> Any:
+    """Import a name of the public API from its module on first use (``from spotnav import localize``)."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'spotnav' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_EXPORTS[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})
