@@ -8,21 +8,16 @@ applications are in :mod:`spotnav.app`.
 
 from __future__ import annotations
 
-import argparse
 import sys
-import time
-from collections import Counter
-from collections.abc import Callable, Sequence
-from dataclasses import replace
-from functools import partial
-from pathlib import Path
-from typing import TYPE_CHECKING
 
-from spotnav.app.start import OUTPUT_COLUMNS, compile_kernels_once, header_on_interrupt, terminate_as_interrupt
-from spotnav.arguments import build_parser
 from spotnav.errors import SpotnavError
 
+TYPE_CHECKING = False  # mypy reads the block below; at run time the start imports as little as it can
 if TYPE_CHECKING:
+    import argparse
+    from collections import Counter
+    from collections.abc import Callable, Sequence
+
     import numpy as np
 
 __all__ = ["main"]
@@ -33,6 +28,8 @@ class UsageError(SpotnavError):
 
 
 def _cmd_scene(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from spotnav.files.setup_files import read_opencv_camera, read_setup, setup_to_toml
     from spotnav.setup.config import Setup
     from spotnav.setup.examples import EXAMPLES
@@ -68,6 +65,9 @@ def _finite_vector(name: str, values: Sequence[float]) -> np.ndarray:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+    from pathlib import Path
+
     import numpy as np
 
     from spotnav.app.sequence_render import check_inside, render_sequence
@@ -243,6 +243,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from spotnav.app.calibration_job import run_calibration
     from spotnav.files.setup_files import read_setup, setup_to_toml
 
@@ -273,6 +275,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from spotnav.app.evaluate import evaluate_poses, evaluation_text, write_evaluation
     from spotnav.files.poses import read_known_poses, read_poses_csv
 
@@ -285,6 +289,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
     from spotnav.experiments import reproduce
 
     if args.workers < 1:
@@ -301,6 +308,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    from functools import partial
+    from pathlib import Path
+
     from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
 
     if args.example:
@@ -333,6 +343,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep_report(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from spotnav.experiments.sweep_report import write_sweep_report
 
     print(write_sweep_report(args.directory))
@@ -357,12 +369,14 @@ _COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code (130 when interrupted before a run could stop by itself).
-
-    Only the standard library is imported before the command is known, and Ctrl-C or SIGTERM at any moment
-    ends with one line: an interrupted ``--out poses.csv`` holds at least its header.
-    """
+    """Run the command line; returns the exit code (130: Ctrl-C or SIGTERM before a run could stop by itself, one
+    line said, an interrupted ``--out poses.csv`` left with at least its header; README, "Use")."""
     try:
+        from functools import partial
+
+        from spotnav.app.start import OUTPUT_COLUMNS, compile_kernels_once, header_on_interrupt, terminate_as_interrupt
+        from spotnav.arguments import build_parser
+
         with terminate_as_interrupt():
             args = build_parser(__doc__.splitlines()[0]).parse_args(argv)
             with header_on_interrupt(getattr(args, "out", None), OUTPUT_COLUMNS.get(args.command)):

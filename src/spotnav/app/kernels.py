@@ -84,12 +84,22 @@ def _frame(beams: int) -> tuple[Setup, np.ndarray]:
 
 
 def _read() -> None:
-    """Rendering, and reading a frame: the thesis's method, then the precise one (its fit cached by then)."""
+    """Rendering, and reading a frame by the precise method (its fit cached by then)."""
     from spotnav.pose.localize import localize_detailed
 
     setup, image = _frame(1)
-    for method in ("thesis", "precise"):
-        localize_detailed(image, setup, method)
+    localize_detailed(image, setup, "precise")
+
+
+def _thesis() -> None:
+    """The thesis's method (its ellipses and apex candidates) on a frame rendered by then, and the search for spots
+    that large frames make (a frame shrunk by 4 or more, one row of each cell read)."""
+    from spotnav.image.spots import detect_spots_otsu
+    from spotnav.pose.localize import localize_detailed
+
+    setup, image = _frame(1)
+    localize_detailed(image, setup, "thesis")
+    detect_spots_otsu(image, blur_px=3, decimate=4, refine=(1, 3))
 
 
 def _localize() -> None:
@@ -133,9 +143,9 @@ def _studies() -> None:
     approximation_deviation(np.radians(9.0))
 
 
-# In this order: the first two share the least, so that two cores compile them side by side; the rest load most of
-# what they run from the cache by then.
-_TASKS: tuple[Callable[[], None], ...] = (_fit, _read, _calibrate, _localize, _track, _studies)
+# In this order: the first three share the least, so that two cores compile them side by side (the fit on one, the
+# frame's reading on the other, then the thesis's method); the rest load most of what they run from the cache.
+_TASKS: tuple[Callable[[], None], ...] = (_fit, _read, _thesis, _localize, _calibrate, _track, _studies)
 
 
 def _run(index: int) -> tuple[str, float, float]:
@@ -230,9 +240,12 @@ def warm_kernels(workers: int | None = None, report: Callable[[str], None] | Non
 
 
 if __name__ == "__main__":  # python -m spotnav.app.kernels [WORKERS]: warm the cache unless it is
+    from spotnav.app.start import terminate_as_interrupt
+
     if kernels_compiled():
         print(f"spotnav's kernels are compiled, in {kernel_cache()}")
     else:
-        took = warm_kernels(int(sys.argv[1]) if len(sys.argv) > 1 else None, report=print)
+        with terminate_as_interrupt():  # the workers end with it
+            took = warm_kernels(int(sys.argv[1]) if len(sys.argv) > 1 else None, report=print)
         tasks = ", ".join(f"{name} {cpu_s:.0f}" for name, cpu_s in took.items() if name != "total")
         print(f"compiled in {took['total']:.0f} s (CPU s per task: {tasks})")
