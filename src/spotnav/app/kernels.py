@@ -31,11 +31,17 @@ import spotnav
 from spotnav.setup.config import Setup, setup_from_toml
 from spotnav.setup.examples import EXAMPLE_SETUP
 
-__all__ = ["COMPILE_CPU_S", "kernel_cache", "kernels_compiled", "warm_kernels"]
+__all__ = ["COMPILE_CPU_S", "compile_seconds", "kernel_cache", "kernels_compiled", "warm_kernels"]
 
-COMPILE_CPU_S = 120.0
-"""About how long compiling every kernel takes on one core, s (measured on a loaded 2-core machine: it says how
-long to wait)."""
+COMPILE_CPU_S = 130.0
+"""About how long compiling every kernel takes on one core, s. In two processes the tasks share some kernels and
+the first two take most of the time: 160 s of CPU, about 85 s on two idle cores (measured on a 2-core machine)."""
+
+
+def compile_seconds(workers: int) -> float:
+    """About how long :func:`warm_kernels` takes in ``workers`` processes, s (a third of it does not divide)."""
+    return COMPILE_CPU_S * (0.3 + 0.7 / workers)
+
 
 _SIZE_PX = 256  # the synthetic frames' size: a kernel's compiled code does not depend on it
 _MARK = "spotnav-kernels-compiled.txt"
@@ -219,7 +225,7 @@ def warm_kernels(workers: int | None = None, report: Callable[[str], None] | Non
     workers = max(1, min(workers or _cores(), len(_TASKS)))
     if report is not None:
         cores = f"{workers} cores" if workers > 1 else "1 core"
-        about = f"about {COMPILE_CPU_S / workers:.0f} s"
+        about = f"about {compile_seconds(workers):.0f} s"
         report(f"spotnav: compiling spotnav's numerical kernels once, {about}, on {cores} ...")
     start = time.perf_counter()
     if workers == 1:
