@@ -371,17 +371,16 @@ _COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (130: Ctrl-C or SIGTERM before a run could stop by itself, one
     line said, an interrupted ``--out poses.csv`` left with at least its header; README, "Use")."""
+    words = list(sys.argv[1:] if argv is None else argv)
     try:
-        from functools import partial
+        from spotnav.app.start import compile_kernels_once, header_on_interrupt, terminate_as_interrupt
 
-        from spotnav.app.start import OUTPUT_COLUMNS, compile_kernels_once, header_on_interrupt, terminate_as_interrupt
-        from spotnav.arguments import build_parser
+        with terminate_as_interrupt(), header_on_interrupt(words):
+            from spotnav.arguments import build_parser
 
-        with terminate_as_interrupt():
-            args = build_parser(__doc__.splitlines()[0]).parse_args(argv)
-            with header_on_interrupt(getattr(args, "out", None), OUTPUT_COLUMNS.get(args.command)):
-                compile_kernels_once(args, report=partial(print, file=sys.stderr, flush=True))
-                return _COMMANDS[args.command](args)
+            args = build_parser(__doc__.splitlines()[0]).parse_args(words)
+            compile_kernels_once(args, report=lambda line: print(line, file=sys.stderr, flush=True))
+            return _COMMANDS[args.command](args)
     except (SpotnavError, OSError) as error:
         message = str(error).splitlines()[0] if str(error) else type(error).__name__
         print(f"spotnav: error: {message}", file=sys.stderr)

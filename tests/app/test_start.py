@@ -15,11 +15,18 @@ def _header(columns: tuple[str, ...]) -> str:
     return ",".join(columns) + "\n"
 
 
+def test_the_output_is_read_from_the_words_themselves() -> None:
+    assert start.poses_out(["track", "--scene", "s.toml", "v.mkv", "--out", "p.csv"]) == ("p.csv", TRACK_COLUMNS)
+    assert start.poses_out(["localize", "--out=d/p.csv", "--scene", "s", "a.png"]) == ("d/p.csv", POSES_COLUMNS)
+    assert start.poses_out(["render", "--scene", "s", "--tip", "1", "1", "5", "--out", "f.png"]) is None
+    assert start.poses_out(["track", "--out"]) is None and start.poses_out([]) is None
+
+
 def test_an_interrupt_before_the_output_leaves_its_header(tmp_path: Path) -> None:
     fresh, earlier = tmp_path / "new" / "poses.csv", tmp_path / "earlier.csv"
     earlier.write_text("an earlier run's rows\n")
     for path in (fresh, earlier):
-        with pytest.raises(KeyboardInterrupt), start.header_on_interrupt(str(path), TRACK_COLUMNS):
+        with pytest.raises(KeyboardInterrupt), start.header_on_interrupt(["track", "v.mkv", "--out", str(path)]):
             raise KeyboardInterrupt
         assert path.read_text() == _header(TRACK_COLUMNS)
 
@@ -27,15 +34,16 @@ def test_an_interrupt_before_the_output_leaves_its_header(tmp_path: Path) -> Non
 def test_an_interrupt_after_the_output_began_leaves_it(tmp_path: Path) -> None:
     path = tmp_path / "poses.csv"
     rows = _header(POSES_COLUMNS) + "a.png,ok,1,2,3,0,0,-1" + "," * 9 + "\n"
-    with pytest.raises(KeyboardInterrupt), start.header_on_interrupt(str(path), POSES_COLUMNS):
+    with pytest.raises(KeyboardInterrupt), start.header_on_interrupt(["localize", "a.png", "--out", str(path)]):
         path.write_text(rows)
         raise KeyboardInterrupt
     assert path.read_text() == rows
-    with start.header_on_interrupt(None, None):  # no poses.csv asked for: nothing to do
-        pass
-    with pytest.raises(RuntimeError), start.header_on_interrupt(str(tmp_path / "other.csv"), POSES_COLUMNS):
+    other = tmp_path / "other.csv"
+    with pytest.raises(RuntimeError), start.header_on_interrupt(["localize", "a.png", "--out", str(other)]):
         raise RuntimeError  # only an interrupt leaves a header
-    assert not (tmp_path / "other.csv").exists()
+    with pytest.raises(KeyboardInterrupt), start.header_on_interrupt(["render", "--out", str(other)]):
+        raise KeyboardInterrupt  # no poses.csv asked for
+    assert not other.exists()
 
 
 def test_sigterm_interrupts_within_the_block_only() -> None:

@@ -251,7 +251,11 @@ if __name__ == "__main__":  # python -m spotnav.app.kernels [WORKERS]: warm the 
     if kernels_compiled():
         print(f"spotnav's kernels are compiled, in {kernel_cache()}")
     else:
-        with terminate_as_interrupt():  # the workers end with it
-            took = warm_kernels(int(sys.argv[1]) if len(sys.argv) > 1 else None, report=print)
+        try:
+            with terminate_as_interrupt():  # the workers end with it
+                took = warm_kernels(int(sys.argv[1]) if len(sys.argv) > 1 else None, report=print)
+        except KeyboardInterrupt:
+            print("interrupted: nothing marked compiled")
+            raise SystemExit(130) from None
         tasks = ", ".join(f"{name} {cpu_s:.0f}" for name, cpu_s in took.items() if name != "total")
         print(f"compiled in {took['total']:.0f} s (CPU s per task: {tasks})")

@@ -7,21 +7,25 @@ and the rest are still importing, ends as cleanly as one later on.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
+import os
 import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from pathlib import Path
-from types import FrameType
 
 from spotnav.files.columns import POSES_COLUMNS, TRACK_COLUMNS, write_header
+
+TYPE_CHECKING = False  # the standard library's lightest: no typing module at run time
+if TYPE_CHECKING:
+    import argparse
+    from types import FrameType
 
 __all__ = [
     "KERNEL_COMMANDS",
     "OUTPUT_COLUMNS",
     "compile_kernels_once",
     "header_on_interrupt",
+    "poses_out",
     "terminate_as_interrupt",
 ]
 
@@ -55,32 +59,43 @@ def terminate_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _file_state(path: Path) -> tuple[int, int, int] | None:
+def _file_state(path: str) -> tuple[int, int, int] | None:
     try:
-        stat = path.stat()
+        stat = os.stat(path)
     except OSError:
         return None
     return stat.st_ino, stat.st_mtime_ns, stat.st_size
 
 
-@contextlib.contextmanager
-def header_on_interrupt(out: str | None, columns: Sequence[str] | None) -> Iterator[None]:
-    """On an interrupt before the command began writing ``out``, leave the header there: a valid, empty table.
+def poses_out(words: Sequence[str]) -> tuple[str, Sequence[str]] | None:
+    """The ``--out poses.csv`` that the command line's ``words`` ask for, and its columns; None for a command
+    without one. Read from the words themselves, so that it is known before the parser is even imported."""
+    command = next((word for word in words if not word.startswith("-")), None)
+    if command not in OUTPUT_COLUMNS:
+        return None
+    for index, word in enumerate(words[:-1]):
+        if word == "--out":
+            return words[index + 1], OUTPUT_COLUMNS[command]
+    out = next((word.removeprefix("--out=") for word in words if word.startswith("--out=")), None)
+    return None if out is None else (out, OUTPUT_COLUMNS[command])
 
-    An interrupt once the command has written its header and rows leaves them as they are. Nothing is done for
-    ``out`` or ``columns`` None (a command without a ``poses.csv``).
+
+@contextlib.contextmanager
+def header_on_interrupt(words: Sequence[str]) -> Iterator[None]:
+    """On an interrupt before the command began writing the ``--out poses.csv`` that ``words`` ask for, leave the
+    header there: a valid, empty table.
+
+    An interrupt once the command has written its header and rows leaves them as they are. Nothing is done for a
+    command without a ``poses.csv`` (:func:`poses_out`).
     """
-    if out is None or columns is None:
-        yield
-        return
-    path = Path(out)
-    before = _file_state(path)
+    asked = poses_out(words)
+    before = None if asked is None else _file_state(asked[0])
     try:
         yield
     except KeyboardInterrupt:
-        if _file_state(path) in (before, None):  # not opened by the command: absent, or an earlier run's
+        if asked is not None and _file_state(asked[0]) in (before, None):  # absent, or an earlier run's
             with contextlib.suppress(OSError):
-                write_header(path, columns)
+                write_header(*asked)
         raise
 
 

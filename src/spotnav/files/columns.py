@@ -7,8 +7,8 @@ NumPy, Numba and the rest are imported.
 from __future__ import annotations
 
 import csv
+import os
 from collections.abc import Sequence
-from pathlib import Path
 
 __all__ = ["POSES_COLUMNS", "TRACK_COLUMNS", "TRUTH_COLUMNS", "write_header"]
 
@@ -24,9 +24,10 @@ TRACK_COLUMNS = (
 )
 
 
-def write_header(path: str | Path, columns: Sequence[str]) -> None:
+def write_header(path: str | os.PathLike[str], columns: Sequence[str]) -> None:
     """Write a CSV file that holds only its header row (LF line ending), creating its folder."""
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with target.open("w", newline="", encoding="utf-8") as handle:
+    folder = os.path.dirname(os.fspath(path))
+    if folder:
+        os.makedirs(folder, exist_ok=True)
+    with open(path, "w", newline="", encoding="utf-8") as handle:
         csv.writer(handle, lineterminator="\n").writerow(columns)
