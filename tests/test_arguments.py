@@ -9,7 +9,12 @@ from pathlib import Path
 
 import pytest
 
+from spotnav import arguments
+from spotnav.app import igtl
 from spotnav.arguments import DESCRIPTION, build_parser
+from spotnav.experiments import EXPERIMENTS
+from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
+from spotnav.pose.localize import DEFAULT_METHOD, METHODS
 
 README = Path(__file__).parents[1] / "README.md"
 _OPTION = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
@@ -121,3 +126,27 @@ def test_help_is_plain_text_wrapped_between_words(columns: int, monkeypatch: pyt
 def test_evaluate_help_names_both_truth_files() -> None:
     page = " ".join(_subcommands()["evaluate"].format_help().split())
     assert "truth.csv" in page and "frame.json" in page
+
+
+def test_the_parser_offers_the_names_the_library_defines() -> None:
+    # The parser imports the standard library only, so it writes the names out: they must be the library's.
+    assert arguments.METHODS == tuple(METHODS) and arguments.DEFAULT_METHOD == DEFAULT_METHOD
+    assert arguments.PARAMETER_GROUPS == tuple(PARAMETER_GROUPS)
+    assert arguments.EXPERIMENTS == tuple(EXPERIMENTS)
+    assert (arguments.DEFAULT_PORT, arguments.DEFAULT_HOST, arguments.DEFAULT_DEVICE) == (
+        igtl.DEFAULT_PORT,
+        igtl.DEFAULT_HOST,
+        igtl.DEFAULT_DEVICE,
+    )
+    assert arguments.DEFAULT_STALE_S == igtl.DEFAULT_STALE_S
+
+
+def test_the_parser_takes_those_names(capsys: pytest.CaptureFixture[str]) -> None:
+    parser = arguments.build_parser()
+    calibrate = ["calibrate", "--scene", "s.toml", "--poses", "k.csv", "--out", "c.toml"]
+    assert parser.parse_args([*calibrate, "--fit", "focal-length"]).fit == ["focal-length"]
+    assert parser.parse_args(["reproduce", "--only", "mismatch"]).only == ["mismatch"]
+    assert parser.parse_args(["track", "--scene", "s", "v.mkv", "--out", "p", "--igtl"]).igtl == igtl.DEFAULT_PORT
+    with pytest.raises(SystemExit):
+        parser.parse_args(["localize", "--scene", "s", "--method", "nope", "f.png", "--out", "p"])
+    assert "invalid choice" in capsys.readouterr().err

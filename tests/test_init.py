@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import spotnav
 
 
@@ -31,3 +33,33 @@ def test_cached_kernels_are_dropped_when_any_source_changes(tmp_path: Path) -> N
     _import_package(tmp_path)
     assert not any(kernel.exists() for kernel in kernels)
     assert (package / "__pycache__" / "spotnav-kernels-sources.txt").exists()
+
+
+HEAVY = ("numpy", "numba", "scipy", "cv2", "matplotlib", "pandas", "dask", "distributed", "pyigtl", "PIL")
+
+
+def _imported_after(code: str) -> list[str]:
+    """The heavy packages that ``code`` imports, run in a fresh interpreter."""
+    check = f"{code}\nimport sys\nprint(' '.join(sorted({{name.split('.')[0] for name in sys.modules}})))"
+    result = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, check=True)
+    return sorted(set(result.stdout.split()) & set(HEAVY))
+
+
+def test_the_package_and_the_command_line_import_the_standard_library_only() -> None:
+    # Issue 44: every command paid 2.6 s of imports before it began, and `spotnav --version` as much.
+    assert _imported_after("import spotnav") == []
+    assert _imported_after("import spotnav.cli, spotnav.arguments") == []
+
+
+def test_the_public_names_load_on_first_use() -> None:
+    from spotnav import InstrumentPose, PoseEstimate, Renderer, Setup, SetupError, localize, setup_from_toml
+    from spotnav.optics.render import Renderer as RendererItself
+    from spotnav.pose.localize import localize as localize_itself
+
+    assert Renderer is RendererItself and localize is localize_itself
+    exported = {getattr(spotnav, name) for name in spotnav.__all__}
+    assert {InstrumentPose, PoseEstimate, Setup, SetupError, setup_from_toml} <= exported
+    assert set(spotnav.__all__) <= set(dir(spotnav))
+    assert "numpy" in _imported_after("from spotnav import localize")
+    with pytest.raises(AttributeError, match="no_such_name"):
+        spotnav.no_such_name  # noqa: B018

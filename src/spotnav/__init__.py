@@ -6,8 +6,25 @@ applications (:mod:`spotnav.app`), the studies (:mod:`spotnav.experiments`) and 
 (:mod:`spotnav.cli`). ``docs/architecture.md`` draws the map.
 """
 
-import hashlib
-from pathlib import Path
+import os
+
+TYPE_CHECKING = False  # mypy reads the imports below; at run time each name is imported on first use (PEP 562)
+if TYPE_CHECKING:
+    from spotnav.optics.render import Renderer
+    from spotnav.pose.estimate import PoseEstimate
+    from spotnav.pose.localize import localize
+    from spotnav.setup.config import Setup, setup_from_toml
+    from spotnav.setup.geometry import InstrumentPose
+    from spotnav.setup.values import SetupError
+
+
+def _sources(package: str) -> list[str]:
+    """The package's ``.py`` files, sorted, as paths from ``package``."""
+    found: list[str] = []
+    for folder, folders, files in os.walk(package):
+        folders[:] = [name for name in folders if name != "__pycache__"]
+        found.extend(os.path.join(folder, name) for name in files if name.endswith(".py"))
+    return sorted(found)
 
 
 def _drop_stale_kernels() -> None:
@@ -16,38 +33,50 @@ def _drop_stale_kernels() -> None:
     Numba keys each cached kernel on its own module's source only, and a kernel keeps the code of the kernels it
     calls in other modules: after a change to ``optics/camera.py`` alone (a ``git pull`` into an editable install),
     ``pose``'s cached kernels would go on computing with the old camera. Read-only sources (a cache under
-    ``NUMBA_CACHE_DIR``) do not change, and are left alone.
+    ``NUMBA_CACHE_DIR``) do not change, and are left alone. The standard library's ``os`` only: this runs at every
+    start, before the command line can catch an interrupt.
     """
-    package = Path(__file__).parent
-    sources = sorted(package.rglob("*.py"))
-    stamps = [(str(path.relative_to(package)), path.stat().st_size, path.stat().st_mtime_ns) for path in sources]
-    fingerprint = hashlib.sha256(repr(stamps).encode()).hexdigest()
-    marker = package / "__pycache__" / "spotnav-kernels-sources.txt"
+    package = os.path.dirname(os.path.abspath(__file__))
+    sources = _sources(package)
     try:
-        if marker.read_text() == fingerprint:
-            return
+        stamps = [(os.path.relpath(path, package), os.stat(path)) for path in sources]
+    except OSError:
+        return
+    fingerprint = "\n".join(f"{name} {stat.st_size} {stat.st_mtime_ns}" for name, stat in stamps)
+    marker = os.path.join(package, "__pycache__", "spotnav-kernels-sources.txt")
+    try:
+        with open(marker, encoding="utf-8") as handle:
+            if handle.read() == fingerprint:
+                return
     except OSError:
         pass
     try:
-        marker.parent.mkdir(exist_ok=True)
-        for cache in {path.parent / "__pycache__" for path in sources}:
-            for kernel in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
-                kernel.unlink(missing_ok=True)
-        marker.write_text(fingerprint)
+        os.makedirs(os.path.dirname(marker), exist_ok=True)
+        for cache in {os.path.join(os.path.dirname(path), "__pycache__") for path in sources}:
+            for name in os.listdir(cache) if os.path.isdir(cache) else []:
+                if name.endswith((".nbi", ".nbc")):
+                    os.unlink(os.path.join(cache, name))
+        with open(marker, "w", encoding="utf-8") as handle:
+            handle.write(fingerprint)
     except OSError:
         return
 
 
 _drop_stale_kernels()
 
-from spotnav.optics.render import Renderer  # noqa: E402
-from spotnav.pose.estimate import PoseEstimate  # noqa: E402
-from spotnav.pose.localize import localize  # noqa: E402
-from spotnav.setup.config import Setup, setup_from_toml  # noqa: E402
-from spotnav.setup.geometry import InstrumentPose  # noqa: E402
-from spotnav.setup.values import SetupError  # noqa: E402
-
 __version__ = "0.1.0"
+
+# Where each name of the public API lives, imported on first use, so that ``import spotnav`` and the
+# command line's start (``spotnav --version``) do not pay for NumPy, Numba, SciPy and OpenCV.
+_EXPORTS = {
+    "InstrumentPose": "spotnav.setup.geometry",
+    "PoseEstimate": "spotnav.pose.estimate",
+    "Renderer": "spotnav.optics.render",
+    "Setup": "spotnav.setup.config",
+    "SetupError": "spotnav.setup.values",
+    "localize": "spotnav.pose.localize",
+    "setup_from_toml": "spotnav.setup.config",
+}
 
 __all__ = [
     "InstrumentPose",
@@ -59,3 +88,18 @@ __all__ = [
     "localize",
     "setup_from_toml",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """Import a name of the public API from its module on first use (``from spotnav import localize``)."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'spotnav' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(_EXPORTS[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

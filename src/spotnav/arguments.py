@@ -13,10 +13,6 @@ import textwrap
 from typing import Any
 
 from spotnav import __version__
-from spotnav.app.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_PORT, DEFAULT_STALE_S
-from spotnav.experiments import EXPERIMENTS
-from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
-from spotnav.pose.localize import DEFAULT_METHOD, METHODS
 from spotnav.setup.examples import EXAMPLES
 
 __all__ = ["DESCRIPTION", "build_parser"]
@@ -25,6 +21,22 @@ DESCRIPTION = (
     "Localize a surgical instrument inside the eye from the cone of light it projects on the retina, as a "
     "microscope camera sees it: simulate frames, localize the tip, track, calibrate and evaluate."
 )
+
+# The names the options accept, written out so that parsing imports the standard library only (``spotnav
+# --version`` and ``--help`` start at once); tests/test_arguments.py checks them against the modules that define them:
+# spotnav.pose.localize.METHODS, spotnav.pose.conefit.parameters.PARAMETER_GROUPS, spotnav.experiments.EXPERIMENTS
+# and spotnav.app.igtl's defaults.
+METHODS = ("precise", "precise-free", "thesis")
+DEFAULT_METHOD = "precise"
+PARAMETER_GROUPS = (
+    *("edge-angle", "light-radius", "eye-radius", "camera-rotation", "camera-position", "focal-length"),
+    *("principal-point", "distortion", "insertion-point"),
+)
+EXPERIMENTS = (
+    *("approximation", "ellipse", "paths", "bumps", "radius", "calibration", "volume", "faults", "light"),
+    *("geometry", "mismatch"),
+)
+DEFAULT_PORT, DEFAULT_HOST, DEFAULT_DEVICE, DEFAULT_STALE_S = 18944, "127.0.0.1", "TipToEye", 0.5
 
 _Parser = argparse.ArgumentParser
 

@@ -1,46 +1,23 @@
 """Command line: ``spotnav scene|render|localize|show|track|calibrate|evaluate|analyze|reproduce|bench|sweep|...``.
 
-``main(argv)`` returns the exit code, so tests call it in-process. Unusable
-arguments or setups end with one line ``spotnav: error: ...`` and exit code 2.
-The command line only parses (:mod:`spotnav.arguments`) and prints: the
-applications are in :mod:`spotnav.app`.
+``main(argv)`` returns the exit code, so tests call it in-process. Unusable arguments or setups end with one line
+``spotnav: error: ...`` and exit code 2. It only parses (:mod:`spotnav.arguments`) and prints (:mod:`spotnav.app` works).
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
-import time
-from collections import Counter
-from collections.abc import Callable, Sequence
-from dataclasses import replace
-from functools import partial
-from pathlib import Path
 
-import numpy as np
-
-from spotnav.app.batch import localize_batch
-from spotnav.app.calibration_job import run_calibration
-from spotnav.app.evaluate import evaluate_poses, evaluation_text, write_evaluation
-from spotnav.app.sequence_render import check_inside, render_sequence
-from spotnav.app.session import IgtlSettings, TrackLimits, TrackSession, camera_settings, ready, replay_speed
-from spotnav.app.show import show_frame
-from spotnav.arguments import build_parser
 from spotnav.errors import SpotnavError
-from spotnav.experiments import approximation_rows, reproduce
-from spotnav.experiments.bench import bench_markdown, run_bench, run_stress, stress_markdown
-from spotnav.experiments.profiling import profile_markdown, run_profile
-from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
-from spotnav.experiments.sweep_report import write_sweep_report
-from spotnav.files.images import read_image, write_image
-from spotnav.files.poses import read_known_poses, read_poses_csv, write_truth_json
-from spotnav.files.setup_files import read_opencv_camera, read_setup, setup_to_toml
-from spotnav.optics.render import Renderer
-from spotnav.setup.config import Setup
-from spotnav.setup.examples import EXAMPLES
-from spotnav.setup.geometry import InstrumentPose, beam_axes
-from spotnav.setup.microscope import Camera
+
+TYPE_CHECKING = False  # mypy reads the block below; at run time the start imports as little as it can
+if TYPE_CHECKING:
+    import argparse
+    from collections import Counter
+    from collections.abc import Callable, Sequence
+
+    import numpy as np
 
 __all__ = ["main"]
 
@@ -50,6 +27,13 @@ class UsageError(SpotnavError):
 
 
 def _cmd_scene(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from spotnav.files.setup_files import read_opencv_camera, read_setup, setup_to_toml
+    from spotnav.setup.config import Setup
+    from spotnav.setup.examples import EXAMPLES
+    from spotnav.setup.microscope import Camera
+
     if (args.example is None) == (args.opencv is None):
         raise UsageError("scene needs --example (print the thesis's setup) or --opencv FILE (a calibrated camera)")
     if args.example is not None:
@@ -71,6 +55,8 @@ def _cmd_scene(args: argparse.Namespace) -> int:
 
 
 def _finite_vector(name: str, values: Sequence[float]) -> np.ndarray:
+    import numpy as np
+
     vector = np.asarray(values, dtype=float)
     if not np.all(np.isfinite(vector)):
         raise UsageError(f"{name} must be finite numbers, got {' '.join(map(str, values))}")
@@ -78,6 +64,18 @@ def _finite_vector(name: str, values: Sequence[float]) -> np.ndarray:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+    from pathlib import Path
+
+    import numpy as np
+
+    from spotnav.app.sequence_render import check_inside, render_sequence
+    from spotnav.files.images import write_image
+    from spotnav.files.poses import write_truth_json
+    from spotnav.files.setup_files import read_setup
+    from spotnav.optics.render import Renderer
+    from spotnav.setup.geometry import InstrumentPose, beam_axes
+
     setup = read_setup(args.scene)
     if args.seed < 0:
         raise UsageError(f"--seed must be at least 0, got {args.seed}")
@@ -119,6 +117,11 @@ def _counts(statuses: Counter[str], nothing: str) -> str:
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from spotnav.app.session import IgtlSettings, TrackLimits, TrackSession, camera_settings, replay_speed
+    from spotnav.files.setup_files import read_setup
+
     setup = read_setup(args.scene)
     limits = TrackLimits(args.max_frames, args.duration)
     camera = camera_settings(args.camera_size, args.fps, args.exposure)
@@ -153,6 +156,9 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:
+    from spotnav.app.batch import localize_batch
+    from spotnav.files.setup_files import read_setup
+
     setup = read_setup(args.scene)
     batch = localize_batch(args.images, setup, args.method, args.out, fit_radius=args.fit_radius)
     if batch.radius is not None:
@@ -168,6 +174,13 @@ def _cmd_localize(args: argparse.Namespace) -> int:
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from spotnav.app.session import ready
+    from spotnav.app.show import show_frame
+    from spotnav.files.images import read_image, write_image
+    from spotnav.files.setup_files import read_setup
+
     setup = read_setup(args.scene)
     image = read_image(args.frame, expected_size=(setup.camera.width_px, setup.camera.height_px))
     ready(setup)
@@ -192,6 +205,11 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from spotnav.experiments.bench import bench_markdown, run_bench, run_stress, stress_markdown
+    from spotnav.experiments.profiling import profile_markdown, run_profile
+
     if any(size < 128 for size in args.sizes):
         raise UsageError(f"--sizes must be at least 128 px, got {' '.join(map(str, args.sizes))}")
     if args.frames < 2:
@@ -225,6 +243,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from spotnav.app.calibration_job import run_calibration
+    from spotnav.files.setup_files import read_setup, setup_to_toml
+
     setup = read_setup(args.scene)
     fit = list(args.fit or []) + ["eye-radius"] * args.fit_radius + ["light-radius"] * args.fit_light_radius
     job = run_calibration(
@@ -240,6 +263,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
+    from spotnav.experiments import approximation_rows
+
     print("Table 4.1: largest deviation of the cone-plane ellipse from the cone-sphere curve")
     print("sphere centre (3.7, 0, -6.35) mm in the cone frame, r = 12.5 mm (thesis Table 4.2)")
     print(f"{'beta [deg]':>10} {'thesis [um]':>12} {'y gap [um]':>11} {'to plane [um]':>14} {'along ray [um]':>15}")
@@ -250,6 +275,11 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from spotnav.app.evaluate import evaluate_poses, evaluation_text, write_evaluation
+    from spotnav.files.poses import read_known_poses, read_poses_csv
+
     evaluation = evaluate_poses(read_poses_csv(args.poses), read_known_poses(args.truth))
     written = write_evaluation(Path(args.out), evaluation) if args.out else []  # the files first: stdout may close
     print(evaluation_text(evaluation))
@@ -259,6 +289,11 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from spotnav.experiments import reproduce
+
     if args.workers < 1:
         raise UsageError(f"--workers must be at least 1, got {args.workers}")
     out = Path(args.out or ("results/quick" if args.quick else "results/full"))
@@ -273,6 +308,11 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    from functools import partial
+    from pathlib import Path
+
+    from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
+
     if args.example:
         sys.stdout.write(EXAMPLE_SWEEP)
         return 0
@@ -303,6 +343,10 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep_report(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from spotnav.experiments.sweep_report import write_sweep_report
+
     print(write_sweep_report(args.directory))
     print(f"wrote {Path(args.directory) / 'summary.md'}, summary.csv and a plot per swept parameter", file=sys.stderr)
     return 0
@@ -325,12 +369,20 @@ _COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code."""
-    args = build_parser().parse_args(argv)
+    """Run the command line; returns the exit code (130: Ctrl-C or SIGTERM before a run could stop by itself, one
+    line said, an interrupted ``--out poses.csv`` left with at least its header; README, "Use")."""
+    words = list(sys.argv[1:] if argv is None else argv)
     try:
-        code = _COMMANDS[args.command](args)
-        sys.stdout.flush()  # a reader that left (| head) shows here, not at the interpreter's exit
-        return code
+        from spotnav.app.start import compile_kernels_once, header_on_interrupt, terminate_as_interrupt
+
+        with terminate_as_interrupt(), header_on_interrupt(words):
+            from spotnav.arguments import build_parser
+
+            args = build_parser().parse_args(words)
+            compile_kernels_once(args, report=lambda line: print(line, file=sys.stderr, flush=True))
+            code = _COMMANDS[args.command](args)
+            sys.stdout.flush()  # a reader that left (| head) shows here, not at the interpreter's exit
+            return code
     except BrokenPipeError:  # Python's recipe (signal docs, "Note on SIGPIPE"): what was asked is written; end quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

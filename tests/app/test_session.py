@@ -39,11 +39,11 @@ from spotnav.setup.config import Setup
 START_S = 1_800_000_000.0  # a capture time, Unix seconds
 
 
-def test_a_slow_start_says_it_is_compiling(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_slow_start_says_so(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     monkeypatch.setattr(session, "SLOW_START_S", 0.01)
     with compiling_note():
         time.sleep(0.2)
-    assert "compiling the numerical kernels, once after an install" in capsys.readouterr().err
+    assert "preparing the numerical kernels for this kind of frame, once" in capsys.readouterr().err
     with compiling_note():
         pass
     time.sleep(0.05)

@@ -71,8 +71,9 @@ def to_stderr(line: str) -> None:
 
 @contextlib.contextmanager
 def compiling_note() -> Iterator[None]:
-    """Say what a slow start is doing: Numba compiles the kernels once after an install (about 20 s)."""
-    note = "spotnav: compiling the numerical kernels, once after an install (about 20 s) ..."
+    """Say what a slow start is doing: the first command compiled every kernel for the usual frames (8-bit colour,
+    :mod:`spotnav.app.kernels`); another kind of frame (16-bit, grey) has its own compiled once, on first use."""
+    note = "spotnav: preparing the numerical kernels for this kind of frame, once ..."
     timer = threading.Timer(SLOW_START_S, partial(print, note, file=sys.stderr, flush=True))
     timer.daemon = True
     timer.start()

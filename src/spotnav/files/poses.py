@@ -19,6 +19,7 @@ import numpy as np
 
 from spotnav.errors import InputError
 from spotnav.files.capture import Frame
+from spotnav.files.columns import POSES_COLUMNS, TRACK_COLUMNS, TRUTH_COLUMNS
 from spotnav.files.numbers import json_floats, parse_float, parse_int
 from spotnav.files.setup_files import setup_to_dict
 from spotnav.pose.estimate import PoseEstimate
@@ -40,18 +41,6 @@ __all__ = [
     "write_truth_csv",
     "write_truth_json",
 ]
-
-
-POSES_COLUMNS = (
-    *("image", "status", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z"),  # the contract's
-    *("spots", "sigma_mm", "rms_px", "fit_ratio", "other_dir_x", "other_dir_y", "other_dir_z", "time_ms", "detail"),
-)
-
-TRUTH_COLUMNS = ("frame", "image", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z")
-TRACK_COLUMNS = (
-    *POSES_COLUMNS[:8],
-    *("frame", "mode", "latency_ms", "decode_ms", *POSES_COLUMNS[8:15], "detail", "timestamp_s"),
-)
 
 
 def _format(value: float) -> str:

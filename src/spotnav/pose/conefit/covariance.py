@@ -194,6 +194,7 @@ def _uncertainty(
     priors: np.ndarray | None,
 ) -> FitUncertainty:
     """The uncertainty of the fit at ``x`` (see :class:`FitUncertainty`)."""
+    x = np.array(x, dtype=float)  # writable, as the solvers pass it: their compiled kernels, not a read-only twin
     information = None if priors is None else 1.0 / np.asarray(priors, dtype=float) ** 2
     points = problem.points
     if points.spot_sigma is None:  # impossible: EdgePoints.__post_init__ sets it

@@ -222,7 +222,7 @@ class ConeProblem:
             base=np.ascontiguousarray(self.base, dtype=float),
             beam_count=int(self.beam_count),
             tilt=float(self.tilt),
-            shared=np.ascontiguousarray(self.shared, dtype=float),
+            shared=np.array(self.shared, dtype=float),  # writable, as a solution's is not: one compiled kernel
             shared_index=shared_index,
             frames=frames,
             frame_index=frame_index,
