@@ -1,7 +1,7 @@
 """Command line: ``spotnav scene|render|localize|show|track|calibrate|evaluate|analyze|reproduce|bench|sweep|...``.
 
 ``main(argv)`` returns the exit code, so tests call it in-process. Unusable arguments or setups end with one line
-``spotnav: error: ...`` and exit code 2. It only parses (:mod:`spotnav.arguments`) and prints (:mod:`spotnav.app` works).
+``spotnav: error: ...`` and exit code 2. It only parses (:mod:`spotnav.arguments`) and prints; :mod:`spotnav.app` works.
 """
 
 from __future__ import annotations
