@@ -27,10 +27,11 @@ test: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q -m "not slow"
 	SPOTNAV_BENCH_SIZES=512 $(BIN)/python -m pytest -q benchmarks --benchmark-disable
 
-# A fresh install: the README's first try, every kernel compiled at its first command, in under 2 minutes; and
-# warm_kernels alone compiles every kernel.
+# A fresh install: the README's first try with an empty kernel cache (also in make test), and warm_kernels alone
+# compiles every kernel (slow: only here).
 first-try: $(TEST_STAMP)
-	$(BIN)/python -m pytest -q -m slow tests/test_cli.py tests/app/test_kernels.py
+	$(BIN)/python -m pytest -q tests/test_cli.py::test_the_readme_first_try_compiles_once_and_says_so \
+	  tests/app/test_kernels.py::test_warming_compiles_every_kernel
 
 bench: $(TEST_STAMP)
 	$(BIN)/python -m pytest benchmarks --benchmark-columns=median,iqr,rounds --benchmark-sort=name

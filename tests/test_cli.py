@@ -568,16 +568,11 @@ def _run_first_try(folder: Path, env: dict[str, str]) -> tuple[subprocess.Comple
     return result, counts.read_text().split() if counts.exists() else []
 
 
-def test_the_readme_first_try_runs_as_written(tmp_path: Path) -> None:
-    # Issue 20: the README's first "Use" block, top to bottom, in a fresh folder (it works at 512 px).
-    _run_first_try(tmp_path, dict(os.environ))
-
-
-@pytest.mark.slow
 def test_the_readme_first_try_compiles_once_and_says_so(tmp_path: Path) -> None:
-    # Issue 44: on a fresh install the first try took 5.5 minutes; localize compiled for 148 s saying "about 20 s"
-    # and calibrate for 63 s more, silently. Now the first command that needs kernels compiles all of them, with
-    # one line, and none after it compiles: the whole first try, compiling included, in 2 minutes on 2 cores.
+    # Issue 20: the README's first "Use" block runs as written, top to bottom, in a fresh folder. Issue 44: on a
+    # fresh install it took 5.5 minutes; localize compiled for 148 s saying "about 20 s" and calibrate for 63 s
+    # more, silently. Now the first command that needs kernels compiles all of them, with one line, and none after
+    # it compiles: the whole first try, compiling included, in 2 minutes on 2 cores.
     cache = tmp_path / "numba-cache"
     cache.mkdir()  # empty: Numba then ignores the kernels cached beside the sources
     start = time.perf_counter()
