@@ -524,6 +524,10 @@ def test_show_draws_a_frame_and_prints_its_fit(tmp_path: Path, capsys: pytest.Ca
     assert np.linalg.norm(tip - [0.5, 0.0, 4.5]) < 0.005  # the printed tip is the frame's (to 4 decimals)
     overlay = cv2.imread(str(tmp_path / "o.png"))
     assert overlay is not None and max(overlay.shape[:2]) < 300  # cropped to the spot
+    thesis = ["show", "--scene", str(scene), "--method", "thesis", str(frame), "--out", str(tmp_path / "t.png")]
+    assert main(thesis) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("ok: tip ") and "nan" not in out  # the thesis's method has no sigma to print
 
 
 def test_a_bug_is_not_dressed_up_as_a_user_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -189,7 +189,8 @@ def _cmd_show(args: argparse.Namespace) -> int:
     estimate = shown.localization.estimate
     if estimate.tip_in_eye is not None:
         tip = " ".join(f"{v:.4f}" for v in estimate.tip_in_eye)
-        print(f"ok: tip {tip} mm, sigma {estimate.sigma_mm:.4f} mm")
+        sigma = f", sigma {estimate.sigma_mm:.4f} mm" if np.isfinite(estimate.sigma_mm) else ""  # thesis: none
+        print(f"ok: tip {tip} mm{sigma}")
     else:
         print(f"{estimate.status}: {estimate.detail}")
     if shown.note:
