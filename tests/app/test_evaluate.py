@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spotnav.app.evaluate import evaluate_poses, evaluation_text
+from spotnav.app.evaluate import _errors_title, evaluate_poses, evaluation_text
 from spotnav.cli import main
 from spotnav.errors import SpotnavError
 from spotnav.files.poses import KnownPose, PoseRow, read_poses_csv
@@ -101,3 +101,12 @@ def test_evaluate_command_joins_on_file_names_and_writes_its_files(
     truth_csv.write_text("image,x_mm,y_mm,z_mm\ntest_00.png,0,0,4\n")
     assert main(["evaluate", str(poses), str(truth_csv)]) == 2
     assert "no truth for 1 image(s): test_01.png" in capsys.readouterr().err
+
+
+def test_the_errors_figure_says_when_no_frame_is_ok() -> None:
+    # Review: errors.png's title read "mean nan mm, max nan mm" for a run without an ok frame.
+    known = truth(3)
+    refused = evaluate_poses([PoseRow(f"test_{i:02d}.png", "uncalibrated", None, None) for i in range(3)], known)
+    assert _errors_title(refused) == "tip error per frame: no ok frame among 3"
+    some = evaluate_poses([PoseRow("test_00.png", "ok", known[0].tip_in_eye + np.array([0.01, 0, 0]), AXIS)], known)
+    assert "nan" not in _errors_title(some) and "mean 0.0100 mm" in _errors_title(some)

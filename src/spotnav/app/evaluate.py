@@ -182,6 +182,13 @@ def evaluation_text(evaluation: Evaluation) -> str:
     return "\n".join(lines)
 
 
+def _errors_title(evaluation: Evaluation) -> str:
+    """``errors.png``'s title: the mean and max over the ok frames, or that there is none (never ``nan``)."""
+    if not evaluation.counts.get("ok", 0):
+        return f"tip error per frame: no ok frame among {len(evaluation.frames)}"
+    return f"tip error per frame: mean {evaluation.mean_mm:.4f} mm, max {evaluation.max_mm:.4f} mm over ok frames"
+
+
 def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:
     """Write ``errors.csv``, ``errors.png`` and ``track.png`` into ``out``; return their paths.
 
@@ -204,7 +211,7 @@ def write_evaluation(out: Path, evaluation: Evaluation) -> list[Path]:
         [f.image for f in evaluation.frames],
         np.array([f.error_mm for f in evaluation.frames]),
         [f.status for f in evaluation.frames],
-        f"tip error per frame: mean {evaluation.mean_mm:.4f} mm, max {evaluation.max_mm:.4f} mm over ok frames",
+        _errors_title(evaluation),
     )
     truth = np.array([f.true_tip_mm for f in evaluation.frames])
     estimated = truth + np.array([f.error_xyz_mm for f in evaluation.frames])
