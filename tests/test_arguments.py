@@ -150,3 +150,12 @@ def test_the_parser_takes_those_names(capsys: pytest.CaptureFixture[str]) -> Non
     with pytest.raises(SystemExit):
         parser.parse_args(["localize", "--scene", "s", "--method", "nope", "f.png", "--out", "p"])
     assert "invalid choice" in capsys.readouterr().err
+
+
+def test_options_are_spelt_out(capsys: pytest.CaptureFixture[str]) -> None:
+    # Review: `--ou x.csv` was --out to argparse, but not to the start, which reads --out from the words to leave a
+    # header on an interrupt.
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["localize", "--scene", "s.toml", "a.png", "--ou", "p.csv"])
+    error = capsys.readouterr().err
+    assert "required: --out" in error or "unrecognized arguments: --ou" in error, error

@@ -27,6 +27,18 @@ def _sources(package: str) -> list[str]:
     return sorted(found)
 
 
+def _sources_fingerprint(package: str, sources: list[str]) -> str:
+    """Each source's name, size and change time, a line each: what the compiled kernels were built from.
+
+    Raises
+    ------
+    OSError
+        If a source cannot be read.
+    """
+    stamps = [(os.path.relpath(path, package), os.stat(path)) for path in sources]
+    return "\n".join(f"{name} {stat.st_size} {stat.st_mtime_ns}" for name, stat in stamps)
+
+
 def _drop_stale_kernels() -> None:
     """Drop the compiled kernels cached beside the sources when any of the package's sources changed since.
 
@@ -39,10 +51,9 @@ def _drop_stale_kernels() -> None:
     package = os.path.dirname(os.path.abspath(__file__))
     sources = _sources(package)
     try:
-        stamps = [(os.path.relpath(path, package), os.stat(path)) for path in sources]
+        fingerprint = _sources_fingerprint(package, sources)
     except OSError:
         return
-    fingerprint = "\n".join(f"{name} {stat.st_size} {stat.st_mtime_ns}" for name, stat in stamps)
     marker = os.path.join(package, "__pycache__", "spotnav-kernels-sources.txt")
     try:
         with open(marker, encoding="utf-8") as handle:

@@ -259,7 +259,9 @@ def _experiment_commands(commands: argparse._SubParsersAction[argparse.ArgumentP
 
 def build_parser(description: str = DESCRIPTION) -> argparse.ArgumentParser:
     """``spotnav``'s parser, its summary line ``description`` (plain text); ``command`` names the subcommand parsed."""
-    parser = argparse.ArgumentParser(prog="spotnav", description=description, formatter_class=_PlainFormatter)
+    parser = argparse.ArgumentParser(
+        prog="spotnav", description=description, formatter_class=_PlainFormatter, allow_abbrev=False
+    )
     parser.add_argument("--version", action="version", version=f"spotnav {__version__}")
     command_help = "one of these; spotnav COMMAND --help describes its options"
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help=command_help)
@@ -273,4 +275,5 @@ def build_parser(description: str = DESCRIPTION) -> argparse.ArgumentParser:
     _experiment_commands(commands)
     for command in commands.choices.values():
         command.formatter_class = _PlainFormatter
+        command.allow_abbrev = False  # an option is spelt out: the start reads --out from the words themselves
     return parser

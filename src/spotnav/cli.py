@@ -6,7 +6,6 @@
 
 from __future__ import annotations
 
-import os
 import sys
 
 from spotnav.errors import SpotnavError
@@ -374,20 +373,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     line said, an interrupted ``--out poses.csv`` left with at least its header; README, "Use")."""
     words = list(sys.argv[1:] if argv is None else argv)
     try:
-        from spotnav.app.start import compile_kernels_once, header_on_interrupt, terminate_as_interrupt
+        from spotnav.app import start
 
-        with terminate_as_interrupt(), header_on_interrupt(words):
+        with start.terminate_as_interrupt(), start.header_on_interrupt(words):
             from spotnav.arguments import build_parser
 
             args = build_parser().parse_args(words)
-            compile_kernels_once(args, report=lambda line: print(line, file=sys.stderr, flush=True))
+            start.compile_kernels_once(args, report=lambda line: print(line, file=sys.stderr, flush=True))
             code = _COMMANDS[args.command](args)
             sys.stdout.flush()  # a reader that left (| head) shows here, not at the interpreter's exit
             return code
-    except BrokenPipeError:  # Python's recipe (signal docs, "Note on SIGPIPE"): what was asked is written; end quietly
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
     except (SpotnavError, OSError) as error:
+        if isinstance(error, BrokenPipeError) and start.end_stdout_if_left():  # | head: all asked is written
+            return 0
         message = str(error).splitlines()[0] if str(error) else type(error).__name__
         print(f"spotnav: error: {message}", file=sys.stderr)
         return 2

@@ -64,3 +64,18 @@ def test_only_the_commands_with_kernels_compile_them(monkeypatch: pytest.MonkeyP
     assert warmed == []
     start.compile_kernels_once(argparse.Namespace(command="localize"), report=print)
     assert warmed == ["warm"]
+
+
+def test_only_a_stdout_whose_reader_left_ends_quietly(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Review: every BrokenPipeError ended with exit 0, also one from an --out FIFO whose reader died (rows lost).
+    read_end, write_end = os.pipe()
+    with open(write_end, "w", encoding="utf-8") as piped:
+        monkeypatch.setattr("sys.stdout", piped)
+        assert not start.end_stdout_if_left()  # its reader is still there
+        os.close(read_end)
+        assert start.end_stdout_if_left()  # gone: stdout now writes to /dev/null
+        piped.write("more\n")
+        piped.flush()  # no BrokenPipeError
+    with (tmp_path / "out.txt").open("w", encoding="utf-8") as file:
+        monkeypatch.setattr("sys.stdout", file)
+        assert not start.end_stdout_if_left()

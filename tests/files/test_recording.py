@@ -128,3 +128,26 @@ def test_recordings_that_cannot_be_used_are_user_errors(tmp_path: Path) -> None:
     (tmp_path / "bad" / FRAMES_CSV).write_text("frame,image\n")
     with pytest.raises(InputError, match=r"no column file, timestamp_s: not a recording's frames\.csv"):
         read_recording(tmp_path / "bad")
+
+
+@pytest.mark.parametrize("failure", ["raises", "refuses"])
+def test_a_frame_that_cannot_be_written_stops_the_recording_and_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, failure: str
+) -> None:
+    # Review: an encoder that raised killed the writing thread silently, and add then waited forever for memory the
+    # thread would never give back; a write that failed on the last frames was never told.
+    import spotnav.files.recording as recording
+
+    def broken(path: str, *_: object) -> bool:
+        if failure == "raises":
+            raise RuntimeError("the encoder broke")
+        return False
+
+    monkeypatch.setattr(recording.cv2, "imwrite", broken)
+    kept = frames(8)
+    writer = RecordingWriter(tmp_path / "rec", "", max_pending_bytes=kept[0].pixels.nbytes)  # type: ignore[union-attr]
+    with pytest.raises(InputError, match="recording stopped"):
+        for frame in kept:  # at most one frame waits in memory: add must not wait forever
+            writer.add(frame)
+    with pytest.raises(InputError, match="recording stopped after 0 frames"):
+        writer.close()

@@ -165,10 +165,10 @@ def _run(index: int) -> tuple[str, float, float]:
 
 def _fingerprint() -> str:
     """What a compiled cache is valid for: the package's sources, Numba, Python and the machine."""
-    package = Path(spotnav.__file__).parent
-    stamps = [(str(p.relative_to(package)), p.stat().st_size, p.stat().st_mtime_ns) for p in package.rglob("*.py")]
+    package = os.path.dirname(os.path.abspath(spotnav.__file__))
+    sources = spotnav._sources_fingerprint(package, spotnav._sources(package))
     build = (numba.__version__, np.__version__, sys.version, platform.machine())
-    return hashlib.sha256(repr((sorted(stamps), build)).encode()).hexdigest()
+    return hashlib.sha256(repr((sources, build)).encode()).hexdigest()
 
 
 def kernel_cache() -> Path | None:

@@ -309,9 +309,9 @@ class TrackSession:
                     # The recording's thread starts before the first frame: a video's decoder keeps the threads
                     # started after it to the tracker's core.
                     with (
-                        PosesWriter(self.out, TRACK_COLUMNS) as out,
+                        self._recording() as recording,  # first: a folder that holds one is refused before
+                        PosesWriter(self.out, TRACK_COLUMNS) as out,  # poses.csv is emptied
                         self._overlay_writer(rates[0] if rates else None) as overlay,
-                        self._recording() as recording,
                         frozen_heap(),
                     ):
                         result = self._track(tracker, frames, server, signals, out, (overlay, recording))

@@ -15,7 +15,7 @@ import numpy as np
 from spotnav.app.overlay import View, crop_box, draw_overlay
 from spotnav.pose.localize import DEFAULT_METHOD, Localization, SpotDetail, localize_detailed
 from spotnav.pose.pipeline import read_spot_edge
-from spotnav.pose.precise import detect_spots, plan_spots
+from spotnav.pose.precise import detect_spots, keep_beam_spots, plan_spots
 from spotnav.setup.config import Setup
 
 __all__ = ["Shown", "show_frame", "spots_before_refusal"]
@@ -87,10 +87,9 @@ def spots_before_refusal(
     if not detection.spots:
         return (), _NOTHING_FOUND
     outlines = tuple(_no_fit(number, spot.contour_px) for number, spot in enumerate(detection.spots))
-    beams = setup.instrument.beam_count
-    if len(detection.spots) > beams and estimate.status == "ambiguous":  # refused on the count, before any plan
+    kept, ambiguous = keep_beam_spots(detection, setup)  # as the method does
+    if ambiguous:  # refused on the count, before any plan
         return outlines, _OUTLINES
-    kept = replace(detection, spots=detection.spots[:beams])
     planned = plan_spots(kept, setup, through_insertion=method == "precise")
     if planned.plan is None:
         return outlines, _OUTLINES

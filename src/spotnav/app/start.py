@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import select
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
 
@@ -24,6 +26,7 @@ __all__ = [
     "KERNEL_COMMANDS",
     "OUTPUT_COLUMNS",
     "compile_kernels_once",
+    "end_stdout_if_left",
     "header_on_interrupt",
     "poses_out",
     "terminate_as_interrupt",
@@ -111,3 +114,21 @@ def compile_kernels_once(args: argparse.Namespace, report: Callable[[str], None]
 
     if not kernels_compiled():
         warm_kernels(report=report)
+
+
+def end_stdout_if_left() -> bool:
+    """Whether standard output is a pipe whose reader has left (``spotnav ... | head -1``); if so, point it at
+    ``/dev/null`` so that nothing more fails on it (Python's recipe, the signal module's "Note on SIGPIPE").
+
+    A broken pipe elsewhere (an ``--out`` FIFO whose reader died) is not this: it stays an error.
+    """
+    try:
+        descriptor = sys.stdout.fileno()
+    except (OSError, AttributeError):  # replaced by a stream without a descriptor (a test's capture)
+        return False
+    poller = select.poll()
+    poller.register(descriptor, select.POLLOUT)
+    if not any(events & select.POLLERR for _, events in poller.poll(0)):
+        return False
+    os.dup2(os.open(os.devnull, os.O_WRONLY), descriptor)
+    return True

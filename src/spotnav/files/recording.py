@@ -22,7 +22,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -164,7 +164,7 @@ class RecordingWriter:
             pixels = frame.pixels.copy() if spare is None else spare
             if spare is not None:
                 np.copyto(spare, frame.pixels)
-        self._queue.put(_Pending(frame, pixels))
+        self._queue.put(_Pending(replace(frame, pixels=None), pixels))  # the copy alone stays in memory
         self.wait_s += waited
         self.copy_s += time.perf_counter() - start - waited
 
@@ -176,29 +176,46 @@ class RecordingWriter:
         return None
 
     def close(self) -> None:
-        """Wait until every queued frame is on disk (saying so when many wait), then close ``frames.csv``."""
-        if self._thread.is_alive():
-            left = self._queue.qsize()
-            if left >= _SAY_LEFT and self.report is not None:
-                self.report(f"{self.folder}: writing the {left} frames still in memory ...")
-            self._queue.put(None)
-            self._thread.join()
-        self._handle.close()
+        """Wait until every queued frame is on disk (saying so when many wait), then close ``frames.csv``.
+
+        Raises
+        ------
+        InputError
+            If a frame could not be written: the recording lacks it and those after it.
+        """
+        try:
+            if self._thread.is_alive():
+                left = self._queue.qsize()
+                if left >= _SAY_LEFT and self.report is not None:
+                    self.report(f"{self.folder}: writing the {left} frames still in memory ...")
+                self._queue.put(None)
+                self._thread.join()
+        finally:
+            self._handle.close()
+        if self.error:
+            raise InputError(f"{self.folder}: recording stopped after {self.frames} frames: {self.error}")
 
     def __enter__(self) -> RecordingWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        try:
+            self.close()
+        except InputError:
+            if kind is None:  # a failure already on its way (Ctrl-C, an error) is the one to tell
+                raise
 
     def _write_all(self) -> None:
         """The writing thread: each queued frame's PNG, then its row, in order, until :meth:`close`."""
         while (pending := self._queue.get()) is not None:
             start = time.perf_counter()
-            if not self.error:
-                self.error = self._write(pending)
+            try:
+                if not self.error:
+                    self.error = self._write(pending)
+            except Exception as failure:  # the thread's edge: any failure stops the recording, said by add and close
+                self.error = f"{type(failure).__name__}: {failure}"
             self.write_s += time.perf_counter() - start
-            with self._room:
+            with self._room:  # the frame's memory is given back whatever happened, so that add never waits forever
                 if pending.pixels is not None:
                     self._pending_bytes -= pending.pixels.nbytes
                     if len(self._spare) < _SPARE_BUFFERS:

@@ -43,6 +43,7 @@ __all__ = [
     "EdgeFrame",
     "PreciseResult",
     "detect_spots",
+    "keep_beam_spots",
     "largest_spot_area_px",
     "localize_precise",
     "localize_precise_with_edges",
@@ -249,6 +250,26 @@ def localize_precise(image: np.ndarray, setup: Setup, *, through_insertion: bool
     return localize_precise_with_edges(image, setup, through_insertion=through_insertion).estimate
 
 
+def keep_beam_spots(detection: SpotDetection, setup: Setup) -> tuple[SpotDetection, str]:
+    """The spots the beams made: the detection without the small clutter beyond ``beam_count`` spots.
+
+    Returns
+    -------
+    SpotDetection
+        The detection, its spots at most ``beam_count`` (unchanged when ambiguous).
+    str
+        Why the spots are ambiguous (more spots than beams, the extra one too large to be clutter), or ``""``.
+    """
+    beams = setup.instrument.beam_count
+    spots = detection.spots
+    if len(spots) <= beams:
+        return detection, ""
+    extra = spots[beams].area_px
+    if extra > _MAX_CLUTTER_AREA * spots[beams - 1].area_px or extra >= smallest_spot_area_px(setup):
+        return detection, f"{detection.regions}, {beams} beam{'s' if beams > 1 else ''}: more spots than beams"
+    return replace(detection, spots=spots[:beams]), ""
+
+
 def localize_precise_with_edges(
     image: np.ndarray,
     setup: Setup,
@@ -285,21 +306,16 @@ def localize_precise_with_edges(
     wrong = check_image_size(image, setup)
     if wrong is not None:
         return PreciseResult(wrong)
-    detection = detect_spots(image, setup, find_radius_px)
-    beams = setup.instrument.beam_count
-    spots = detection.spots
-    if len(spots) > beams:
-        extra = spots[beams].area_px
-        if extra > _MAX_CLUTTER_AREA * spots[beams - 1].area_px or extra >= smallest_spot_area_px(setup):
-            detail = f"{detection.regions}, {beams} beam{'s' if beams > 1 else ''}: more spots than beams"
-            return PreciseResult(PoseEstimate("ambiguous", spots=len(spots), detail=detail))
-        detection = replace(detection, spots=spots[:beams])
+    found = detect_spots(image, setup, find_radius_px)
+    detection, ambiguous = keep_beam_spots(found, setup)
+    if ambiguous:
+        return PreciseResult(PoseEstimate("ambiguous", spots=len(found.spots), detail=ambiguous))
     prepared = prepare_edges(image, detection, setup, through_insertion, max_rays)
     if not prepared.ok:
         return PreciseResult(prepared.start)
     estimate, fit = _fit_precise(prepared, setup, through_insertion)
-    if estimate.ok and len(spots) > beams:
-        ignored = f"{len(spots) - beams} much smaller bright regions ignored"
+    if estimate.ok and len(found.spots) > len(detection.spots):
+        ignored = f"{len(found.spots) - len(detection.spots)} much smaller bright regions ignored"
         estimate = replace(estimate, detail="; ".join(filter(None, [estimate.detail, ignored])))
     return PreciseResult(estimate, prepared, fit)
 
