@@ -221,3 +221,18 @@ def test_replay_speed_is_fast_or_a_factor_of_the_recorded_pace() -> None:
     for wrong in ("0", "-1", "slow", "nan", "inf"):
         with pytest.raises(SpotnavError, match="--replay-speed must be fast or a number > 0"):
             replay_speed(wrong)
+
+
+def test_a_wrong_size_frame_is_lost_to_the_tracker_live_and_in_its_replay(tmp_path: Path) -> None:
+    # Review: a video's wrong-size frame went through the tracker (lost: it forgets its prediction) while a file's,
+    # or the same frame replayed from a recording, skipped it, so a replay's modes could differ from the session's.
+    setup = read_setup(write_scene(tmp_path / "setup.toml", size_px=256, blend=0.15))
+    render_sequence(setup, "helix", tmp_path / "frames", frames=200, fps=100.0, tremor_mm=0.0, seed=0)
+    pngs = sorted((tmp_path / "frames").glob("*.png"))
+    write_image(pngs[100], np.zeros((128, 128, 3), np.uint8))
+    TrackSession(setup, str(tmp_path / "frames"), tmp_path / "live.csv", record=tmp_path / "rec").run()
+    TrackSession(setup, str(tmp_path / "rec"), tmp_path / "replay.csv", replay_speed=math.inf).run()
+    live, again = read_rows(tmp_path / "live.csv"), read_rows(tmp_path / "replay.csv")
+    assert (live[100]["status"], live[100]["mode"]) == ("wrong_size", "lost")
+    assert live[99]["mode"] == "tracked" and live[101]["mode"] == "reacquired"  # read anew where it was last seen
+    assert [(r["status"], r["mode"], r["x_mm"]) for r in again] == [(r["status"], r["mode"], r["x_mm"]) for r in live]

@@ -79,3 +79,19 @@ def test_only_a_stdout_whose_reader_left_ends_quietly(tmp_path: Path, monkeypatc
     with (tmp_path / "out.txt").open("w", encoding="utf-8") as file:
         monkeypatch.setattr("sys.stdout", file)
         assert not start.end_stdout_if_left()
+
+
+def test_a_missing_input_is_said_before_any_compiling(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Review: `spotnav localize --scene typo.toml ...` compiled for a minute before saying the file was missing.
+    warmed: list[str] = []
+    monkeypatch.setattr("spotnav.app.kernels.kernels_compiled", lambda: False)
+    monkeypatch.setattr("spotnav.app.kernels.warm_kernels", lambda report: warmed.append("warm"))
+    setup = tmp_path / "setup.toml"
+    setup.write_text("")
+    missing = str(tmp_path / "typo.toml")
+    for named in [{"scene": missing}, {"scene": str(setup), "poses": missing}, {"file": missing}]:
+        start.compile_kernels_once(argparse.Namespace(command="calibrate", **named), report=print)
+    assert warmed == []
+    start.compile_kernels_once(argparse.Namespace(command="reproduce", poses=25), report=print)  # a count
+    start.compile_kernels_once(argparse.Namespace(command="localize", scene=str(setup)), report=print)
+    assert warmed == ["warm", "warm"]

@@ -396,6 +396,7 @@ class TrackSession:
                 result.stop = f"stopped by {signals.received}"
                 break
             if frame.pixels is None:
+                tracker.lose()
                 tracked = TrackedFrame(PoseEstimate(frame.error_status, detail=frame.error), "lost")
             else:
                 tracked = tracker.update(frame.pixels)

@@ -102,14 +102,21 @@ def header_on_interrupt(words: Sequence[str]) -> Iterator[None]:
         raise
 
 
+def _missing_input(args: argparse.Namespace) -> bool:
+    """Whether a setup, known-poses or sweep file the command names is not there (it says so before any work)."""
+    named = [getattr(args, "scene", None), getattr(args, "file", None)]
+    named += [args.poses] if isinstance(getattr(args, "poses", None), str) else []  # reproduce's --poses is a count
+    return any(isinstance(path, str) and not os.path.isfile(path) for path in named)
+
+
 def compile_kernels_once(args: argparse.Namespace, report: Callable[[str], None]) -> None:
     """Before a command that runs compiled kernels: compile all of them at once when Numba's cache lacks them.
 
     The first such command after an install or a change to the sources says so in one line
     (:func:`spotnav.app.kernels.warm_kernels`); every later one loads them from the cache.
     """
-    if args.command not in KERNEL_COMMANDS or getattr(args, "example", None):
-        return
+    if args.command not in KERNEL_COMMANDS or getattr(args, "example", None) or _missing_input(args):
+        return  # nothing to compile for, or a missing file the command names at once
     from spotnav.app.kernels import kernels_compiled, warm_kernels  # Numba only where it is needed
 
     if not kernels_compiled():

@@ -529,6 +529,12 @@ class Tracker:
         self._last = self._last_seen = estimate
         return estimate
 
+    def lose(self) -> None:
+        """A frame without usable pixels (unreadable, or of the wrong size): lost, as a frame without its spot, so
+        that a video's wrong-size frame (read, then refused) and a file's (refused unread, or in a replay) count
+        alike."""
+        self._forget()
+
     def _forget(self) -> None:
         self._last, self._velocity, self._change, self._steady = None, None, None, False
         self._lost_frames += 1
