@@ -287,7 +287,12 @@ def _read_rows(folder: Path) -> list[_Row]:
 def recording_fps(folder: str | Path) -> float | None:
     """The recording's frame rate, from its timestamps: one over the median interval (4 significant digits);
     None with fewer than two frames or no time between them."""
-    stamps = np.array([row.timestamp_s for row in _read_rows(Path(folder))])
+    return _rows_fps(_read_rows(Path(folder)))
+
+
+def _rows_fps(rows: list[_Row]) -> float | None:
+    """:func:`recording_fps` of ``frames.csv``'s rows."""
+    stamps = np.array([row.timestamp_s for row in rows])
     steps = np.diff(stamps)
     steps = steps[steps > 0]
     if not len(steps):
@@ -301,6 +306,7 @@ def read_recording(
     speed: float = 1.0,
     expected_size: tuple[int, int] | None = None,
     stop: Callable[[], bool] = lambda: False,
+    fps: Callable[[float], object] | None = None,
 ) -> Generator[Frame, None, None]:
     """A recording's frames, each handed over when its recorded time comes, stamped with its recorded capture time.
 
@@ -316,6 +322,8 @@ def read_recording(
         Width and height a frame must have (its frame then has ``error_status`` ``wrong_size``).
     stop : callable
         While it returns true the frames come at once (a stop asked for during a long pause in the recording).
+    fps : callable, optional
+        Called at once with the recording's frame rate (:func:`recording_fps`), if it has one.
 
     Raises
     ------
@@ -326,6 +334,9 @@ def read_recording(
         raise InputError(f"--replay-speed must be fast or a number > 0, got {speed}")
     folder = Path(folder)
     rows = _read_rows(folder)
+    rate = _rows_fps(rows)
+    if fps is not None and rate is not None:
+        fps(rate)
     return _replay(folder, rows, speed, expected_size, stop)
 
 

@@ -21,7 +21,7 @@ from spotnav.errors import InputError
 from spotnav.files.capture import VIDEO_SUFFIXES, Frame, open_capture, read_capture
 from spotnav.files.decoder import read_capture_in_process
 from spotnav.files.images import ImageReadError, display_name, read_image, write_image
-from spotnav.files.recording import is_recording, read_recording, recording_fps
+from spotnav.files.recording import is_recording, read_recording
 
 __all__ = ["IMAGE_SUFFIXES", "CameraSettings", "SequenceWriter", "is_live", "iter_frames"]
 
@@ -144,9 +144,8 @@ def iter_frames(
         inside a folder yields a :class:`Frame` with its ``error`` instead),
         or a decoder process ends without the video's end.
     InputError
-        If a recording's ``frames.csv`` cannot be read.
-    ValueError
-        If ``camera`` settings are given for a source that is not live.
+        If a recording's ``frames.csv`` cannot be read, or ``camera`` settings are given for a source that is not
+        live.
     """
     if ring < 0 or (while_waiting is not None and ring < 1):
         raise ValueError(f"ring must be at least {0 if while_waiting is None else 1}, got {ring}")
@@ -154,10 +153,7 @@ def iter_frames(
     if wanted and not is_live(source):
         raise InputError(f"{source}: camera settings need a live camera, URL or pipeline, not files")
     if is_recording(source):
-        rate = recording_fps(source)
-        if fps is not None and rate is not None:
-            fps(rate)
-        return read_recording(source, speed=replay_speed, expected_size=expected_size, stop=stop)
+        return read_recording(source, speed=replay_speed, expected_size=expected_size, stop=stop, fps=fps)
     files = _sequence_files(source)
     if files is not None:
         if not files:
