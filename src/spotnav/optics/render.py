@@ -47,7 +47,7 @@ from spotnav.setup.microscope import Camera
 from spotnav.setup.sections import Bump
 from spotnav.setup.sections import Render as RenderSettings
 
-__all__ = ["Renderer", "bump_height", "exposure_gain", "output_table"]
+__all__ = ["Renderer", "bump_height", "exposure_gain", "irradiance_at", "noise_sigma", "output_table", "static_images"]
 
 _ROW_CHUNK = 256
 _NEWTON_STEPS = 8
@@ -100,6 +100,53 @@ def bump_height(bumps: tuple[Bump, ...], x: np.ndarray, y: np.ndarray) -> tuple[
     return height, grad_x, grad_y
 
 
+def irradiance_at(
+    points: np.ndarray,
+    normals: np.ndarray,
+    tip: np.ndarray,
+    axes: np.ndarray,
+    power_w: float,
+    half_angle: float,
+    blend: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Irradiance of the beams on the retina, and each beam's cosine: the light model, written once.
+
+    A spot light of ``power_w`` (radiant intensity ``power_w / 4 pi`` W/sr) cut
+    to its cone by Cycles' soft edge (:func:`~spotnav.setup.geometry.spot_attenuation`),
+    falling with the inverse square of distance and the cosine of incidence.
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (..., 3)
+        Retina points (eye frame, mm; NaN where none) and inward unit normals.
+    tip : ndarray, shape (3,)
+        The cones' apex, eye frame, mm.
+    axes : ndarray, shape (beams, 3)
+        Unit beam axes.
+    power_w : float
+        Each beam's power, W.
+    half_angle : float
+        The cone's half-angle, radians.
+    blend : float
+        The soft edge's share of the cone, in [0, 1].
+
+    Returns
+    -------
+    irradiance : ndarray, shape (...)
+        W/mm^2 (0 where there is no retina).
+    cosines : ndarray, shape (beams, ...)
+        Cosine of the angle from each beam's axis.
+    """
+    to_point = points - tip
+    dist2 = np.sum(to_point * to_point, axis=-1)
+    direction = to_point / np.sqrt(dist2)[..., None]
+    incidence = np.clip(-np.sum(direction * normals, axis=-1), 0.0, None)
+    cosines = np.einsum("...k,bk->b...", direction, axes)
+    mask = spot_attenuation(cosines, half_angle, blend).sum(axis=0)
+    irradiance = np.nan_to_num(power_w / (4.0 * np.pi) * mask * incidence / dist2)
+    return irradiance, cosines
+
+
 class Renderer:
     """Render camera frames of the setup's world.
 
@@ -116,9 +163,9 @@ class Renderer:
     @property
     def albedo(self) -> np.ndarray:
         """Albedo seen by each pixel, shape (H, W, 3), float32 (cached)."""
-        return _static_images(
-            self.setup.camera, self.setup.true_radius_mm, self.setup.world.surface, self.setup.render
-        )[0]
+        return static_images(self.setup.camera, self.setup.true_radius_mm, self.setup.world.surface, self.setup.render)[
+            0
+        ]
 
     def surface_points(self, u: np.ndarray, v: np.ndarray, bumps: tuple[Bump, ...]) -> tuple[np.ndarray, np.ndarray]:
         """Retina points and inward unit normals seen by pixels.
@@ -164,7 +211,7 @@ class Renderer:
         points[missed] = np.nan
         return points, normals
 
-    def _spot_box(self, tip: np.ndarray, axes: np.ndarray) -> tuple[int, int, int, int] | None:
+    def spot_box(self, tip: np.ndarray, axes: np.ndarray) -> tuple[int, int, int, int] | None:
         """Pixel box ``(u0, v0, u1, v1)`` (exclusive ends) holding every lit pixel."""
         setup = self.setup
         half_angle = setup.instrument.beam_half_angle
@@ -199,16 +246,10 @@ class Renderer:
 
         Returns arrays of shape ``u.shape`` and ``(beams,) + u.shape``.
         """
-        instrument, light = self.setup.instrument, self.setup.light
         points, normals = self.surface_points(u, v, self.setup.world.bumps)
-        to_point = points - tip
-        dist2 = np.sum(to_point * to_point, axis=-1)
-        direction = to_point / np.sqrt(dist2)[..., None]
-        incidence = np.clip(-np.sum(direction * normals, axis=-1), 0.0, None)
-        cosines = np.einsum("...k,bk->b...", direction, axes)
-        mask = spot_attenuation(cosines, instrument.beam_half_angle, light.blend).sum(axis=0)
-        irradiance = np.nan_to_num(power_w / (4.0 * np.pi) * mask * incidence / dist2)
-        return irradiance, cosines
+        return irradiance_at(
+            points, normals, tip, axes, power_w, self.setup.instrument.beam_half_angle, self.setup.light.blend
+        )
 
     def irradiance_image(
         self, pose: InstrumentPose, power_w: float | None = None
@@ -226,7 +267,7 @@ class Renderer:
         """
         power = self.setup.light.power_w if power_w is None else power_w
         axes = beam_axes(pose.axis, self.setup.instrument.beam_count, self.setup.instrument.beam_tilt)
-        box = self._spot_box(pose.tip_in_eye, axes)
+        box = self.spot_box(pose.tip_in_eye, axes)
         if box is None or power == 0.0:
             return None
         u0, v0, u1, v1 = box
@@ -282,7 +323,7 @@ class Renderer:
             raise ValueError(f"the tip ({tip}) mm lies outside the eye (radius {radius:g} mm about (0, 0, {radius:g}))")
         cfg = self.setup.render
         camera = self.setup.camera
-        albedo, background, sigma, bank = _static_images(
+        albedo, background, sigma, bank = static_images(
             camera, self.setup.true_radius_mm, self.setup.world.surface, cfg
         )
         patches = self._patches(pose, seed, power_w, albedo, background)
@@ -310,7 +351,7 @@ class Renderer:
                 if noisy:
                     if not own_sigma:
                         chunk_sigma, own_sigma = chunk_sigma.copy(), True
-                    chunk_sigma[a - r0 : b - r0, patch.u0 : patch.u0 + patch.linear.shape[1]] = _noise_sigma(
+                    chunk_sigma[a - r0 : b - r0, patch.u0 : patch.u0 + patch.linear.shape[1]] = noise_sigma(
                         region, cfg.full_well_e, cfg.read_noise_e
                     )
             if noisy:
@@ -482,7 +523,7 @@ class _Patch:
 
 
 @functools.lru_cache(maxsize=1)
-def _static_images(
+def static_images(
     camera: Camera, radius_mm: float, surface: str, cfg: RenderSettings
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What does not change between frames of one world, computed once (the last world is kept).
@@ -509,14 +550,18 @@ def _static_images(
             points = unproject_pixels_to_sphere(camera, pixels, radius_mm)
         albedo[r0 : r0 + len(rows)] = sample_albedo(texture, points[..., 0], points[..., 1])
     background = albedo * np.float32(cfg.ambient)
-    sigma = _noise_sigma(background, cfg.full_well_e, cfg.read_noise_e)
+    sigma = noise_sigma(background, cfg.full_well_e, cfg.read_noise_e)
     size = albedo.size + _NOISE_MARGIN
     bank = np.random.default_rng(_NOISE_BANK_SEED).standard_normal(size, dtype=np.float32)
     return albedo, background, sigma, bank
 
 
-def _noise_sigma(linear: np.ndarray, full_well_e: float, read_noise_e: float) -> np.ndarray:
-    """Standard deviation of shot plus read noise for linear pixel values (full scale 1)."""
+def noise_sigma(linear: np.ndarray, full_well_e: float, read_noise_e: float) -> np.ndarray:
+    """Standard deviation of shot plus read noise for linear pixel values (full scale 1), same shape.
+
+    Poisson shot noise of ``full_well_e`` electrons at full scale, plus Gaussian
+    read noise of ``read_noise_e`` electrons; none when ``full_well_e`` is 0.
+    """
     if full_well_e <= 0:
         return np.zeros_like(linear)
     variance = np.maximum(linear, 0.0) / np.float32(full_well_e) + np.float32((read_noise_e / full_well_e) ** 2)

@@ -1,0 +1,201 @@
+"""The expected frame near the spots and what each pixel tells of it: the photometric model, for the bound and the fit.
+
+A frame's pixel ``p`` in channel ``c`` holds the light
+
+    x = b + a * g * E(p; pose, power),
+
+``b`` the ambient-lit background, ``a`` the retina's albedo, ``g`` the exposure's gain
+(:func:`~spotnav.optics.render.exposure_gain`) and ``E`` the irradiance of the beams averaged over the pixel
+(:func:`~spotnav.optics.render.irradiance_at`; the pixels that a soft edge crosses are supersampled), blurred by
+the lens's defocus (``faults.defocus_px``) before the sensor adds its noise. The sensor adds Gaussian noise of
+variance ``s^2 = x / N + (r / N)^2`` (shot noise of ``N = render.full_well_e`` electrons at full scale, read
+noise of ``r`` electrons), clips at full scale and encodes by the response ``f`` in ``2^bits - 1`` codes,
+rounding to the code (variance ``1/12`` code^2).
+
+What the pixel tells of a parameter ``t`` of the pose is its Fisher information (docs/methods.md, "The bound")
+
+    I_p = P(x + n < 1) * (f'(x) dx/dt)^2 / (f'(x)^2 s^2 + 1/12),
+
+the clip keeping only the share of the noise that stays under full scale. This is the same renderer's model,
+written once: :class:`~spotnav.optics.render.Renderer` draws frames from it, :mod:`spotnav.pose.bound` inverts
+its information and :mod:`spotnav.pose.model_fit` fits it to a frame.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+from scipy.special import ndtr
+
+from spotnav.optics.render import Renderer, exposure_gain, irradiance_at, noise_sigma, static_images
+from spotnav.optics.response import encode_light
+from spotnav.setup.config import Setup
+from spotnav.setup.geometry import InstrumentPose, beam_axes
+
+__all__ = ["FrameModel", "PixelInformation", "code_information", "expected_codes"]
+
+_MARGIN_PX = 6  # pixels around the spots' box, for the edge's blur
+_EDGE_REACH = 2.0  # supersample pixels within this many pixels (of the cosine's gradient) of a soft edge
+_MIN_SUPERSAMPLING = 4
+_SLOPE_STEP = 1e-5  # linear light: the response's slope by central differences
+
+
+class FrameModel:
+    """The expected linear light in a box of pixels around one pose's spots, fast to evaluate near that pose.
+
+    The retina's points and normals under every sample are computed once; each evaluation moves only the
+    light. The box and the supersampled pixels are fixed at ``pose``, so that evaluations at nearby poses
+    differ smoothly (finite differences).
+
+    Parameters
+    ----------
+    setup : Setup
+        The world: camera, retina, light, render settings (noise, response) and ``faults.defocus_px``.
+    pose : InstrumentPose
+        The pose the model is built around, eye frame.
+
+    Attributes
+    ----------
+    box : tuple of int or None
+        ``(u0, v0, u1, v1)``, exclusive ends; ``None`` when no light reaches the visible retina.
+    """
+
+    def __init__(self, setup: Setup, pose: InstrumentPose) -> None:
+        self.setup = setup
+        renderer = Renderer(setup)
+        camera, instrument, cfg = setup.camera, setup.instrument, setup.render
+        axes = beam_axes(pose.axis, instrument.beam_count, instrument.beam_tilt)
+        spots = renderer.spot_box(pose.tip_in_eye, axes)
+        self.box: tuple[int, int, int, int] | None = None
+        if spots is None:
+            return
+        margin = _MARGIN_PX + math.ceil(4.0 * setup.faults.defocus_px)
+        u0, v0 = max(spots[0] - margin, 0), max(spots[1] - margin, 0)
+        u1, v1 = min(spots[2] + margin, camera.width_px), min(spots[3] + margin, camera.height_px)
+        self.box = (u0, v0, u1, v1)
+        albedo, background, _, _ = static_images(camera, setup.true_radius_mm, setup.world.surface, cfg)
+        self._albedo = albedo[v0:v1, u0:u1].astype(float)
+        self._background = background[v0:v1, u0:u1].astype(float)
+        self._gain = exposure_gain(cfg.exposure_stops)
+        u, v = np.meshgrid(np.arange(u0, u1, dtype=float), np.arange(v0, v1, dtype=float))
+        self._points, self._normals = renderer.surface_points(u, v, setup.world.bumps)
+        _, cosines = irradiance_at(
+            self._points, self._normals, pose.tip_in_eye, axes, 1.0, instrument.beam_half_angle, setup.light.blend
+        )
+        self._edge = _edge_pixels(np.nan_to_num(cosines), instrument.beam_half_angle, setup.light.blend)
+        n = max(cfg.supersampling, _MIN_SUPERSAMPLING)
+        offsets = (np.arange(n) + 0.5) / n - 0.5
+        du, dv = (o.ravel() for o in np.meshgrid(offsets, offsets))
+        self._sub_points, self._sub_normals = renderer.surface_points(
+            u[self._edge][:, None] + du, v[self._edge][:, None] + dv, setup.world.bumps
+        )
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """The box's ``(height, width, 3)``."""
+        if self.box is None:
+            return (0, 0, 3)
+        u0, v0, u1, v1 = self.box
+        return (v1 - v0, u1 - u0, 3)
+
+    @property
+    def background(self) -> np.ndarray:
+        """The ambient-lit background's linear light in the box, (h, w, 3)."""
+        return self._background
+
+    def light(self, tip_in_eye: np.ndarray, beam_axes_in_eye: np.ndarray, power_w: float) -> np.ndarray:
+        """The spots' linear light (full scale 1) in the box, without the background, shape (h, w, 3).
+
+        Parameters
+        ----------
+        tip_in_eye : ndarray, shape (3,)
+            The cones' apex, mm.
+        beam_axes_in_eye : ndarray, shape (beams, 3)
+            Unit beam axes.
+        power_w : float
+            Each beam's power, W.
+        """
+        half_angle, blend = self.setup.instrument.beam_half_angle, self.setup.light.blend
+        irradiance, _ = irradiance_at(
+            self._points, self._normals, tip_in_eye, beam_axes_in_eye, power_w, half_angle, blend
+        )
+        sub, _ = irradiance_at(
+            self._sub_points, self._sub_normals, tip_in_eye, beam_axes_in_eye, power_w, half_angle, blend
+        )
+        irradiance[self._edge] = sub.mean(axis=1)
+        light: np.ndarray = self._albedo * (self._gain * irradiance)[..., None]
+        defocus = self.setup.faults.defocus_px
+        if defocus > 0:  # the lens blurs the light before the sensor's noise
+            light = np.asarray(cv2.GaussianBlur(light, (0, 0), defocus, borderType=cv2.BORDER_CONSTANT), dtype=float)
+        return light
+
+
+def _edge_pixels(cosines: np.ndarray, half_angle: float, blend: float) -> np.ndarray:
+    """Pixels (h, w) within reach of a beam's soft edge, where the light changes within the pixel."""
+    cos_edge = math.cos(half_angle)
+    inner = cos_edge + (1.0 - cos_edge) * blend
+    edge = np.zeros(cosines.shape[1:], dtype=bool)
+    for cosine in cosines:
+        gv, gu = np.gradient(cosine)
+        reach = _EDGE_REACH * (np.abs(gu) + np.abs(gv)) + 1e-12
+        edge |= (cosine > cos_edge - reach) & (cosine < inner + reach)
+    return edge
+
+
+def _full_scale_codes(setup: Setup) -> float:
+    return float(2**setup.render.bit_depth - 1)
+
+
+def _response(setup: Setup) -> str | float:
+    return setup.camera.pixel_response if setup.render.tone == "camera" else "agx"
+
+
+def expected_codes(setup: Setup, linear: np.ndarray) -> np.ndarray:
+    """The pixel values (codes, before rounding) that the frame's encoding gives the light ``linear``."""
+    return _full_scale_codes(setup) * encode_light(np.clip(linear, 0.0, 1.0), _response(setup))
+
+
+class PixelInformation(NamedTuple):
+    """What each pixel's value tells of the light (:func:`code_information`); every array shaped as the light.
+
+    Attributes
+    ----------
+    noise_weight : ndarray
+        ``1 / (f'^2 s^2 + 1/12)``, per code^2: the pixel's weight were it never clipped.
+    slope : ndarray
+        ``f'(x)``, codes per unit of linear light.
+    unclipped : ndarray
+        ``P(x + n < 1)``, the share of the noise that stays under full scale.
+    """
+
+    noise_weight: np.ndarray
+    slope: np.ndarray
+    unclipped: np.ndarray
+
+    @property
+    def weight(self) -> np.ndarray:
+        """``P(x + n < 1) / (f'^2 s^2 + 1/12)``: the information of a parameter ``t`` is ``weight * (slope *
+        dx/dt)^2`` summed over the pixels (module docstring)."""
+        weight: np.ndarray = self.noise_weight * self.unclipped
+        return weight
+
+
+def code_information(setup: Setup, linear: np.ndarray) -> PixelInformation:
+    """What each pixel's value tells of the linear light ``linear`` it holds (module docstring)."""
+    cfg = setup.render
+    sigma = noise_sigma(linear, cfg.full_well_e, cfg.read_noise_e).astype(float)
+    low = np.clip(linear - _SLOPE_STEP, 0.0, 1.0 - 2.0 * _SLOPE_STEP)
+    response = _response(setup)
+    slope = (
+        _full_scale_codes(setup)
+        * (encode_light(low + 2.0 * _SLOPE_STEP, response) - encode_light(low, response))
+        / (2.0 * _SLOPE_STEP)
+    )
+    if cfg.full_well_e > 0:
+        unclipped = ndtr((1.0 - linear) / sigma)
+    else:
+        unclipped = (linear < 1.0).astype(float)
+    return PixelInformation(1.0 / (slope**2 * sigma**2 + 1.0 / 12.0), slope, unclipped)

@@ -1,0 +1,108 @@
+"""Fit the photometric model to a frame: the pose whose expected frame the pixels agree with best.
+
+The maximum-likelihood estimate under the model of :mod:`spotnav.optics.frame_model`: Gauss-Newton steps on
+the weighted residuals of the pixels' codes, with the bound's parameters and derivatives
+(:mod:`spotnav.pose.bound`). It knows what the bound assumes, the retina's albedo among it, so it is the
+estimator that reaches the bound where the model is the world; its residuals say where it is not
+(``chi2_per_pixel`` far above 1). The simulation's studies use it to show how close to the bound a localizer
+can come, from the precise method's pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from spotnav.optics.frame_model import FrameModel, code_information, expected_codes
+from spotnav.pose.bound import PoseParameters, pose_jacobian
+from spotnav.setup.config import Setup
+from spotnav.setup.geometry import InstrumentPose
+
+__all__ = ["ModelFit", "fit_model_to_frame"]
+
+_MAX_STEPS = 8
+_CONVERGED_MM = 1e-7  # a step that moves the tip less than this ends the fit
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """A pose fitted to a frame's pixels, or why there is none.
+
+    Attributes
+    ----------
+    status : str
+        ``ok``; ``no_light`` (no spot in the model's frame); ``undetermined`` (the light does not fix the pose).
+    pose : InstrumentPose or None
+        The fitted pose (``None`` unless ok).
+    roll : float
+        Of several beams, radians.
+    covariance : ndarray, shape (k, k)
+        The inverse of the pixels' information at the fitted pose (the bound there).
+    chi2_per_pixel : float
+        The weighted residuals' mean square: about 1 where the model is the world.
+    steps : int
+        Gauss-Newton steps taken.
+    """
+
+    status: str
+    pose: InstrumentPose | None = None
+    roll: float = 0.0
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    chi2_per_pixel: float = float("nan")
+    steps: int = 0
+
+    @property
+    def ok(self) -> bool:
+        """Whether a pose was fitted."""
+        return self.status == "ok"
+
+
+def fit_model_to_frame(
+    image: np.ndarray, setup: Setup, start: InstrumentPose, *, through_insertion: bool = True
+) -> ModelFit:
+    """The maximum-likelihood pose of ``image`` under ``setup``'s photometric model, from ``start``.
+
+    Parameters
+    ----------
+    image : ndarray, shape (height_px, width_px, 3)
+        The frame as written (codes).
+    setup : Setup
+        The world the frame shows (its albedo, light, camera and noise).
+    start : InstrumentPose
+        Where to start (the precise method's pose), eye frame; the model's pixels are those around it.
+    through_insertion : bool
+        The axis runs through the insertion point (3 unknowns for the tip, with the roll and the power).
+
+    Returns
+    -------
+    ModelFit
+    """
+    if through_insertion:
+        start = InstrumentPose.through_insertion(start.tip_in_eye, setup.instrument.insertion_in_eye)
+    model = FrameModel(setup, start)
+    if model.box is None:
+        return ModelFit("no_light")
+    u0, v0, u1, v1 = model.box
+    codes = image[v0:v1, u0:u1].astype(float).ravel()
+    parameters = PoseParameters(start, setup, through_insertion)
+    values = parameters.start
+    steps, chi2 = 0, float("nan")
+    for steps in range(1, _MAX_STEPS + 1):
+        light, jacobian = pose_jacobian(model, parameters, values)
+        linear = (model.background + light).ravel()
+        pixel = code_information(setup, linear)
+        weight = pixel.weight
+        residual = codes - expected_codes(setup, linear)
+        scaled = jacobian * pixel.slope[:, None]
+        information = scaled.T @ (scaled * weight[:, None])
+        chi2 = float(np.sum(weight * residual**2) / max(np.count_nonzero(weight > 0), 1))
+        try:
+            step = np.linalg.solve(information, scaled.T @ (weight * residual))
+        except np.linalg.LinAlgError:
+            return ModelFit("undetermined", chi2_per_pixel=chi2, steps=steps)
+        values = values + step
+        if np.linalg.norm(step[:3]) < _CONVERGED_MM:
+            break
+    pose, roll = parameters.pose(values)
+    return ModelFit("ok", pose, roll, np.linalg.inv(information), chi2, steps)
