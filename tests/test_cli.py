@@ -140,6 +140,18 @@ def test_analyze_approximation_prints_table_4_1(capsys: pytest.CaptureFixture[st
         assert value in out
 
 
+def test_analyze_bound_prints_the_bound_and_refuses_a_missing_pose(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scene = write_scene(tmp_path / "setup.toml", size_px=256, blend=0.15)
+    assert main(["analyze", "bound", "--scene", str(scene), "--tip", "1", "0.5", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "Cramer-Rao bound" in out and "tip sd (x y z)" in out
+    assert main(["analyze", "bound", "--scene", str(scene)]) == 2
+    assert "needs --scene SETUP.toml and either --tip X Y Z or --path" in capsys.readouterr().err
+    assert main(["analyze", "bound", "--scene", str(scene), "--tip", "0", "0", "30"]) == 2  # outside the eye
+
+
 def test_reproduce_quick_smoke(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["reproduce", "--quick", "--only", "approximation", "--out", str(tmp_path), "--workers", "1"]) == 0
     assert (tmp_path / "report.md").exists()

@@ -230,8 +230,17 @@ def _calibrate_command(commands: argparse._SubParsersAction[argparse.ArgumentPar
 
 
 def _experiment_commands(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    analyze = commands.add_parser("analyze", help="analyses of the method's geometry")
-    analyze.add_argument("topic", choices=["approximation"], help="approximation: Table 4.1")
+    analyze = commands.add_parser("analyze", help="analyses of the method's geometry and of the light's precision")
+    topic_help = "approximation: Table 4.1; bound: the Cramer-Rao bound of a pose (needs --scene and --tip or --path)"
+    analyze.add_argument("topic", choices=["approximation", "bound"], help=topic_help)
+    analyze.add_argument("--scene", metavar="SETUP.toml", help="bound: the setup file (TOML)")
+    analyze.add_argument("--tip", nargs=3, type=float, metavar=("X", "Y", "Z"), help="bound: tip in mm, eye frame")
+    axis_help = "bound: instrument axis, then fitted too (default: from the insertion point, and known to run so)"
+    analyze.add_argument("--axis", nargs=3, type=float, metavar=("DX", "DY", "DZ"), help=axis_help)
+    _flag(analyze, "--free-axis", "bound: the localizer does not know the insertion point (it fits the axis too)")
+    analyze.add_argument("--path", help="bound: along square, helix or FILE.csv, axis through the insertion point")
+    _option(analyze, "--poses", int, "bound: poses along a --path (default %(default)s)", default=25)
+    _out(analyze, "bound: a folder for bound.csv (and bound.png along a --path)", required=False)
 
     rep = commands.add_parser("reproduce", help="regenerate the thesis's tables from simulation")
     _flag(rep, "--quick", "1024 px and 25 poses (minutes)")

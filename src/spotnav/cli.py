@@ -13,10 +13,12 @@ from spotnav.errors import SpotnavError
 TYPE_CHECKING = False  # mypy reads the block below; at run time the start imports as little as it can
 if TYPE_CHECKING:
     import argparse
-    from collections import Counter
     from collections.abc import Callable, Sequence
 
     import numpy as np
+
+    from spotnav.setup.config import Setup
+    from spotnav.setup.geometry import InstrumentPose
 
 __all__ = ["main"]
 
@@ -62,18 +64,33 @@ def _finite_vector(name: str, values: Sequence[float]) -> np.ndarray:
     return vector
 
 
+def _pose(args: argparse.Namespace, setup: Setup) -> InstrumentPose:
+    """The pose of ``--tip`` (inside the eye) and ``--axis`` (default: from the insertion point)."""
+    from spotnav.app.sequence_render import check_inside
+    from spotnav.setup.geometry import InstrumentPose
+
+    tip = _finite_vector("--tip", args.tip)
+    check_inside(setup, tip, "--tip")
+    if args.axis is None:
+        return InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
+    axis = _finite_vector("--axis", args.axis)
+    if not axis.any():
+        raise UsageError("--axis must not be the zero vector")
+    return InstrumentPose(tip, axis)
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
 
     import numpy as np
 
-    from spotnav.app.sequence_render import check_inside, render_sequence
+    from spotnav.app.sequence_render import render_sequence
     from spotnav.files.images import write_image
     from spotnav.files.poses import write_truth_json
     from spotnav.files.setup_files import read_setup
     from spotnav.optics.render import Renderer
-    from spotnav.setup.geometry import InstrumentPose, beam_axes
+    from spotnav.setup.geometry import beam_axes
 
     setup = read_setup(args.scene)
     if args.seed < 0:
@@ -92,15 +109,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
         return 0
     if args.tip is None:
         raise UsageError("render needs --tip X Y Z (one frame) or --path (a sequence)")
-    tip = _finite_vector("--tip", args.tip)
-    check_inside(setup, tip, "--tip")
-    if args.axis is None:
-        pose = InstrumentPose.through_insertion(tip, setup.instrument.insertion_in_eye)
-    else:
-        axis = _finite_vector("--axis", args.axis)
-        if not np.any(axis):
-            raise UsageError("--axis must not be the zero vector")
-        pose = InstrumentPose(tip, axis)
+    pose = _pose(args, setup)
     image = Renderer(setup).render(pose, seed=args.seed)
     out = Path(args.out)
     write_image(out, image)
@@ -110,14 +119,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
-def _counts(statuses: Counter[str], nothing: str) -> str:
-    """``"3 ok, 1 lost"``: how many of each status, the commonest first, or ``nothing``."""
-    return ", ".join(f"{n} {s}" for s, n in statuses.most_common()) or nothing
-
-
 def _cmd_track(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from spotnav.app.session import IgtlSettings, TrackLimits, TrackSession, camera_settings, replay_speed
     from spotnav.files.setup_files import read_setup
 
@@ -139,15 +141,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
         replay_speed=replay_speed(args.replay_speed),
     )
     run = session.run()
-    latencies = run.latencies
-    timing = (
-        f"; latency median {np.median(latencies):.2f} ms, 99th percentile {np.percentile(latencies, 99):.2f} ms, "
-        f"max {np.max(latencies):.2f} ms"
-        if latencies
-        else ""
-    )
-    ended = f" ({run.stop})" if run.stop else ""
-    print(f"wrote {args.out}: {run.rows} frames, {_counts(run.statuses, 'no frames')}{timing}{ended}", file=sys.stderr)
+    print(f"wrote {args.out}: {run.summary()}", file=sys.stderr)
     if run.wrong_size_stop:
         print(f"spotnav: error: {run.wrong_size} frames in a row are not the setup's camera size", file=sys.stderr)
         return 2
@@ -156,6 +150,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 def _cmd_localize(args: argparse.Namespace) -> int:
     from spotnav.app.batch import localize_batch
+    from spotnav.app.status_style import status_counts
     from spotnav.files.setup_files import read_setup
 
     setup = read_setup(args.scene)
@@ -166,15 +161,15 @@ def _cmd_localize(args: argparse.Namespace) -> int:
             f"eye.radius_mm = {fitted.radius_mm:.4f} +- {fitted.radius_sigma_mm:.4f} (1 sigma, {fitted.frames} frames)"
         )
     ended = f" (stopped by {batch.stopped_by})" if batch.stopped_by else ""
-    print(f"wrote {args.out}: {batch.rows} images, {_counts(batch.statuses, 'no images')}{ended}", file=sys.stderr)
+    print(
+        f"wrote {args.out}: {batch.rows} images, {status_counts(batch.statuses, 'no images')}{ended}", file=sys.stderr
+    )
     if batch.all_failed:
         print(batch.all_failed, file=sys.stderr)
     return batch.exit_code
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from spotnav.app.session import ready
     from spotnav.app.show import show_frame
     from spotnav.files.images import read_image, write_image
@@ -185,21 +180,7 @@ def _cmd_show(args: argparse.Namespace) -> int:
     ready(setup)
     shown = show_frame(image, setup, args.method, crop=args.crop)
     write_image(args.out, shown.canvas)
-    estimate = shown.localization.estimate
-    if estimate.tip_in_eye is not None:
-        tip = " ".join(f"{v:.4f}" for v in estimate.tip_in_eye)
-        sigma = f", sigma {estimate.sigma_mm:.4f} mm" if np.isfinite(estimate.sigma_mm) else ""  # thesis: none
-        print(f"ok: tip {tip} mm{sigma}")
-    else:
-        print(f"{estimate.status}: {estimate.detail}")
-    if shown.note:
-        print(shown.note)
-    for spot in shown.spots:
-        line = f"beam {spot.beam}: {len(spot.edge_px)} edge points"
-        if len(spot.fitted_px):
-            rms = float(np.sqrt(np.mean(spot.residuals_deg**2)))
-            line += f", {int(spot.inliers.sum())} of {len(spot.fitted_px)} fitted points kept, RMS {rms:.4f} deg"
-        print(line)
+    print(shown.text())
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
 
@@ -263,14 +244,28 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
-    from spotnav.experiments import approximation_rows
+    from pathlib import Path
 
-    print("Table 4.1: largest deviation of the cone-plane ellipse from the cone-sphere curve")
-    print("sphere centre (3.7, 0, -6.35) mm in the cone frame, r = 12.5 mm (thesis Table 4.2)")
-    print(f"{'beta [deg]':>10} {'thesis [um]':>12} {'y gap [um]':>11} {'to plane [um]':>14} {'along ray [um]':>15}")
-    for beta, thesis, gap, to_plane, along in approximation_rows():
-        print(f"{beta:>10} {thesis:>12.2f} {gap:>11.3f} {to_plane:>14.3f} {along:>15.3f}")
-    print("y gap: the thesis's measure (Eq. 4.10 vs 4.19 at equal x); the others are full 3D distances.")
+    from spotnav.app.bound import bound_text, run_bound, write_bound
+    from spotnav.app.paths import path_poses
+    from spotnav.experiments.core import approximation_text
+    from spotnav.files.setup_files import read_setup
+
+    if args.topic == "approximation":
+        print(approximation_text())
+        return 0
+    if args.scene is None or (args.tip is None) == (args.path is None):
+        raise UsageError("analyze bound needs --scene SETUP.toml and either --tip X Y Z or --path")
+    if args.poses < 1:
+        raise UsageError(f"--poses must be at least 1, got {args.poses}")
+    setup = read_setup(args.scene)
+    insertion = setup.instrument.insertion_in_eye
+    poses = path_poses(args.path, args.poses, insertion) if args.tip is None else [_pose(args, setup)]
+    run = run_bound(setup, poses, through_insertion=not (args.free_axis or args.axis is not None))
+    written = write_bound(Path(args.out), run) if args.out else []
+    print(bound_text(run))
+    if written:
+        print(f"wrote {', '.join(map(str, written))}", file=sys.stderr)
     return 0
 
 

@@ -32,6 +32,7 @@ import numpy as np
 from spotnav.app.igtl import DEFAULT_DEVICE, DEFAULT_HOST, DEFAULT_STALE_S, PoseServer
 from spotnav.app.overlay import draw_overlay, fitted_spots
 from spotnav.app.progress import progress
+from spotnav.app.status_style import status_counts
 from spotnav.app.track import TrackedFrame, Tracker, frozen_heap, prepare_kernels
 from spotnav.errors import SpotnavError
 from spotnav.files.capture import Frame
@@ -210,6 +211,18 @@ class TrackResult:
     wrong_size: int = 0
     stop: str = ""
     verdict: str = ""
+
+    def summary(self) -> str:
+        """``"N frames, 3 ok, 1 lost; latency ..."``: what the command line says of the run."""
+        counts = status_counts(self.statuses, "no frames")
+        timing = (
+            f"; latency median {np.median(self.latencies):.2f} ms, 99th percentile "
+            f"{np.percentile(self.latencies, 99):.2f} ms, max {np.max(self.latencies):.2f} ms"
+            if self.latencies
+            else ""
+        )
+        ended = f" ({self.stop})" if self.stop else ""
+        return f"{self.rows} frames, {counts}{timing}{ended}"
 
     @property
     def wrong_size_stop(self) -> bool:

@@ -50,6 +50,24 @@ class Shown:
     view: View
     note: str
 
+    def text(self) -> str:
+        """What ``spotnav show`` prints: the answer, the note, and each spot's edge points and fit."""
+        estimate = self.localization.estimate
+        if estimate.tip_in_eye is not None:
+            tip = " ".join(f"{v:.4f}" for v in estimate.tip_in_eye)
+            sigma = f", sigma {estimate.sigma_mm:.4f} mm" if np.isfinite(estimate.sigma_mm) else ""  # thesis: none
+            lines = [f"ok: tip {tip} mm{sigma}"]
+        else:
+            lines = [f"{estimate.status}: {estimate.detail}"]
+        lines += [self.note] if self.note else []
+        for spot in self.spots:
+            line = f"beam {spot.beam}: {len(spot.edge_px)} edge points"
+            if len(spot.fitted_px):
+                rms = float(np.sqrt(np.mean(spot.residuals_deg**2)))
+                line += f", {int(spot.inliers.sum())} of {len(spot.fitted_px)} fitted points kept, RMS {rms:.4f} deg"
+            lines.append(line)
+        return "\n".join(lines)
+
 
 def _no_fit(beam: int, edge_px: np.ndarray) -> SpotDetail:
     return SpotDetail(beam, edge_px, np.zeros((0, 2)), np.zeros(0, dtype=bool), np.zeros(0))

@@ -10,10 +10,16 @@ refusals by colour and marker together (``tests/app/test_status_style.py`` measu
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from types import MappingProxyType
 
-__all__ = ["STATUS_STYLES", "StatusStyle", "status_style"]
+__all__ = ["STATUS_STYLES", "StatusStyle", "status_counts", "status_style"]
+
+
+def status_counts(statuses: Counter[str], nothing: str) -> str:
+    """``"3 ok, 1 lost"``: how many of each status, the commonest first, or ``nothing``."""
+    return ", ".join(f"{n} {s}" for s, n in statuses.most_common()) or nothing
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from spotnav.setup.microscope import Camera
 from spotnav.setup.paths import poses_through_insertion, working_volume_tips
 from spotnav.setup.sections import Light
 
-__all__ = ["THESIS_TABLE_4_1_UM", "approximation_rows", "run_approximation", "run_volume"]
+__all__ = ["THESIS_TABLE_4_1_UM", "approximation_rows", "approximation_text", "run_approximation", "run_volume"]
 
 THESIS_TABLE_4_1_UM = {5: 0.08, 7: 0.23, 9: 0.49, 11: 0.91, 13: 1.51, 15: 2.34}
 
@@ -29,6 +29,19 @@ def approximation_rows() -> list[tuple[int, float, float, float, float]]:
         deviation = approximation_deviation(np.radians(beta))
         rows.append((beta, thesis, deviation.gap_y_um, deviation.to_plane_um, deviation.along_ray_um))
     return rows
+
+
+def approximation_text() -> str:
+    """Table 4.1 as ``spotnav analyze approximation`` prints it."""
+    lines = [
+        "Table 4.1: largest deviation of the cone-plane ellipse from the cone-sphere curve",
+        "sphere centre (3.7, 0, -6.35) mm in the cone frame, r = 12.5 mm (thesis Table 4.2)",
+        f"{'beta [deg]':>10} {'thesis [um]':>12} {'y gap [um]':>11} {'to plane [um]':>14} {'along ray [um]':>15}",
+    ]
+    for beta, thesis, gap, to_plane, along in approximation_rows():
+        lines.append(f"{beta:>10} {thesis:>12.2f} {gap:>11.3f} {to_plane:>14.3f} {along:>15.3f}")
+    lines.append("y gap: the thesis's measure (Eq. 4.10 vs 4.19 at equal x); the others are full 3D distances.")
+    return "\n".join(lines)
 
 
 def run_approximation(options: Options) -> Experiment:

@@ -6,7 +6,8 @@ A frame's pixel ``p`` in channel ``c`` holds the light
 
 ``b`` the ambient-lit background, ``a`` the retina's albedo, ``g`` the exposure's gain
 (:func:`~spotnav.optics.render.exposure_gain`) and ``E`` the irradiance of the beams averaged over the pixel
-(:func:`~spotnav.optics.render.irradiance_at`; the pixels that a soft edge crosses are supersampled), blurred by
+(:func:`~spotnav.optics.render.irradiance_at`; the pixels that a cone's edge crosses are supersampled as the
+renderer does, :func:`~spotnav.optics.render.edge_pixels`), blurred by
 the lens's defocus (``faults.defocus_px``) before the sensor adds its noise. The sensor adds Gaussian noise of
 variance ``s^2 = x / N + (r / N)^2`` (shot noise of ``N = render.full_well_e`` electrons at full scale, read
 noise of ``r`` electrons), clips at full scale and encodes by the response ``f`` in ``2^bits - 1`` codes,
@@ -30,7 +31,7 @@ import cv2
 import numpy as np
 from scipy.special import ndtr
 
-from spotnav.optics.render import Renderer, exposure_gain, irradiance_at, noise_sigma, static_images
+from spotnav.optics.render import Renderer, edge_pixels, exposure_gain, irradiance_at, noise_sigma, static_images
 from spotnav.optics.response import encode_light
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, beam_axes
@@ -38,9 +39,9 @@ from spotnav.setup.geometry import InstrumentPose, beam_axes
 __all__ = ["FrameModel", "PixelInformation", "code_information", "expected_codes"]
 
 _MARGIN_PX = 6  # pixels around the spots' box, for the edge's blur
-_EDGE_REACH = 2.0  # supersample pixels within this many pixels (of the cosine's gradient) of a soft edge
-_MIN_SUPERSAMPLING = 4
 _SLOPE_STEP = 1e-5  # linear light: the response's slope by central differences
+_NODES, _WEIGHTS = np.polynomial.hermite_e.hermegauss(7)  # Gauss-Hermite, for means over the sensor's noise
+_NOISE_NODES = (_NODES, _WEIGHTS / _WEIGHTS.sum())  # the standard normal's: weights summing to 1
 
 
 class FrameModel:
@@ -85,8 +86,8 @@ class FrameModel:
         _, cosines = irradiance_at(
             self._points, self._normals, pose.tip_in_eye, axes, 1.0, instrument.beam_half_angle, setup.light.blend
         )
-        self._edge = _edge_pixels(np.nan_to_num(cosines), instrument.beam_half_angle, setup.light.blend)
-        n = max(cfg.supersampling, _MIN_SUPERSAMPLING)
+        self._edge = edge_pixels(cosines, instrument.beam_half_angle)
+        n = cfg.supersampling
         offsets = (np.arange(n) + 0.5) / n - 0.5
         du, dv = (o.ravel() for o in np.meshgrid(offsets, offsets))
         self._sub_points, self._sub_normals = renderer.surface_points(
@@ -133,18 +134,6 @@ class FrameModel:
         return light
 
 
-def _edge_pixels(cosines: np.ndarray, half_angle: float, blend: float) -> np.ndarray:
-    """Pixels (h, w) within reach of a beam's soft edge, where the light changes within the pixel."""
-    cos_edge = math.cos(half_angle)
-    inner = cos_edge + (1.0 - cos_edge) * blend
-    edge = np.zeros(cosines.shape[1:], dtype=bool)
-    for cosine in cosines:
-        gv, gu = np.gradient(cosine)
-        reach = _EDGE_REACH * (np.abs(gu) + np.abs(gv)) + 1e-12
-        edge |= (cosine > cos_edge - reach) & (cosine < inner + reach)
-    return edge
-
-
 def _full_scale_codes(setup: Setup) -> float:
     return float(2**setup.render.bit_depth - 1)
 
@@ -154,8 +143,18 @@ def _response(setup: Setup) -> str | float:
 
 
 def expected_codes(setup: Setup, linear: np.ndarray) -> np.ndarray:
-    """The pixel values (codes, before rounding) that the frame's encoding gives the light ``linear``."""
-    return _full_scale_codes(setup) * encode_light(np.clip(linear, 0.0, 1.0), _response(setup))
+    """The mean pixel value (codes, before rounding) of the light ``linear``: ``E[Q f(clip(x + n))]``.
+
+    The mean over the sensor's noise, by Gauss-Hermite quadrature: a curved response moves it from ``Q f(x)`` by
+    about ``Q f''(x) s^2 / 2`` (a third of the bound's sigma in the tip, for sRGB frames), and the clip pulls it
+    under full scale near the clip.
+    """
+    response = _response(setup)
+    sigma = noise_sigma(linear, setup.render.full_well_e, setup.render.read_noise_e).astype(float)
+    mean = np.zeros_like(linear, dtype=float)
+    for node, weight in zip(*_NOISE_NODES, strict=True):
+        mean += weight * encode_light(np.clip(linear + node * sigma, 0.0, 1.0), response)
+    return _full_scale_codes(setup) * mean
 
 
 class PixelInformation(NamedTuple):
@@ -195,7 +194,8 @@ def code_information(setup: Setup, linear: np.ndarray) -> PixelInformation:
         / (2.0 * _SLOPE_STEP)
     )
     if cfg.full_well_e > 0:
-        unclipped = ndtr((1.0 - linear) / sigma)
+        with np.errstate(divide="ignore"):  # no noise in the dark without read noise: all of it under the clip
+            unclipped = ndtr((1.0 - linear) / sigma)
     else:
         unclipped = (linear < 1.0).astype(float)
     return PixelInformation(1.0 / (slope**2 * sigma**2 + 1.0 / 12.0), slope, unclipped)

@@ -47,7 +47,16 @@ from spotnav.setup.microscope import Camera
 from spotnav.setup.sections import Bump
 from spotnav.setup.sections import Render as RenderSettings
 
-__all__ = ["Renderer", "bump_height", "exposure_gain", "irradiance_at", "noise_sigma", "output_table", "static_images"]
+__all__ = [
+    "Renderer",
+    "bump_height",
+    "edge_pixels",
+    "exposure_gain",
+    "irradiance_at",
+    "noise_sigma",
+    "output_table",
+    "static_images",
+]
 
 _ROW_CHUNK = 256
 _NEWTON_STEPS = 8
@@ -145,6 +154,28 @@ def irradiance_at(
     mask = spot_attenuation(cosines, half_angle, blend).sum(axis=0)
     irradiance = np.nan_to_num(power_w / (4.0 * np.pi) * mask * incidence / dist2)
     return irradiance, cosines
+
+
+def edge_pixels(cosines: np.ndarray, half_angle: float) -> np.ndarray:
+    """The pixels that a cone's edge crosses, which the renderer supersamples: within 1.5 pixels of it.
+
+    Parameters
+    ----------
+    cosines : ndarray, shape (beams, h, w)
+        Each beam's cosine at a box of pixels (NaN where there is no retina).
+    half_angle : float
+        The cone's half-angle, radians.
+
+    Returns
+    -------
+    ndarray, shape (h, w), bool
+    """
+    cos_edge = np.cos(half_angle)
+    edge = np.zeros(cosines.shape[1:], dtype=bool)
+    for cosine in np.nan_to_num(cosines):
+        gv, gu = np.gradient(cosine)
+        edge |= np.abs(cosine - cos_edge) < 1.5 * (np.abs(gu) + np.abs(gv)) + 1e-12
+    return edge
 
 
 class Renderer:
@@ -273,12 +304,7 @@ class Renderer:
         u0, v0, u1, v1 = box
         u, v = np.meshgrid(np.arange(u0, u1, dtype=float), np.arange(v0, v1, dtype=float))
         irradiance, cosines = self._irradiance(u, v, pose.tip_in_eye, axes, power)
-        # Supersample the pixels that a cone's edge crosses.
-        cos_edge = np.cos(self.setup.instrument.beam_half_angle)
-        edge = np.zeros(u.shape, dtype=bool)
-        for cosine in np.nan_to_num(cosines):
-            gv, gu = np.gradient(cosine)
-            edge |= np.abs(cosine - cos_edge) < 1.5 * (np.abs(gu) + np.abs(gv)) + 1e-12
+        edge = edge_pixels(cosines, self.setup.instrument.beam_half_angle)
         n = self.setup.render.supersampling
         if n > 1 and edge.any():
             offsets = (np.arange(n) + 0.5) / n - 0.5
