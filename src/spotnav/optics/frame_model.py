@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from scipy.special import ndtr
 
-from spotnav.optics.render import Renderer, edge_pixels, exposure_gain, irradiance_at, noise_sigma, static_images
+from spotnav.optics.render import Renderer, albedo_in_box, edge_pixels, exposure_gain, irradiance_at, noise_sigma
 from spotnav.optics.response import encode_light
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, beam_axes
@@ -77,9 +77,9 @@ class FrameModel:
         u0, v0 = max(spots[0] - margin, 0), max(spots[1] - margin, 0)
         u1, v1 = min(spots[2] + margin, camera.width_px), min(spots[3] + margin, camera.height_px)
         self.box = (u0, v0, u1, v1)
-        albedo, background, _, _ = static_images(camera, setup.true_radius_mm, setup.world.surface, cfg)
-        self._albedo = albedo[v0:v1, u0:u1].astype(float)
-        self._background = background[v0:v1, u0:u1].astype(float)
+        albedo = albedo_in_box(camera, setup.true_radius_mm, setup.world.surface, cfg, self.box)
+        self._albedo = albedo.astype(float)
+        self._background = (albedo * np.float32(cfg.ambient)).astype(float)  # as the renderer's, in float32
         self._gain = exposure_gain(cfg.exposure_stops)
         u, v = np.meshgrid(np.arange(u0, u1, dtype=float), np.arange(v0, v1, dtype=float))
         self._points, self._normals = renderer.surface_points(u, v, setup.world.bumps)

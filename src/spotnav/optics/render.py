@@ -49,6 +49,7 @@ from spotnav.setup.sections import Render as RenderSettings
 
 __all__ = [
     "Renderer",
+    "albedo_in_box",
     "bump_height",
     "edge_pixels",
     "exposure_gain",
@@ -548,6 +549,21 @@ class _Patch:
     hides: np.ndarray | None = None
 
 
+def albedo_in_box(
+    camera: Camera, radius_mm: float, surface: str, cfg: RenderSettings, box: tuple[int, int, int, int]
+) -> np.ndarray:
+    """Albedo seen by the pixels of ``box`` ``(u0, v0, u1, v1)`` (exclusive ends), shape (v1 - v0, u1 - u0, 3),
+    float32: what :func:`static_images` holds for them, without the whole frame."""
+    u0, v0, u1, v1 = box
+    pixels = np.stack(np.meshgrid(np.arange(u0, u1, dtype=float), np.arange(v0, v1, dtype=float)), axis=-1)
+    if surface == "plane":
+        points = unproject_pixels_to_plane(camera, pixels)
+    else:
+        points = unproject_pixels_to_sphere(camera, pixels, radius_mm)
+    albedo: np.ndarray = sample_albedo(make_texture(cfg.texture, cfg.texture_seed), points[..., 0], points[..., 1])
+    return albedo.astype(np.float32, copy=False)
+
+
 @functools.lru_cache(maxsize=1)
 def static_images(
     camera: Camera, radius_mm: float, surface: str, cfg: RenderSettings
@@ -564,17 +580,10 @@ def static_images(
     Texture lookups use the sphere: a bump shifts its texture by at most its
     height times the ray's slope (under 0.01 mm here), which is ignored.
     """
-    texture = make_texture(cfg.texture, cfg.texture_seed)
     albedo = np.empty((camera.height_px, camera.width_px, 3), dtype=np.float32)
-    u = np.arange(camera.width_px, dtype=float)
     for r0 in range(0, camera.height_px, _ROW_CHUNK):
-        rows = np.arange(r0, min(r0 + _ROW_CHUNK, camera.height_px), dtype=float)
-        pixels = np.stack(np.meshgrid(u, rows), axis=-1)
-        if surface == "plane":
-            points = unproject_pixels_to_plane(camera, pixels)
-        else:
-            points = unproject_pixels_to_sphere(camera, pixels, radius_mm)
-        albedo[r0 : r0 + len(rows)] = sample_albedo(texture, points[..., 0], points[..., 1])
+        rows = (0, r0, camera.width_px, min(r0 + _ROW_CHUNK, camera.height_px))
+        albedo[r0 : rows[3]] = albedo_in_box(camera, radius_mm, surface, cfg, rows)
     background = albedo * np.float32(cfg.ambient)
     sigma = noise_sigma(background, cfg.full_well_e, cfg.read_noise_e)
     size = albedo.size + _NOISE_MARGIN
