@@ -256,6 +256,14 @@ def _experiment_commands(commands: argparse._SubParsersAction[argparse.ArgumentP
     report = commands.add_parser("sweep-report", help="summary tables and plots of a sweep's results")
     report.add_argument("directory", metavar="DIR", help="a sweep's --out folder")
 
+    design = commands.add_parser("design", help="search the light (beams, angles, power, camera) with the best bound")
+    design.add_argument("file", nargs="?", metavar="DESIGN.toml", help="the design file (see --example)")
+    _flag(design, "--example", "print a small, commented design file")
+    _out(design, "output folder: designs.csv, verified.csv, report.md and plots", required=False)
+    design.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask cluster")
+    _option(design, "--workers", int, "local cluster's worker processes (default: one per core; 0: no Dask)")
+    design.add_argument("--dashboard", nargs="?", const=":8787", metavar="ADDRESS", help=dashboard_help)
+
 
 def build_parser(description: str = DESCRIPTION) -> argparse.ArgumentParser:
     """``spotnav``'s parser, its summary line ``description`` (plain text); ``command`` names the subcommand parsed."""
