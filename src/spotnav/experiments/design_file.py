@@ -215,10 +215,10 @@ def _read_workspace(data: Mapping[str, Any], seed: int, base: Setup) -> Workspac
     workspace = Workspace(kind, _count("workspace.poses", table.get("poses", 24), 1), seed=seed, **corners)
     if kind == "box":
         for corner in np.array(np.meshgrid(*zip(corners["min_mm"], corners["max_mm"], strict=True))).reshape(3, -1).T:
-            if not base.contains_point(corner, 0.5) or corner[2] <= 0:
+            if not base.contains_point(corner, 0.5) or not 0 < corner[2] < base.eye.radius_mm:
                 raise DesignError(
-                    f"workspace: the box's corner {corner.tolist()} mm is not inside the eye "
-                    f"(0.5 mm from the retina of radius {base.eye.radius_mm:g} mm)"
+                    f"workspace: the box's corner {corner.tolist()} mm is not inside the eye's bowl "
+                    f"(0.5 mm from the retina of radius {base.eye.radius_mm:g} mm, below its equator)"
                 )
     return workspace
 
