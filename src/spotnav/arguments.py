@@ -79,6 +79,14 @@ def _option(parser: _Parser, name: str, kind: type, text: str, **more: Any) -> N
     parser.add_argument(name, type=kind, help=text, **more)
 
 
+def _cluster(parser: _Parser) -> None:
+    """``--scheduler``, ``--workers`` and ``--dashboard``: where a study's Dask tasks run (sweep, design)."""
+    parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask cluster")
+    _option(parser, "--workers", int, "local cluster's worker processes (default: one per core; 0: no Dask)")
+    dashboard_help = "serve the local Dask cluster's dashboard (default address :8787) and print its link"
+    parser.add_argument("--dashboard", nargs="?", const=":8787", metavar="ADDRESS", help=dashboard_help)
+
+
 def _scene_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     scene = commands.add_parser("scene", help="print a setup file")
     scene.add_argument(
@@ -256,14 +264,17 @@ def _experiment_commands(commands: argparse._SubParsersAction[argparse.ArgumentP
     sweep.add_argument("file", nargs="?", metavar="SWEEP.toml", help="the sweep file (see --example)")
     _flag(sweep, "--example", "print a small, commented sweep file")
     _out(sweep, "output folder", required=False)
-    sweep.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask cluster")
-    _option(sweep, "--workers", int, "local cluster's worker processes (default: one per core; 0: no Dask)")
+    _cluster(sweep)
     _flag(sweep, "--resume", "finish an interrupted sweep in --out")
-    dashboard_help = "serve the local Dask cluster's dashboard (default address :8787) and print its link"
-    sweep.add_argument("--dashboard", nargs="?", const=":8787", metavar="ADDRESS", help=dashboard_help)
 
     report = commands.add_parser("sweep-report", help="summary tables and plots of a sweep's results")
     report.add_argument("directory", metavar="DIR", help="a sweep's --out folder")
+
+    design = commands.add_parser("design", help="search the light (beams, angles, power, camera) with the best bound")
+    design.add_argument("file", nargs="?", metavar="DESIGN.toml", help="the design file (see --example)")
+    _flag(design, "--example", "print a small, commented design file")
+    _out(design, "output folder: designs.csv, verified.csv, report.md and plots", required=False)
+    _cluster(design)
 
 
 def build_parser(description: str = DESCRIPTION) -> argparse.ArgumentParser:

@@ -347,6 +347,26 @@ def _cmd_sweep_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_design(args: argparse.Namespace) -> int:
+    from functools import partial
+    from pathlib import Path
+
+    from spotnav.experiments.design import EXAMPLE_DESIGN, run_design
+
+    if args.example or args.file is None or args.out is None:
+        if not args.example:
+            raise UsageError("design needs FILE and --out DIR (or --example)")
+        sys.stdout.write(EXAMPLE_DESIGN)
+        return 0
+    options = {"scheduler": args.scheduler, "workers": args.workers, "dashboard": args.dashboard}
+    path = Path(args.file)
+    run = run_design(
+        path.read_text(encoding="utf-8"), args.out, base_dir=path.parent, **options, log=partial(print, file=sys.stderr)
+    )
+    print(run.summary())
+    return 0
+
+
 _COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "scene": _cmd_scene,
     "render": _cmd_render,
@@ -360,6 +380,7 @@ _COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "reproduce": _cmd_reproduce,
     "sweep": _cmd_sweep,
     "sweep-report": _cmd_sweep_report,
+    "design": _cmd_design,
 }
 
 

@@ -18,11 +18,14 @@ from spotnav.pose.estimate import STATUSES
 
 __all__ = [
     "plot_against_power",
+    "plot_bound_against_error",
+    "plot_bound_over_workspace",
     "plot_error_against",
     "plot_errors_by_status",
     "plot_fault_study",
     "plot_gallery",
     "plot_geometry_study",
+    "plot_objective_against",
     "plot_path_3d",
     "plot_per_step",
     "plot_track_by_status",
@@ -264,3 +267,68 @@ def plot_geometry_study(
             ax.invert_yaxis()
             ax.set(xlim=(2e-4, 3.0), xlabel="mean tip error of the ok frames [mm]", title=f"{count} beam(s)")
             ax.legend(fontsize="x-small", loc="lower right")
+
+
+def plot_objective_against(
+    path: Path, panels: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]], beams: np.ndarray, title: str
+) -> None:
+    """A design search's objective against each parameter it varied, one panel each, one colour per beam count.
+
+    Parameters
+    ----------
+    panels : mapping of x label to (x, objective_mm, feasible), each shape (N,)
+        Infeasible designs with a bound are drawn hollow; those without none.
+    beams : ndarray of int, shape (N,)
+    """
+    with _figure(path, 1, max(len(panels), 1), (3.6 * max(len(panels), 1), 3.8), title, sharey=True) as axes:
+        for ax, (xlabel, (x, objective, feasible)) in zip(axes[0], panels.items(), strict=False):
+            for number, count in enumerate(np.unique(beams)):
+                chosen = (beams == count) & np.isfinite(objective)
+                label = f"{count} beam{'s' if count > 1 else ''}"
+                ax.scatter(x[chosen & feasible], objective[chosen & feasible], s=22, color=f"C{number}", label=label)
+                ax.scatter(x[chosen & ~feasible], objective[chosen & ~feasible], s=22, facecolors="none",
+                           edgecolors=f"C{number}")  # fmt: skip
+            ax.set(xlabel=xlabel, yscale="log")
+            ax.grid(True, which="both", alpha=0.3)
+        axes[0, 0].set_ylabel("objective: tip bound [mm]")
+        axes[0, 0].legend(fontsize="small")
+
+
+def plot_bound_over_workspace(path: Path, tips: np.ndarray, bounds_mm: np.ndarray, title: str) -> None:
+    """The tip's bound at each workspace tip: seen from above (x, y) and against the height z, mm."""
+    with _figure(path, 1, 2, (10.0, 4.2), title) as axes:
+        dots = axes[0, 0].scatter(tips[:, 0], tips[:, 1], c=bounds_mm, s=30, cmap="viridis")
+        axes[0, 0].set(xlabel="x [mm]", ylabel="y [mm]", aspect="equal")
+        plt.colorbar(dots, ax=axes[0, 0], label="tip bound [mm]")
+        axes[0, 1].scatter(tips[:, 2], bounds_mm, s=20)
+        axes[0, 1].set(xlabel="tip height z [mm]", ylabel="tip bound [mm]")
+        axes[0, 1].grid(True, alpha=0.3)
+
+
+def plot_bound_against_error(
+    path: Path, rows: Mapping[str, tuple[float, float, float, float]], title: str, *, band: float = 0.3
+) -> None:
+    """Each verified design's RMS tip error against its bound's RMS: the model fit and the precise method.
+
+    Parameters
+    ----------
+    rows : mapping of label to (bound_rms_mm, fit_rms_mm, precise_bound_rms_mm, precise_rms_mm)
+    band : float
+        The shaded agreement, +- this share about error = bound.
+    """
+    with _figure(path, 1, 1, (8.5, 5.0), title) as axes:
+        ax = axes[0, 0]
+        values = np.array([v for row in rows.values() for v in row], dtype=float)
+        values = values[np.isfinite(values) & (values > 0)]
+        if len(values):
+            line = np.geomspace(values.min() / 2, values.max() * 2, 50)
+            ax.plot(line, line, "k-", lw=0.8, label="error = bound")
+            ax.fill_between(line, line * (1 - band), line * (1 + band), color="0.85", label=f"+-{band:.0%}")
+        for number, (label, (bound, fit, precise_bound, precise)) in enumerate(rows.items()):
+            ax.scatter([bound], [fit], marker="o", color=f"C{number}", label=f"{label}: model fit")
+            ax.scatter([precise_bound], [precise], marker="s", facecolors="none", edgecolors=f"C{number}",
+                       label=f"{label}: precise")  # fmt: skip
+        ax.set(xlabel="bound, RMS over the poses [mm]", ylabel="simulated tip error, RMS [mm]")
+        ax.set(xscale="log", yscale="log")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1.0))

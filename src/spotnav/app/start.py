@@ -36,7 +36,7 @@ OUTPUT_COLUMNS: dict[str, Sequence[str]] = {"localize": POSES_COLUMNS, "track": 
 """The commands whose ``--out`` is a ``poses.csv``, and its columns."""
 
 KERNEL_COMMANDS = frozenset(
-    {"render", "localize", "show", "track", "calibrate", "bench", "analyze", "reproduce", "sweep"}
+    {"render", "localize", "show", "track", "calibrate", "bench", "analyze", "reproduce", "sweep", "design"}
 )
 """The commands that run compiled kernels (``--example`` aside, which only prints)."""
 

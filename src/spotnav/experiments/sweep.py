@@ -16,13 +16,13 @@ chunk.
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import math
 import os
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +32,7 @@ import pyarrow.parquet as pq
 
 from spotnav.app.paths import path_poses
 from spotnav.app.progress import progress
+from spotnav.experiments.cluster import seed_of, task_runner
 from spotnav.experiments.frame import run_timed_frame
 from spotnav.experiments.scenes import with_true_edge
 from spotnav.experiments.sweep_file import (
@@ -52,6 +53,7 @@ __all__ = [
     "TIMING_COLUMNS",
     "Chunk",
     "SweepRun",
+    "parameter_values",
     "plan_chunks",
     "read_sweep_table",
     "run_chunk",
@@ -60,10 +62,6 @@ __all__ = [
 
 TIMING_COLUMNS = ("render_ms", "localize_ms")
 _CHUNKS, _TABLE, _FILE = "chunks", "frames.parquet", "sweep.toml"
-# The local cluster's workers: one thread each, and none for the numeric libraries. Dask's default
-# also sets MALLOC_TRIM_THRESHOLD_, which turns off glibc's adaptive mmap threshold: every frame-sized
-# array is then mapped and faulted in afresh, and rendering ran 3x slower on each worker.
-_WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
 
 
 @dataclass(frozen=True)
@@ -82,7 +80,7 @@ class Chunk:
         return f"chunk-{self.index:06d}.parquet"
 
 
-def _parameter_values(setup: Setup) -> dict[str, float]:
+def parameter_values(setup: Setup) -> dict[str, float]:
     """Every sweep parameter's value in ``setup`` (the true eye radius is the assumed one unless set)."""
     values = {}
     for name in SWEEP_PARAMETERS:
@@ -108,8 +106,7 @@ def plan_chunks(sweep: Sweep) -> list[Chunk]:
 
 def _frame_seed(sweep: Sweep, chunk: Chunk, frame: int) -> int:
     """The frame's noise seed: from the sweep's seed and the frame's place in the plan only."""
-    key = f"{sweep.seed}/{chunk.point}/{sweep.paths.index(chunk.path)}/{frame}".encode()
-    return int.from_bytes(hashlib.blake2b(key, digest_size=4).digest(), "little")
+    return seed_of(sweep.seed, chunk.point, sweep.paths.index(chunk.path), frame)
 
 
 def _pose_columns(prefix: str, tip: np.ndarray, axis: np.ndarray) -> dict[str, float]:
@@ -134,7 +131,7 @@ def run_chunk(sweep: Sweep, chunk: Chunk) -> list[dict[str, Any]]:
         assumed = replace(world, uncertainty=Uncertainty.exact())
     renderer = Renderer(world)
     poses = path_poses(chunk.path, sweep.frames, world.instrument.insertion_in_eye, resample=False)
-    parameters = _parameter_values(world)
+    parameters = parameter_values(world)
     localizers = [(assumed if method.startswith("precise") else world, method) for method in sweep.methods]
     rows = []
     for frame in range(chunk.start, chunk.stop):
@@ -279,12 +276,8 @@ def run_sweep(
             on_chunk(chunk)
 
     try:
-        if workers == 0 and scheduler is None:
-            for chunk in todo:
-                done(chunk, run_chunk(sweep, chunk))
-            used = 0
-        else:
-            used = _run_on_dask(sweep, todo, done, scheduler, workers, dashboard, log)
+        with task_runner(scheduler, workers, dashboard, log) as (run, used):
+            run(partial(run_chunk, sweep), todo, done, "sweep")
     finally:
         bar.close()
     table = pa.concat_tables([pq.read_table(directory / _CHUNKS / c.name) for c in chunks])
@@ -293,51 +286,6 @@ def run_sweep(
     wall_s = time.perf_counter() - start
     frames_run = sum(c.stop - c.start for c in todo)
     return SweepRun(frames, frames_run, len(todo), len(chunks) - len(todo), wall_s, used, directory / _TABLE)
-
-
-def _run_on_dask(
-    sweep: Sweep,
-    chunks: Iterable[Chunk],
-    done: Callable[[Chunk, list[dict[str, Any]]], None],
-    scheduler: str | None,
-    workers: int | None,
-    dashboard: str | None,
-    log: Callable[[str], None],
-) -> int:
-    """Run the chunks as Dask tasks, handing each result to ``done`` as it arrives; return the worker count."""
-    import dask.config
-    from distributed import Client, LocalCluster, WorkerPlugin, as_completed
-
-    class OneThreadPerWorker(WorkerPlugin):
-        """OpenCV's own thread pool off: each worker is one thread, on its own core."""
-
-        def setup(self, worker: Any) -> None:
-            import cv2
-
-            cv2.setNumThreads(1)
-
-    if scheduler is not None:
-        client, cluster = Client(scheduler), None
-    else:
-        count = workers or os.cpu_count() or 1
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": _WORKER_ENVIRONMENT}):
-            cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, dashboard_address=dashboard)
-        client = Client(cluster)
-    try:
-        if dashboard is not None or scheduler is not None:
-            link = client.dashboard_link
-            log(f"Dask dashboard: {link}" if link else "Dask dashboard: not served (is bokeh installed?)")
-        client.register_plugin(OneThreadPerWorker())
-        token = hashlib.blake2b(repr(sweep).encode(), digest_size=8).hexdigest()
-        futures = {client.submit(run_chunk, sweep, c, key=f"spotnav-sweep-{token}-{c.index}"): c for c in chunks}
-        for future in as_completed(futures):
-            done(futures[future], future.result())
-            future.release()
-        return len(client.scheduler_info()["workers"])
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
 
 
 EXAMPLE_SWEEP = """\

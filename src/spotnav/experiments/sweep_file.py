@@ -22,6 +22,7 @@ from spotnav.errors import InputError, SpotnavError
 from spotnav.files.poses import read_path_csv
 from spotnav.pose.localize import METHODS
 from spotnav.setup.config import Setup, setup_from_toml
+from spotnav.setup.sections import check_localized_beams
 
 __all__ = [
     "PATHS",
@@ -30,6 +31,7 @@ __all__ = [
     "SweepError",
     "apply_parameters",
     "design_points",
+    "flatten_table",
     "sweep_from_toml",
 ]
 
@@ -99,13 +101,13 @@ def _value(key: str, value: Any, kind: type) -> float | int:
     return result
 
 
-def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+def flatten_table(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     """``{"light": {"power_w": v}}`` -> ``{"light.power_w": v}`` (TOML's dotted keys are nested tables)."""
     flat: dict[str, Any] = {}
     for key, value in table.items():
         name = f"{prefix}{key}"
         if isinstance(value, Mapping):
-            flat |= _flatten(value, f"{name}.")
+            flat |= flatten_table(value, f"{name}.")
         else:
             flat[name] = value
     return flat
@@ -127,7 +129,7 @@ def _read_grid(table: Any) -> tuple[tuple[str, tuple[float | int, ...]], ...]:
     if not isinstance(table, Mapping):
         raise SweepError("[grid] must be a table of parameter = [values]")
     grid = []
-    for name, values in _flatten(table).items():
+    for name, values in flatten_table(table).items():
         kind = _parameter("grid", name)
         if not isinstance(values, list) or not values:
             raise SweepError(f"grid.{name} must be a non-empty list of values, got {values!r}")
@@ -138,7 +140,7 @@ def _read_grid(table: Any) -> tuple[tuple[str, tuple[float | int, ...]], ...]:
 def _read_random(table: Any, grid_names: Iterable[str]) -> tuple[int, tuple[tuple[str, tuple[float, float]], ...]]:
     if not isinstance(table, Mapping):
         raise SweepError("[random] must be a table with samples = N and parameter = [low, high]")
-    table = _flatten(table)
+    table = flatten_table(table)
     samples = _integer("random.samples", table.pop("samples", 1), 1)
     random = []
     for name, bounds in table.items():
@@ -230,7 +232,7 @@ def sweep_from_toml(text: str, base_dir: Path | str = ".") -> Sweep:
         **_read_frames(data.get("frames", {}), base_dir),
     )
     for point in design_points(sweep):
-        apply_parameters(sweep.base, point)
+        check_localized_beams(apply_parameters(sweep.base, point).instrument, "a sweep's instrument.beam_count")
     return sweep
 
 

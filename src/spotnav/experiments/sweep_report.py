@@ -14,12 +14,20 @@ from spotnav.experiments.report import markdown_table
 from spotnav.experiments.sweep import read_sweep_table
 from spotnav.experiments.sweep_file import SWEEP_PARAMETERS
 
-__all__ = ["SUMMARY_COLUMNS", "error_curves", "plot_name", "summary_rows", "varied_parameters", "write_sweep_report"]
+__all__ = [
+    "PARAMETER_LABELS",
+    "SUMMARY_COLUMNS",
+    "error_curves",
+    "plot_name",
+    "summary_rows",
+    "varied_parameters",
+    "write_sweep_report",
+]
 
 SUMMARY_COLUMNS = ("frames", "ok", "availability", "mean_mm", "max_mm", "localize_ms")
 _BEAMS = "instrument.beam_count"  # one curve per beam count: never an x axis
 # Axis labels and file names of the parameters; any other is named by its key.
-_LABELS = {
+PARAMETER_LABELS = {
     "size_px": ("image size [px]", "size"),
     "instrument.beam_half_angle_deg": ("cone half-angle beta [deg]", "cone_angle"),
     "instrument.beam_tilt_deg": ("beam tilt [deg]", "beam_tilt"),
@@ -106,7 +114,7 @@ def write_sweep_report(directory: Path | str) -> str:
     for column in varied_parameters(table):
         if column == _BEAMS:
             continue
-        xlabel, _ = _LABELS.get(column, (column, ""))
+        xlabel, _ = PARAMETER_LABELS.get(column, (column, ""))
         values = table[column].to_numpy().astype(float)
         log_x = bool(values.min() > 0 and values.max() > _LOG_RANGE * values.min())
         title = f"Tip error against {xlabel.split(' [')[0]} (ok frames; other parameters pooled)"
@@ -128,7 +136,7 @@ def write_sweep_report(directory: Path | str) -> str:
 
 def plot_name(parameter: str) -> str:
     """The file name of the plot against a sweep parameter: ``error_vs_power.png`` for ``light.power_w``."""
-    short = _LABELS.get(parameter, ("", parameter.replace(".", "_")))[1]
+    short = PARAMETER_LABELS.get(parameter, ("", parameter.replace(".", "_")))[1]
     return f"error_vs_{short}.png"
 
 

@@ -38,6 +38,7 @@ from spotnav.pose.shaft import hidden_by_shaft, visible_edge_points
 from spotnav.pose.thesis import ThesisSolution, solve_thesis
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import BeamAssignment, angles_between, assign_beams, normalize
+from spotnav.setup.sections import check_localized_beams
 
 __all__ = [
     "EdgeFrame",
@@ -302,7 +303,13 @@ def localize_precise_with_edges(
     Returns
     -------
     PreciseResult
+
+    Raises
+    ------
+    SetupError
+        For 2 or 4 beams (simulation only, :func:`~spotnav.setup.sections.check_localized_beams`).
     """
+    check_localized_beams(setup.instrument)
     wrong = check_image_size(image, setup)
     if wrong is not None:
         return PreciseResult(wrong)

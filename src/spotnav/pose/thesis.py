@@ -22,6 +22,7 @@ from spotnav.pose.estimate import PoseEstimate
 from spotnav.pose.reconstruct import ConeCandidates, apex_candidates, choose_by_insertion, sphere_normal
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import normalize
+from spotnav.setup.sections import check_localized_beams
 
 __all__ = [
     "HeightFactor",
@@ -49,7 +50,14 @@ def localize_thesis(image: np.ndarray, setup: Setup) -> PoseEstimate:
 
 
 def localize_thesis_with_spots(image: np.ndarray, setup: Setup) -> tuple[PoseEstimate, SpotDetection | None]:
-    """:func:`localize_thesis`, and the spots it detected (None for an image of the wrong size)."""
+    """:func:`localize_thesis`, and the spots it detected (None for an image of the wrong size).
+
+    Raises
+    ------
+    SetupError
+        For 2 or 4 beams (simulation only, :func:`~spotnav.setup.sections.check_localized_beams`).
+    """
+    check_localized_beams(setup.instrument)
     wrong = check_image_size(image, setup)
     if wrong is not None:
         return wrong, None

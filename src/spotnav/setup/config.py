@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from spotnav.setup.microscope import CALIBRATED_KEYS, IDEAL_KEYS, Camera
-from spotnav.setup.sections import Bump, Eye, Faults, Instrument, Light, Render, World
+from spotnav.setup.sections import Bump, Eye, Faults, Instrument, Light, Render, World, check_localized_beams
 from spotnav.setup.uncertainty import CalibrationRecord, Uncertainty
 from spotnav.setup.values import SetupError, hash_once, state_without_hash
 
@@ -122,7 +122,10 @@ def _build_section(name: str, cls: type, table: Any) -> Any:
             )
     if cls is World and "bumps" in values:
         values["bumps"] = tuple(_build_bump(i, b) for i, b in enumerate(_as_list("world.bumps", values["bumps"])))
-    return cls(**values)
+    section = cls(**values)
+    if cls is Instrument:
+        check_localized_beams(section)  # the contract's 1 or 3: 2 and 4 beams are the Python API's, for simulation
+    return section
 
 
 def _as_list(key: str, value: Any) -> list[Any]:

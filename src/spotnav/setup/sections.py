@@ -18,7 +18,23 @@ import numpy as np
 
 from spotnav.setup.values import SetupError, in_range, integer, number, read_only, vector3
 
-__all__ = ["Bump", "Eye", "Faults", "Instrument", "Light", "Render", "World"]
+__all__ = [
+    "BEAM_COUNTS",
+    "LOCALIZED_BEAM_COUNTS",
+    "Bump",
+    "Eye",
+    "Faults",
+    "Instrument",
+    "Light",
+    "Render",
+    "World",
+    "check_localized_beams",
+]
+
+BEAM_COUNTS = (1, 2, 3, 4)
+"""The beams an :class:`Instrument` may have: the renderer, the bound and the model fit take any of them."""
+LOCALIZED_BEAM_COUNTS = (1, 3)
+"""The beams of the contract: a setup file's, and those that the localizers (thesis, precise) know."""
 
 
 @dataclass(frozen=True)
@@ -53,9 +69,11 @@ class Instrument:
     beam_half_angle_deg : float
         Half-angle of every beam cone, in (0, 45) degrees (the thesis's beta).
     beam_count : int
-        1 or 3.
+        1 to 4 (:data:`BEAM_COUNTS`). A setup file and the localizers take 1 or 3
+        (:data:`LOCALIZED_BEAM_COUNTS`, :func:`check_localized_beams`); 2 and 4 beams are for
+        simulation only (rendering, the bound, the model fit: ``spotnav design``).
     beam_tilt_deg : float
-        Tilt of each beam axis from the instrument axis when ``beam_count = 3``.
+        Tilt of each beam axis from the instrument axis when ``beam_count > 1``.
     height_correction : float
         The thesis method's height correction factor (section 5.5), in
         [0.5, 2]: it scales each reconstructed cone triangle. 1 = none.
@@ -101,8 +119,8 @@ class Instrument:
         key = "instrument.beam_half_angle_deg"
         in_range(key, number(key, self.beam_half_angle_deg), 0.0, 45.0, low_open=True, high_open=True)
         count = integer("instrument.beam_count", self.beam_count)
-        if count not in (1, 3):
-            raise SetupError(f"instrument.beam_count = {count} is not allowed, allowed 1 or 3")
+        if count not in BEAM_COUNTS:
+            raise SetupError(f"instrument.beam_count = {count} is not allowed, allowed 1 to 4")
         key = "instrument.beam_tilt_deg"
         in_range(key, number(key, self.beam_tilt_deg), 0.0, 45.0, high_open=True)
         key = "instrument.height_correction"
@@ -133,6 +151,21 @@ class Instrument:
     def insertion_in_eye(self) -> np.ndarray:
         """Insertion point in the eye frame, shape (3,), mm."""
         return read_only(np.array(self.insertion_point_mm, dtype=float))
+
+
+def check_localized_beams(instrument: Instrument, key: str = "instrument.beam_count") -> None:
+    """Refuse an instrument whose beams no localizer knows (2 or 4: simulation only).
+
+    Raises
+    ------
+    SetupError
+        Naming ``key`` and the allowed counts.
+    """
+    if instrument.beam_count not in LOCALIZED_BEAM_COUNTS:
+        raise SetupError(
+            f"{key} = {instrument.beam_count} is not allowed here, allowed 1 or 3 "
+            "(2 or 4 beams are for simulation only: render, bound, spotnav design)"
+        )
 
 
 @dataclass(frozen=True)
