@@ -55,6 +55,13 @@ def _cmd_scene(args: argparse.Namespace) -> int:
     return 0
 
 
+def _at_least(least: int, **options: int | None) -> None:
+    """Refuse an option (``full_every``: ``--full-every``) given below ``least``."""
+    for name, value in options.items():
+        if value is not None and value < least:
+            raise UsageError(f"--{name.replace('_', '-')} must be at least {least}, got {value}")
+
+
 def _finite_vector(name: str, values: Sequence[float]) -> np.ndarray:
     import numpy as np
 
@@ -193,14 +200,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
     if any(size < 128 for size in args.sizes):
         raise UsageError(f"--sizes must be at least 128 px, got {' '.join(map(str, args.sizes))}")
-    if args.frames < 2:
-        raise UsageError(f"--frames must be at least 2, got {args.frames}")
-    if args.full_every < 1:
-        raise UsageError(f"--full-every must be at least 1, got {args.full_every}")
+    _at_least(2, frames=args.frames)
+    _at_least(1, full_every=args.full_every, passes=args.passes)
     if not (np.isfinite(args.memory_mb) and args.memory_mb >= 0):
         raise UsageError(f"--memory-mb must be a number >= 0, got {args.memory_mb}")
-    if args.passes < 1:
-        raise UsageError(f"--passes must be at least 1, got {args.passes}")
     if args.profile:
         if args.stress:
             raise UsageError("--profile and --stress are two different runs: give one of them")
@@ -256,12 +259,10 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         return 0
     if args.scene is None or (args.tip is None) == (args.path is None):
         raise UsageError("analyze bound needs --scene SETUP.toml and either --tip X Y Z or --path")
-    if args.poses < 1:
-        raise UsageError(f"--poses must be at least 1, got {args.poses}")
+    _at_least(1, poses=args.poses)
     setup = read_setup(args.scene)
-    insertion = setup.instrument.insertion_in_eye
-    poses = path_poses(args.path, args.poses, insertion) if args.tip is None else [_pose(args, setup)]
-    run = run_bound(setup, poses, through_insertion=not (args.free_axis or args.axis is not None))
+    path = None if args.path is None else path_poses(args.path, args.poses, setup.instrument.insertion_in_eye)
+    run = run_bound(setup, path or [_pose(args, setup)], through_insertion=not (args.free_axis or args.axis))
     written = write_bound(Path(args.out), run) if args.out else []
     print(bound_text(run))
     if written:
@@ -289,14 +290,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
     from spotnav.experiments import reproduce
 
-    if args.workers < 1:
-        raise UsageError(f"--workers must be at least 1, got {args.workers}")
+    _at_least(1, workers=args.workers, size=args.size, poses=args.poses)
     out = Path(args.out or ("results/quick" if args.quick else "results/full"))
     start = time.perf_counter()
-    for name in ("size", "poses"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise UsageError(f"--{name} must be at least 1, got {value}")
     reproduce(out, quick=args.quick, only=args.only or (), workers=args.workers, size_px=args.size, poses=args.poses)
     print(f"wrote {out / 'report.md'} in {time.perf_counter() - start:.0f} s")
     return 0
@@ -306,6 +302,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from functools import partial
     from pathlib import Path
 
+    from spotnav.experiments.cluster import check_cluster_options
     from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
 
     if args.example:
@@ -313,10 +310,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     if args.file is None or args.out is None:
         raise UsageError("sweep needs FILE and --out DIR (or --example)")
-    if args.scheduler is not None and args.workers is not None:
-        raise UsageError("--workers sizes the local cluster; it cannot be used with --scheduler")
-    if args.dashboard is not None and (args.scheduler is not None or args.workers == 0):
-        raise UsageError("--dashboard serves the local Dask cluster's: not with --scheduler or --workers 0")
+    check_cluster_options(args.scheduler, args.workers, args.dashboard)  # before the file is read
     path = Path(args.file)
     run = run_sweep(
         path.read_text(encoding="utf-8"),
@@ -328,12 +322,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         dashboard=args.dashboard,
         log=partial(print, file=sys.stderr),
     )
-    where = "in this process" if run.workers == 0 else f"on {run.workers} Dask workers"
-    resumed = f" ({run.chunks_resumed} chunks done before)" if run.chunks_resumed else ""
-    print(
-        f"wrote {run.table}: {run.frames} frames{resumed}; {run.frames_run} frames in {run.wall_s:.1f} s {where} "
-        f"({run.frames_run / run.wall_s:.1f} frames/s)"
-    )
+    print(run.summary())
     return 0
 
 
@@ -353,17 +342,14 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
     from spotnav.experiments.design import EXAMPLE_DESIGN, run_design
 
-    if args.example or args.file is None or args.out is None:
-        if not args.example:
-            raise UsageError("design needs FILE and --out DIR (or --example)")
+    if args.example:
         sys.stdout.write(EXAMPLE_DESIGN)
         return 0
-    options = {"scheduler": args.scheduler, "workers": args.workers, "dashboard": args.dashboard}
-    path = Path(args.file)
-    run = run_design(
-        path.read_text(encoding="utf-8"), args.out, base_dir=path.parent, **options, log=partial(print, file=sys.stderr)
-    )
-    print(run.summary())
+    if args.file is None or args.out is None:
+        raise UsageError("design needs FILE and --out DIR (or --example)")
+    path, log = Path(args.file), partial(print, file=sys.stderr)
+    options = {"scheduler": args.scheduler, "workers": args.workers, "dashboard": args.dashboard, "log": log}
+    print(run_design(path.read_text(encoding="utf-8"), args.out, base_dir=path.parent, **options).summary())
     return 0
 
 

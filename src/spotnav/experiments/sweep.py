@@ -32,7 +32,7 @@ import pyarrow.parquet as pq
 
 from spotnav.app.paths import path_poses
 from spotnav.app.progress import progress
-from spotnav.experiments.cluster import seed_of, task_runner
+from spotnav.experiments.cluster import check_cluster_options, seed_of, task_runner
 from spotnav.experiments.frame import run_timed_frame
 from spotnav.experiments.scenes import with_true_edge
 from spotnav.experiments.sweep_file import (
@@ -207,6 +207,16 @@ class SweepRun:
     workers: int
     table: Path
 
+    def summary(self) -> str:
+        """What ``spotnav sweep`` prints of the run."""
+        where = "in this process" if self.workers == 0 else f"on {self.workers} Dask workers"
+        resumed = f" ({self.chunks_resumed} chunks done before)" if self.chunks_resumed else ""
+        rate = self.frames_run / self.wall_s if self.wall_s > 0 else 0.0
+        return (
+            f"wrote {self.table}: {self.frames} frames{resumed}; {self.frames_run} frames in {self.wall_s:.1f} s "
+            f"{where} ({rate:.1f} frames/s)"
+        )
+
 
 def _prepare(directory: Path, text: str, resume: bool) -> set[str]:
     """Create the output folder, or check a resumed one; return the names of its finished chunks."""
@@ -259,8 +269,7 @@ def run_sweep(
     log : callable
         Receives the dashboard's link.
     """
-    if workers is not None and workers < 0:
-        raise SweepError(f"workers must be >= 0, got {workers}")
+    check_cluster_options(scheduler, workers, dashboard)
     sweep = sweep_from_toml(text, base_dir)
     directory = Path(directory)
     finished = _prepare(directory, text, resume)
