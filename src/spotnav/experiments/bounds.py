@@ -65,17 +65,26 @@ def rms_against_bound(errors_xyz_mm: np.ndarray, bounds: Sequence[PoseBound]) ->
 
 
 def bound_rows(
-    results: Mapping[str, Sequence[FrameResult]], bounds: Mapping[str, Sequence[PoseBound]], blank: int
+    results: Mapping[str, Mapping[str, Sequence[FrameResult]]],
+    bounds: Mapping[str, Sequence[PoseBound]],
+    labels: Sequence[str],
 ) -> list[list[str]]:
-    """Three rows of a report's table: the RMS error, the bound's RMS over the same frames, and their ratio.
+    """Three rows of a report's table: each method's RMS error, the bound's RMS over the same frames, and their ratio.
 
-    Per key of ``results`` (a beam count): ``blank`` empty cells, then the value (the estimator's column last).
+    Per key of ``results`` (a beam count): ``-`` under the thesis's printed numbers, then one cell per method of
+    ``labels`` (``no calibration`` where ``results`` lacks it); ``bounds`` holds each pose's bound by that key.
     """
     names = ("RMS error [mm]", "bound's RMS, same poses [mm]", "RMS error / bound's RMS")
     rows: list[list[str]] = [[name] for name in names]
-    for key, frames in results.items():
-        rms, bound, count = rms_against_bound(np.array([r.error_xyz_mm for r in frames]).reshape(-1, 3), bounds[key])
-        cells = ("-", "-", "-") if not count else (f"{rms:.5f}", f"{bound:.6f}", f"{rms / bound:.3g}")
-        for row, cell in zip(rows, cells, strict=True):
-            row += [""] * blank + [cell]
+    for key, by_label in results.items():
+        for row in rows:
+            row.append("-")
+        for label in labels:
+            cells = ("no calibration",) * 3
+            if label in by_label:
+                errors = np.array([r.error_xyz_mm for r in by_label[label]]).reshape(-1, 3)
+                rms, bound, count = rms_against_bound(errors, bounds[key])
+                cells = ("no pose",) * 3 if not count else (f"{rms:.5f}", f"{bound:.6f}", f"{rms / bound:.3g}")
+            for row, cell in zip(rows, cells, strict=True):
+                row.append(cell)
     return rows

@@ -150,7 +150,7 @@ def _error_table(
     bounds: Mapping[str, Sequence[PoseBound]] | None = None,
 ) -> list[str]:
     """Mean and max Euclidean error, the thesis's printed numbers beside each method (Tables 6.9, 6.11, 6.17, 6.18);
-    with each pose's ``bounds`` by beams, the precise method's RMS error beside the bound's RMS."""
+    with each pose's ``bounds`` by beams, each method's RMS error beside the bound's RMS over the same poses."""
     header = ["", *(f"{b}: {col}" for b in by_beams for col in ("thesis (printed)", *VARIANTS))]
     rows: list[list[str]] = [["mean error [mm]"], ["max error [mm]"], ["frames with a pose"]]
     for beams, results in by_beams.items():
@@ -160,7 +160,7 @@ def _error_table(
         rows[1] += [f"{thesis[1]:.3f}", *(_value(s, lambda x: x.max_mm) for s in summaries.values())]
         rows[2] += ["100/100", *("-" if s is None else f"{s.ok}/{s.frames}" for s in summaries.values())]
     if bounds is not None:
-        rows += bound_rows({b: results[PRECISE] for b, results in by_beams.items()}, bounds, len(VARIANTS))
+        rows += bound_rows(by_beams, bounds, VARIANTS)
     return [*markdown_table(header, rows), "", *_uncertainty_lines(by_beams)]
 
 
@@ -304,7 +304,7 @@ def _run_regime(
             f"#### {path.capitalize()} path, 1 W, {regime}",
             "",
             f"Table {t_err}: Euclidean tip error; under it, "
-            "the precise method's RMS error beside the Cramer-Rao bound's RMS over the same poses (section "
+            "each method's RMS error beside the Cramer-Rao bound's RMS over the same poses (section "
             "'Efficiency' splits the gap into bias and spread).",
             "",
         ]
