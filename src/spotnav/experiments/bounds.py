@@ -19,7 +19,7 @@ from spotnav.pose.bound import PoseBound, pose_bound
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose
 
-__all__ = ["bound_of_job", "bound_rows", "path_bounds", "rms_against_bound"]
+__all__ = ["bound_of_job", "bound_rows", "path_bounds", "ratio_text", "rms_against_bound"]
 
 _Key = TypeVar("_Key", bound=Hashable)
 
@@ -84,7 +84,12 @@ def bound_rows(
             if label in by_label:
                 errors = np.array([r.error_xyz_mm for r in by_label[label]]).reshape(-1, 3)
                 rms, bound, count = rms_against_bound(errors, bounds[key])
-                cells = ("no pose",) * 3 if not count else (f"{rms:.5f}", f"{bound:.6f}", f"{rms / bound:.3g}")
+                cells = ("no pose",) * 3 if not count else (f"{rms:.5f}", f"{bound:.6f}", ratio_text(rms / bound))
             for row, cell in zip(rows, cells, strict=True):
                 row.append(cell)
     return rows
+
+
+def ratio_text(ratio: float) -> str:
+    """A ratio to the bound for a report: three significant digits, whole numbers from 1000 up."""
+    return f"{ratio:.0f}" if ratio >= 1000 else f"{ratio:.3g}"
