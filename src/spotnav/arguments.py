@@ -33,7 +33,7 @@ PARAMETER_GROUPS = (
     *("principal-point", "distortion", "insertion-point"),
 )
 EXPERIMENTS = (
-    *("approximation", "ellipse", "paths", "bumps", "radius", "calibration", "volume", "faults", "light"),
+    *("approximation", "ellipse", "paths", "efficiency", "bumps", "radius", "calibration", "volume", "faults", "light"),
     *("geometry", "mismatch"),
 )
 DEFAULT_PORT, DEFAULT_HOST, DEFAULT_DEVICE, DEFAULT_STALE_S = 18944, "127.0.0.1", "TipToEye", 0.5

@@ -16,6 +16,7 @@ from spotnav.errors import InputError
 from spotnav.experiments.calibration import run_calibration
 from spotnav.experiments.chapter6 import run_paths, run_world
 from spotnav.experiments.core import approximation_rows, run_approximation, run_volume
+from spotnav.experiments.efficiency import run_efficiency
 from spotnav.experiments.ellipse import run_ellipse
 from spotnav.experiments.faults import run_faults
 from spotnav.experiments.geometry import run_geometry
@@ -30,6 +31,7 @@ EXPERIMENTS: dict[str, Callable[[Options], Experiment]] = {
     "approximation": run_approximation,
     "ellipse": run_ellipse,
     "paths": run_paths,
+    "efficiency": run_efficiency,
     "bumps": partial(run_world, "bumps"),
     "radius": partial(run_world, "radius"),
     "calibration": run_calibration,
