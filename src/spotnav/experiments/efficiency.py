@@ -50,14 +50,9 @@ SECOND_DRAW = 500_000  # the second frame of a pose: its first's noise seed plus
 TARGET_RATIO = 1.5  # issue 45: the measured RMS error within this factor of the bound's RMS
 FIT = "model fit"
 FIT_BIAS = (
-    "The model fit's spread is the bound's; where its RMS exceeds that, the rest is its own bias, from the two "
-    "places where the renderer that makes the frames is not the model the fit inverts. The renderer samples the "
-    "soft edge's band at the pixels' centres (it averages only the pixels that the cone's outer edge crosses) where "
-    "the model averages every pixel of the band; and the model compares a pixel's code with the code of its mean "
-    "light, where under noise the curved response gives a code's mean a little off it. On noise-free frames these "
-    "move the fitted tip by up to about 1e-4 mm at every size from 1024 to 5000 px, mostly along z, while the bound "
-    "falls with the size: the fit's ratio grows with the image, its spread does not. The precise method's bias is "
-    "tens of times larger."
+    "The model fit knows what the bound assumes (the world's albedo, light and camera): its spread should be the "
+    "bound's and its bias a small share of it. A bias of its own, well over its spread, would say that the "
+    "renderer and the photometric model that the bound and the fit share differ (docs/methods.md, \"The bound\")."
 )
 
 
