@@ -148,7 +148,8 @@ def test_analyze_bound_prints_the_bound_and_refuses_a_missing_pose(
     out = capsys.readouterr().out
     assert "Cramer-Rao bound" in out and "tip sd (x y z)" in out
     assert main(["analyze", "bound", "--scene", str(scene)]) == 2
-    assert "needs --scene SETUP.toml and either --tip X Y Z or --path" in capsys.readouterr().err
+    assert "needs --scene SETUP.toml and either --tip X Y Z [--axis] or --path" in capsys.readouterr().err
+    assert main(["analyze", "bound", "--scene", str(scene), "--path", "helix", "--axis", "0", "0", "-1"]) == 2
     assert main(["analyze", "bound", "--scene", str(scene), "--tip", "0", "0", "30"]) == 2  # outside the eye
 
 

@@ -257,8 +257,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     if args.topic == "approximation":
         print(approximation_text())
         return 0
-    if args.scene is None or (args.tip is None) == (args.path is None):
-        raise UsageError("analyze bound needs --scene SETUP.toml and either --tip X Y Z or --path")
+    if args.scene is None or (args.tip is None) == (args.path is None) or (args.path and args.axis):
+        raise UsageError("analyze bound needs --scene SETUP.toml and either --tip X Y Z [--axis] or --path")
     _at_least(1, poses=args.poses)
     setup = read_setup(args.scene)
     path = None if args.path is None else path_poses(args.path, args.poses, setup.instrument.insertion_in_eye)

@@ -24,13 +24,14 @@ def test_split_error_finds_a_known_bias_and_spread() -> None:
     # exactly, and both parts come back within their sampling error (2000 poses).
     rng = np.random.default_rng(1)
     errors = np.array([0.0, 0.0, 1e-3]) + 1e-4 * rng.standard_normal((2000, 2, 3))
-    errors[0, 1] = np.nan  # a draw without a pose: counted in the RMS, left out of the split's pairs
+    errors[0, 1] = np.nan  # a draw without a pose: its pose is left out of the split, RMS included
     split = split_error(errors, np.zeros((2000, 2)), [_bound(1e-4)] * 2000)
-    assert split.frames == 3999
+    assert split.frames == 3998
     assert split.bias_mm == pytest.approx(1e-3, rel=0.02)
     assert split.spread_mm == pytest.approx(np.sqrt(3) * 1e-4, rel=0.03)
     pairs = np.all(np.isfinite(errors), axis=(1, 2))
     rms_pairs = np.sqrt(np.mean(np.sum(errors[pairs] ** 2, axis=2)))
+    assert rms_pairs == pytest.approx(split.rms_mm, rel=1e-12)  # the RMS is the split's frames'
     assert rms_pairs**2 == pytest.approx(split.bias_mm**2 + split.spread_mm**2, rel=1e-12)
     assert split.bound_rms_mm == pytest.approx(np.sqrt(3) * 1e-4)
     np.testing.assert_allclose(split.mean_xyz_mm, [0.0, 0.0, 1e-3], atol=1e-5)

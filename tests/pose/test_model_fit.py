@@ -40,7 +40,8 @@ def test_its_residuals_say_when_the_light_is_not_the_setups() -> None:
     image = Renderer(world).render(pose, seed=3)
     wrong = replace(world, light=replace(world.light, blend=0.3))  # a softer edge than the frame's
     right_fit, wrong_fit = fit_model_to_frame(image, world, pose), fit_model_to_frame(image, wrong, pose)
-    assert wrong_fit.ok
+    assert right_fit.ok and 0.6 < right_fit.chi2_per_pixel < 1.3
+    # The wrong edge fits nowhere: the fit does not settle, or settles on residuals far above the noise.
     assert wrong_fit.chi2_per_pixel > 2.0 * right_fit.chi2_per_pixel
 
 
@@ -50,3 +51,12 @@ def test_light_that_misses_the_retina_is_no_fit() -> None:
     away = InstrumentPose(TIP_MM, np.array([0.0, 0.0, 1.0]))
     fit = fit_model_to_frame(image, world, away, through_insertion=False)
     assert fit.status == "no_light" and not fit.ok and fit.pose is None
+
+
+def test_a_start_too_far_is_said_not_answered() -> None:
+    world = thesis_world(384, 3, 1.0)
+    pose = InstrumentPose.through_insertion(TIP_MM, world.instrument.insertion_in_eye)
+    image = Renderer(world).render(pose, seed=3)
+    far = InstrumentPose.through_insertion(TIP_MM + 0.3, world.instrument.insertion_in_eye)
+    fit = fit_model_to_frame(image, world, far)
+    assert fit.status == "unconverged" and fit.pose is None and fit.chi2_per_pixel > 10.0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import csv
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +14,11 @@ from spotnav.app.progress import progress
 from spotnav.pose.bound import PoseBound, pose_bound
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose
+from spotnav.setup.sections import Faults
 
 __all__ = ["BoundRun", "bound_text", "run_bound", "write_bound"]
 
+_NO_FAULTS = Faults()
 BOUND_COLUMNS = (
     *("step", "status", "tip_x_mm", "tip_y_mm", "tip_z_mm", "bound_x_mm", "bound_y_mm", "bound_z_mm"),
     *("bound_tip_mm", "bound_axis_deg", "pixels", "clipped_share"),
@@ -34,11 +36,14 @@ class BoundRun:
         One per pose.
     through_insertion : bool
         The localizer knows that the axis runs through the insertion point.
+    ignored_faults : tuple of str
+        The setup's ``[faults]`` that the model leaves out (all but ``defocus_px``).
     """
 
     poses: tuple[InstrumentPose, ...]
     bounds: tuple[PoseBound, ...]
     through_insertion: bool
+    ignored_faults: tuple[str, ...] = ()
 
     def totals_mm(self) -> np.ndarray:
         """Each pose's total tip bound (NaN where there is none), shape (N,), mm."""
@@ -49,7 +54,12 @@ def run_bound(setup: Setup, poses: Sequence[InstrumentPose], *, through_insertio
     """The bound of every pose of ``poses`` in ``setup``'s world (a progress bar past one pose)."""
     shown = progress(poses, desc="bound", unit="pose") if len(poses) > 1 else poses
     bounds = tuple(pose_bound(setup, pose, through_insertion=through_insertion) for pose in shown)
-    return BoundRun(tuple(poses), bounds, through_insertion)
+    ignored = tuple(
+        f.name
+        for f in fields(Faults)
+        if f.name != "defocus_px" and getattr(setup.faults, f.name) != getattr(_NO_FAULTS, f.name)
+    )
+    return BoundRun(tuple(poses), bounds, through_insertion, ignored)
 
 
 def _unknowns(run: BoundRun) -> str:
@@ -62,6 +72,8 @@ def _unknowns(run: BoundRun) -> str:
 def bound_text(run: BoundRun) -> str:
     """The bound as the command prints it: one pose in full, or a path's table and summary."""
     lines = [f"Cramer-Rao bound of one frame ({_unknowns(run)}); tip in mm, axis in degrees"]
+    if run.ignored_faults:
+        lines.append(f"not in the bound: the setup's faults {', '.join(run.ignored_faults)} (a world without them)")
     if len(run.poses) == 1:
         pose, bound = run.poses[0], run.bounds[0]
         lines.append(f"tip {' '.join(f'{v:g}' for v in pose.tip_in_eye)} mm, axis "

@@ -52,6 +52,7 @@ from spotnav.pose.sequence import AxesMeeting, axis_line
 from spotnav.pose.shaft import hidden_by_shaft
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import beam_axes, cone_sphere_curve, cone_sphere_points, normalize
+from spotnav.setup.sections import check_localized_beams
 
 __all__ = ["TRACK_MODES", "TrackedFrame", "Tracker", "frozen_heap", "prepare_kernels", "track_frame"]
 
@@ -138,7 +139,13 @@ def track_frame(
         where predicted; or a check of :func:`spotnav.pose.checks.judge_fit`
         failed), or ``occluded`` (the shaft, at the predicted pose, hides too
         much of a spot's edge; its hidden edge points are never used).
+
+    Raises
+    ------
+    SetupError
+        For 2 or 4 beams (simulation only, :func:`~spotnav.setup.sections.check_localized_beams`).
     """
+    check_localized_beams(setup.instrument)
     return _track_with_edges(image, setup, predicted, through_insertion, max_rays)[0]
 
 
@@ -423,6 +430,7 @@ class Tracker:
     _answered: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
+        check_localized_beams(self.setup.instrument)  # 2 or 4 beams: simulation only
         self.sequence = AxesMeeting(self.setup)
         if not (np.isfinite(self.max_jump_mm) and self.max_jump_mm > 0):
             raise ValueError(f"max_jump_mm must be a finite number > 0, got {self.max_jump_mm}")

@@ -25,6 +25,7 @@ from spotnav.app.paths import path_tips
 from spotnav.errors import InputError
 from spotnav.experiments.sweep_file import PATHS, SWEEP_PARAMETERS, apply_parameters, flatten_table
 from spotnav.setup.config import Setup, setup_from_toml
+from spotnav.setup.sections import BEAM_COUNTS
 
 __all__ = [
     "DESIGN_PARAMETERS",
@@ -48,7 +49,6 @@ DESIGN_PARAMETERS = (
     "size_px",
 )
 OBJECTIVES = ("max", "p95")
-_BEAM_COUNTS = (1, 2, 3, 4)
 # The thesis's designs (one beam, 9 deg; three beams tilted 15 deg; blend 0.15), at the base's power and size.
 _THESIS_DESIGNS = {
     "thesis, 1 beam": {"instrument.beam_count": 1, "instrument.beam_half_angle_deg": 9.0, "light.blend": 0.15},
@@ -183,8 +183,8 @@ def _read_space(data: Mapping[str, Any]) -> tuple[tuple[str, tuple[float | int, 
             if not isinstance(values, list) or not values:
                 raise DesignError(f"{key} must be a non-empty list of choices, got {values!r}")
             choices = tuple(dict.fromkeys(int(_number(key, v, 1, integer=True)) for v in values))
-            if name == "instrument.beam_count" and not set(choices) <= set(_BEAM_COUNTS):
-                raise DesignError(f"{key} must be chosen from 1, 2, 3, 4, got {values!r}")
+            if name == "instrument.beam_count" and not set(choices) <= set(BEAM_COUNTS):
+                raise DesignError(f"{key} must be chosen from {', '.join(map(str, BEAM_COUNTS))}, got {values!r}")
             space.append((name, choices))
         else:
             if not isinstance(values, list) or len(values) != 2:
@@ -215,10 +215,12 @@ def _read_workspace(data: Mapping[str, Any], seed: int, base: Setup) -> Workspac
     workspace = Workspace(kind, _count("workspace.poses", table.get("poses", 24), 1), seed=seed, **corners)
     if kind == "box":
         for corner in np.array(np.meshgrid(*zip(corners["min_mm"], corners["max_mm"], strict=True))).reshape(3, -1).T:
-            if not base.contains_point(corner, 0.5) or not 0 < corner[2] < base.eye.radius_mm:
+            radius = min(base.eye.radius_mm, base.true_radius_mm)  # inside the eye that renders and the one assumed
+            inside = np.linalg.norm(corner - [0.0, 0.0, radius]) < radius - 0.5
+            if not inside or not 0 < corner[2] < radius:
                 raise DesignError(
                     f"workspace: the box's corner {corner.tolist()} mm is not inside the eye's bowl "
-                    f"(0.5 mm from the retina of radius {base.eye.radius_mm:g} mm, below its equator)"
+                    f"(0.5 mm from the retina of radius {radius:g} mm, below its equator)"
                 )
     return workspace
 

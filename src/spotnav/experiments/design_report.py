@@ -205,7 +205,9 @@ def write_design_report(directory: Path | str, run: DesignRun) -> str:
         "efficient estimator, knowing the world) should come within "
         f"{AGREEMENT:.0%} of the bound's RMS, the precise method (spotnav's localizer) above it. 2 and 4 beams: "
         "model fit only, from the true tip displaced by 0.01 mm. 'fit bias': the length of the model fit's mean "
-        "error (the bound holds unbiased estimates only). 'refused': frames the precise method refused.",
+        "error (the bound holds unbiased estimates only); one frame a pose, so an unbiased fit's is about the bound's "
+        "RMS over the root of the poses (0.3 times it for 12 poses): only a larger one is a bias. 'refused': frames "
+        "the precise method refused.",
         "",
         *markdown_table(header, table),
         "",

@@ -186,16 +186,17 @@ def split_error(errors_xyz_mm: np.ndarray, axis_errors_deg: np.ndarray, bounds: 
         spread_sq = float(np.mean(np.sum((e1 - e2) ** 2, axis=1)) / 2.0)
         bias_sq = float(np.mean(np.sum(((e1 + e2) / 2.0) ** 2, axis=1))) - spread_sq / 2.0
         bias, spread = float(np.sqrt(max(bias_sq, 0.0))), float(np.sqrt(spread_sq))
-    per_frame_tip = np.broadcast_to(tip[:, None], valid.shape)[valid]
-    per_frame_axis = np.broadcast_to(axis[:, None], valid.shape)[valid]
+    used = valid & pairs[:, None] if pairs.any() else valid  # the split's frames: RMS^2 = bias^2 + spread^2 on them
+    per_frame_tip = np.broadcast_to(tip[:, None], valid.shape)[used]
+    per_frame_axis = np.broadcast_to(axis[:, None], valid.shape)[used]
     return ErrorSplit(
-        frames=int(valid.sum()),
-        rms_mm=float(np.sqrt(np.mean(np.sum(errors_xyz_mm[valid] ** 2, axis=1)))),
+        frames=int(used.sum()),
+        rms_mm=float(np.sqrt(np.mean(np.sum(errors_xyz_mm[used] ** 2, axis=1)))),
         bound_rms_mm=float(np.sqrt(np.mean(per_frame_tip**2))),
         bias_mm=bias,
         spread_mm=spread,
-        mean_xyz_mm=errors_xyz_mm[valid].mean(axis=0),
-        axis_rms_deg=float(np.sqrt(np.mean(axis_errors_deg[valid] ** 2))),
+        mean_xyz_mm=errors_xyz_mm[used].mean(axis=0),
+        axis_rms_deg=float(np.sqrt(np.mean(axis_errors_deg[used] ** 2))),
         bound_axis_rms_deg=float(np.sqrt(np.mean(per_frame_axis**2))),
     )
 
@@ -244,7 +245,7 @@ def run_efficiency(options: Options) -> Experiment:
         f"The helix ({count} poses, at most {MAX_POSES}; {size} px, 1 W), one and three beams, in both exposures "
         "of chapter 6. Per pose: "
         "the Cramer-Rao bound of the tip from one frame (`spotnav.pose.bound`: the photometric model of the light, "
-        "its soft edge, defocus, clip, response and noise; the power and the roll of three beams unknown; the axis "
+        "its soft edge, defocus, clip, response and noise; the power and the roll of several beams unknown; the axis "
         "through the insertion point, as the precise method constrains it), and two frames with independent noise. "
         "Each frame is localized by the precise method (the exact setup), then refined from that pose by the model "
         "fit (`spotnav.pose.model_fit`): the maximum-likelihood estimate that knows the world as the bound does, the "

@@ -23,15 +23,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from spotnav.optics.frame_model import FrameModel, code_information
+from spotnav.optics.frame_model import FrameModel, PixelInformation, code_information
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, beam_axes, normalize, orthonormal_basis
 
-__all__ = ["BOUND_STATUSES", "PoseBound", "PoseParameters", "pose_bound", "pose_jacobian"]
+__all__ = [
+    "BOUND_STATUSES",
+    "PoseBound",
+    "PoseInformation",
+    "PoseParameters",
+    "pose_bound",
+    "pose_information",
+    "pose_jacobian",
+]
 
-BOUND_STATUSES = ("ok", "no_light", "undetermined")
+BOUND_STATUSES = ("ok", "no_light", "undetermined", "hard_edge", "outside_eye")
 _TIP_STEP_MM = 1e-4
 _ANGLE_STEP = 1e-5  # radians
+_MAX_CONDITION = 1e14  # information less well conditioned is singular: the light does not fix the pose
 
 
 @dataclass(frozen=True)
@@ -114,14 +123,53 @@ def pose_jacobian(model: FrameModel, parameters: PoseParameters, values: np.ndar
 
 
 @dataclass(frozen=True)
+class PoseInformation:
+    """The frame's information about the pose at some parameters (:func:`pose_information`).
+
+    Attributes
+    ----------
+    light : ndarray, shape (h, w, 3)
+        The spots' linear light there, without the background.
+    codes_jacobian : ndarray, shape (h * w * 3, k)
+        ``d code / d t``: the response's slope times ``d light / d t``.
+    pixel : PixelInformation
+        Each pixel's weight, slope and unclipped share.
+    information : ndarray, shape (k, k)
+        ``sum_p weight_p (d code_p / d t)(d code_p / d t)^T``.
+    """
+
+    light: np.ndarray
+    codes_jacobian: np.ndarray
+    pixel: PixelInformation
+    information: np.ndarray
+
+    def covariance(self) -> np.ndarray | None:
+        """The information's inverse, or ``None`` when it is singular (the light does not fix every parameter)."""
+        if not np.all(np.isfinite(self.information)) or np.linalg.cond(self.information) > _MAX_CONDITION:
+            return None
+        covariance: np.ndarray = np.linalg.inv(self.information)
+        return covariance if np.all(np.diag(covariance) > 0) else None
+
+
+def pose_information(model: FrameModel, parameters: PoseParameters, values: np.ndarray) -> PoseInformation:
+    """The Fisher information of the pose's parameters at ``values`` (module docstring)."""
+    light, jacobian = pose_jacobian(model, parameters, values)
+    pixel = code_information(parameters.setup, (model.background + light).ravel())
+    codes_jacobian = jacobian * pixel.slope[:, None]
+    information = codes_jacobian.T @ (codes_jacobian * pixel.weight[:, None])
+    return PoseInformation(light, codes_jacobian, pixel, information)
+
+
+@dataclass(frozen=True)
 class PoseBound:
     """The Cramer-Rao bound of one pose, or why there is none.
 
     Attributes
     ----------
     status : str
-        ``ok``; ``no_light`` (no spot in the frame); ``undetermined`` (the light does not fix every parameter:
-        its information is singular).
+        One of :data:`BOUND_STATUSES`: ``ok``; ``no_light`` (no spot in the frame); ``undetermined`` (the light
+        does not fix every parameter: its information is singular); ``hard_edge`` (``light.blend = 0``, which the
+        model does not resolve); ``outside_eye`` (the tip is not inside the eye).
     tip_sd_mm : ndarray, shape (3,)
         The bound's standard deviation of the tip along eye x, y and z, mm.
     axis_sd_deg : ndarray, shape (2,)
@@ -146,6 +194,10 @@ class PoseBound:
     pixels: int = 0
     clipped_share: float = float("nan")
     detail: str = ""
+
+    def __post_init__(self) -> None:
+        if self.status not in BOUND_STATUSES:
+            raise ValueError(f"status must be one of {BOUND_STATUSES}, got {self.status!r}")
 
     @property
     def ok(self) -> bool:
@@ -180,26 +232,25 @@ def pose_bound(setup: Setup, pose: InstrumentPose, *, through_insertion: bool = 
     -------
     PoseBound
     """
+    if setup.light.blend == 0.0:
+        detail = "a hard edge (light.blend = 0): its information lies in the pixels it cuts, which the model does not "
+        detail += "resolve"
+        return PoseBound("hard_edge", detail=detail)
+    radius = setup.true_radius_mm
+    if setup.world.surface == "sphere" and np.linalg.norm(pose.tip_in_eye - [0.0, 0.0, radius]) >= radius:
+        return PoseBound("outside_eye", detail=f"the tip lies outside the eye (radius {radius:g} mm)")
     if through_insertion:
         pose = InstrumentPose.through_insertion(pose.tip_in_eye, setup.instrument.insertion_in_eye)
     model = FrameModel(setup, pose)
-    if model.box is None:
+    if model.box is None or setup.light.power_w == 0.0:
         return PoseBound("no_light", detail="no light reaches the retina that the camera sees")
     parameters = PoseParameters(pose, setup, through_insertion)
-    light, jacobian = pose_jacobian(model, parameters, parameters.start)
-    pixel = code_information(setup, (model.background + light).ravel())
-    scaled = jacobian * (pixel.slope * np.sqrt(pixel.weight))[:, None]
-    information = scaled.T @ scaled
-    carrying = np.any(scaled != 0.0, axis=1)
-    detail = ""
-    try:
-        covariance = np.linalg.inv(information)
-    except np.linalg.LinAlgError:
-        covariance = np.full_like(information, np.inf)
-    variances = np.diag(covariance)
-    if not np.all(np.isfinite(variances)) or np.any(variances <= 0) or np.linalg.cond(information) > 1e14:
+    found = pose_information(model, parameters, parameters.start)
+    covariance = found.covariance()
+    if covariance is None:
         detail = "the light does not fix every parameter of the pose (its information is singular)"
         return PoseBound("undetermined", parameters=parameters.names, detail=detail)
+    variances = np.diag(covariance)
     tip_sd = np.sqrt(variances[:3])
     if through_insertion:
         arm = pose.tip_in_eye - setup.instrument.insertion_in_eye
@@ -208,16 +259,15 @@ def pose_bound(setup: Setup, pose: InstrumentPose, *, through_insertion: bool = 
         axis_covariance = tilt @ covariance[:3, :3] @ tilt.T
     else:
         axis_covariance = covariance[3:5, 3:5]
-    tip_information = (jacobian[:, :3] * pixel.slope[:, None]) ** 2
-    kept = float(np.sum(tip_information * pixel.weight[:, None]))
-    total = float(np.sum(tip_information * pixel.noise_weight[:, None]))
+    tip_information = found.codes_jacobian[:, :3] ** 2
+    kept = float(np.sum(tip_information * found.pixel.weight[:, None]))
+    total = float(np.sum(tip_information * found.pixel.noise_weight[:, None]))
     return PoseBound(
         "ok",
         tip_sd_mm=tip_sd,
         axis_sd_deg=np.degrees(np.sqrt(np.diag(axis_covariance))),
         covariance=covariance,
         parameters=parameters.names,
-        pixels=int(np.count_nonzero(carrying)),
+        pixels=int(np.count_nonzero(np.any(found.codes_jacobian * found.pixel.weight[:, None] != 0.0, axis=1))),
         clipped_share=float(1.0 - kept / total) if total > 0 else 0.0,
-        detail=detail,
     )

@@ -20,6 +20,7 @@ from spotnav.pose.pipeline import LightReading, plan_found_spots, read_light
 from spotnav.pose.precise import detect_spots
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import assign_beams, normalize
+from spotnav.setup.sections import check_localized_beams
 
 __all__ = ["FIND_RADIUS_PX", "RAYS", "KnownFrame", "KnownFrameEdges", "read_known_frame"]
 
@@ -121,8 +122,15 @@ class KnownFrameEdges:
 def read_known_frame(frame: KnownFrame, setup: Setup) -> KnownFrameEdges:
     """The frame's pipeline up to its fit: the find stage from the known pose (its spots, the beam of each and the
     starting roll) and the spots' light read (:func:`spotnav.pose.pipeline.read_light`); or, as its status, why the
-    frame cannot be used (its detail names the frame)."""
+    frame cannot be used (its detail names the frame).
+
+    Raises
+    ------
+    SetupError
+        For 2 or 4 beams (simulation only, :func:`~spotnav.setup.sections.check_localized_beams`).
+    """
     instrument = setup.instrument
+    check_localized_beams(instrument)
     tip = np.asarray(frame.tip_in_eye, dtype=float)
     axis = normalize(frame.axis if frame.axis is not None else tip - instrument.insertion_in_eye)
     wrong = check_image_size(frame.image, setup)

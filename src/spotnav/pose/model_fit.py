@@ -14,14 +14,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from spotnav.optics.frame_model import FrameModel, code_information, expected_codes
-from spotnav.pose.bound import PoseParameters, pose_jacobian
+from spotnav.optics.frame_model import FrameModel, expected_codes
+from spotnav.pose.bound import PoseParameters, pose_information
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose
 
 __all__ = ["ModelFit", "fit_model_to_frame"]
 
 _MAX_STEPS = 8
+_EXTRA_ROUNDS = 2  # rounds after a round that did not settle
 _CONVERGED_MM = 1e-7  # a step that moves the tip less than this ends the fit
 
 
@@ -32,15 +33,17 @@ class ModelFit:
     Attributes
     ----------
     status : str
-        ``ok``; ``no_light`` (no spot in the model's frame); ``undetermined`` (the light does not fix the pose).
+        ``ok``; ``no_light`` (no spot in the model's frame); ``undetermined`` (the light does not fix the pose);
+        ``unconverged`` (the steps did not settle: a start too far for the model's pixels, or a model that is not
+        the world).
     pose : InstrumentPose or None
         The fitted pose (``None`` unless ok).
     roll : float
         Of several beams, radians.
     covariance : ndarray, shape (k, k)
-        The inverse of the pixels' information at the fitted pose (the bound there).
+        The inverse of the pixels' information where the last round started (the bound there).
     chi2_per_pixel : float
-        The weighted residuals' mean square: about 1 where the model is the world.
+        The weighted residuals' mean square at the fitted pose: about 1 where the model is the world.
     steps : int
         Gauss-Newton steps taken.
     """
@@ -76,7 +79,8 @@ def fit_model_to_frame(
     rounds : int
         Fits, each with the model built about the last one's answer: the model's supersampled pixels are the
         renderer's about its pose, and a start a tenth of a pixel off biases the first round's answer by most of
-        a sigma. One round serves a start at the true pose.
+        a sigma. One round serves a start at the true pose. A round that does not settle is followed by another,
+        up to two more.
 
     Returns
     -------
@@ -84,22 +88,25 @@ def fit_model_to_frame(
     """
     if through_insertion:
         start = InstrumentPose.through_insertion(start.tip_in_eye, setup.instrument.insertion_in_eye)
-    pose, roll, fit = start, 0.0, ModelFit("no_light")
-    for _ in range(rounds):
-        fit = _fit_about(image, setup, pose, roll, through_insertion)
-        if fit.pose is None:
+    pose, roll, settled, fit = start, 0.0, 0, ModelFit("no_light")
+    for _ in range(rounds + _EXTRA_ROUNDS):
+        fit, pose, roll = _fit_about(image, setup, pose, roll, through_insertion)
+        if fit.status in ("no_light", "undetermined"):
+            return fit
+        settled = settled + 1 if fit.ok else 0  # rounds in a row that settled
+        if settled >= rounds:
             break
-        pose, roll = fit.pose, fit.roll
     return fit
 
 
 def _fit_about(
     image: np.ndarray, setup: Setup, start: InstrumentPose, roll: float, through_insertion: bool
-) -> ModelFit:
-    """Gauss-Newton steps from ``start`` with the model built about it (:func:`fit_model_to_frame`)."""
+) -> tuple[ModelFit, InstrumentPose, float]:
+    """Gauss-Newton steps from ``start`` with the model built about it (:func:`fit_model_to_frame`): the fit, and
+    the pose and roll where its steps ended (the next round's start, settled or not)."""
     model = FrameModel(setup, start)
     if model.box is None:
-        return ModelFit("no_light")
+        return ModelFit("no_light"), start, roll
     u0, v0, u1, v1 = model.box
     codes = image[v0:v1, u0:u1].astype(float).ravel()
     parameters = PoseParameters(start, setup, through_insertion)
@@ -107,23 +114,21 @@ def _fit_about(
     if setup.instrument.beam_count > 1:
         values[-2] = roll
     # The chord method: the derivatives at the start serve every step of the round (the next round renews them).
-    light, jacobian = pose_jacobian(model, parameters, values)
-    pixel = code_information(setup, (model.background + light).ravel())
-    scaled = jacobian * pixel.slope[:, None]
-    information = scaled.T @ (scaled * pixel.weight[:, None])
-    try:
-        solve = np.linalg.inv(information) @ (scaled * pixel.weight[:, None]).T
-    except np.linalg.LinAlgError:
-        return ModelFit("undetermined")
-    steps, chi2 = 0, float("nan")
-    while steps < _MAX_STEPS:
+    found = pose_information(model, parameters, values)
+    covariance = found.covariance()
+    if covariance is None:
+        return ModelFit("undetermined"), start, roll
+    solve = covariance @ (found.codes_jacobian * found.pixel.weight[:, None]).T
+    light, steps, converged = found.light, 0, False
+    while steps < _MAX_STEPS and not converged:
         steps += 1
-        residual = codes - expected_codes(setup, (model.background + light).ravel())
-        chi2 = float(np.sum(pixel.weight * residual**2) / max(np.count_nonzero(pixel.weight > 0), 1))
-        step = solve @ residual
+        step = solve @ (codes - expected_codes(setup, (model.background + light).ravel()))
         values = values + step
         light = parameters.light(model, values)
-        if np.linalg.norm(step[:3]) < _CONVERGED_MM:
-            break
+        converged = bool(np.linalg.norm(step[:3]) < _CONVERGED_MM)
+    residual = codes - expected_codes(setup, (model.background + light).ravel())
+    chi2 = float(np.sum(found.pixel.weight * residual**2) / max(np.count_nonzero(found.pixel.weight > 0), 1))
     pose, roll = parameters.pose(values)
-    return ModelFit("ok", pose, roll, np.linalg.inv(information), chi2, steps)
+    if not converged:
+        return ModelFit("unconverged", chi2_per_pixel=chi2, steps=steps), pose, roll
+    return ModelFit("ok", pose, roll, covariance, chi2, steps), pose, roll

@@ -254,10 +254,11 @@ def cone_sphere_points(
 def beam_axes(axis: np.ndarray, beam_count: int, tilt: float, roll: float | np.ndarray = 0.0) -> np.ndarray:
     """Beam axes of the instrument, contract's roll convention.
 
-    One beam shares the instrument axis. Three beams tilt by ``tilt`` from it,
-    beam 0 toward ``e1`` of :func:`orthonormal_basis` turned by ``roll``, beams
-    1 and 2 at +120 and +240 degrees further; turns are counter-clockwise seen
-    from the tip looking along the axis. The contract's zero roll is ``roll = 0``.
+    One beam shares the instrument axis. Several beams tilt by ``tilt`` from it,
+    beam 0 toward ``e1`` of :func:`orthonormal_basis` turned by ``roll``, beam
+    ``k`` at ``k * 360 / beam_count`` degrees further (three beams: +120 and
+    +240); turns are counter-clockwise seen from the tip looking along the axis.
+    The contract's zero roll is ``roll = 0``.
 
     Parameters
     ----------

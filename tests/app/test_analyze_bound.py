@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,3 +38,14 @@ def test_one_pose_in_full_and_a_pose_without_light_said() -> None:
     assert "tip sd (x y z)" in text and "axis sd" in text
     away = InstrumentPose(np.array([1.0, 0.5, 5.0]), np.array([0.0, 0.0, 1.0]))
     assert "no bound: no_light" in bound_text(run_bound(world, [away], through_insertion=False))
+
+
+def test_a_path_tip_outside_the_eye_and_the_faults_left_out_are_said() -> None:
+    world = thesis_world(256, 1, 1.0)
+    world = replace(world, faults=replace(world.faults, glints=2, defocus_px=1.0))
+    outside = InstrumentPose.through_insertion(np.array([0.0, 0.0, 30.0]), world.instrument.insertion_in_eye)
+    inside = InstrumentPose.through_insertion(np.array([1.0, 0.5, 5.0]), world.instrument.insertion_in_eye)
+    run = run_bound(world, [inside, outside])
+    assert [b.status for b in run.bounds] == ["ok", "outside_eye"]
+    assert run.ignored_faults == ("glints",)  # defocus is in the model
+    assert "not in the bound: the setup's faults glints" in bound_text(run)
