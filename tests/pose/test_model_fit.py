@@ -60,3 +60,11 @@ def test_a_start_too_far_is_said_not_answered() -> None:
     far = InstrumentPose.through_insertion(TIP_MM + 0.3, world.instrument.insertion_in_eye)
     fit = fit_model_to_frame(image, world, far)
     assert fit.status == "unconverged" and fit.pose is None and fit.chi2_per_pixel > 10.0
+
+
+def test_a_frame_blurred_after_its_encoding_is_a_mismatch_not_an_answer() -> None:
+    world = thesis_world(512, 1, 1.0)
+    pose = InstrumentPose.through_insertion(TIP_MM, world.instrument.insertion_in_eye)
+    blurred = replace(world, faults=replace(world.faults, frame_blur_px=1.5))
+    fit = fit_model_to_frame(Renderer(blurred).render(pose, seed=3), world, pose)
+    assert fit.status == "mismatch" and fit.pose is None and fit.chi2_per_pixel > 2.0
