@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import csv
 import time
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,7 @@ import numpy as np
 
 from spotnav.app.figures import plot_per_step
 from spotnav.app.paths import path_poses
+from spotnav.app.status_style import status_counts
 from spotnav.experiments.bounds import ratio_text
 from spotnav.experiments.chapter6 import EXPOSURES, PRECISE
 from spotnav.experiments.frame import render_timed
@@ -217,7 +219,7 @@ def _splits(poses: Sequence[PoseEfficiency]) -> dict[str, ErrorSplit]:
 
 
 def _counts(statuses: Sequence[str]) -> str:
-    return ", ".join(f"{s} {statuses.count(s)}" for s in sorted(set(statuses)))
+    return status_counts(Counter(statuses), "none")
 
 
 # --- the study --------------------------------------------------------------------------------------------------
