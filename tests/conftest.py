@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+from collections.abc import Iterator
 from dataclasses import replace
 
 import pytest
@@ -39,3 +41,28 @@ def renderer_512() -> Renderer:
 def renderer_2048() -> Renderer:
     """Sharp-edged, textured, noisy 2048 px renderer."""
     return Renderer(small_setup(2048))
+
+
+class SteppedClock:
+    """A clock that moves only when slept on: a replay's pace as a schedule, whatever the machine's load."""
+
+    def __init__(self) -> None:
+        self.now = time.perf_counter()  # never ahead of the real clock: a latency taken against it stays >= 0
+        self.slept: list[float] = []
+
+    def perf_counter(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.slept.append(seconds)
+        self.now += seconds
+
+
+@pytest.fixture
+def replay_clock(monkeypatch: pytest.MonkeyPatch) -> Iterator[SteppedClock]:
+    """A :class:`SteppedClock` in place of the clock by which a recording's replay waits for its frames' times."""
+    from spotnav.files import recording
+
+    clock = SteppedClock()
+    monkeypatch.setattr(recording, "time", clock)
+    yield clock

@@ -559,6 +559,7 @@ def test_a_bug_is_not_dressed_up_as_a_user_error(tmp_path: Path, monkeypatch: py
 
 SPOTNAV = Path(sys.executable).parent / "spotnav"  # the console script, as a user runs it
 COMPILING = "compiling spotnav's numerical kernels once"
+COMPILED = "spotnav: kernels compiled in "
 
 
 def _readme_first_try() -> list[str]:
@@ -588,28 +589,29 @@ def _run_first_try(folder: Path, env: dict[str, str]) -> tuple[subprocess.Comple
 def test_the_readme_first_try_compiles_once_and_says_so(tmp_path: Path) -> None:
     # Issue 20: the README's first "Use" block runs as written, top to bottom, in a fresh folder. Issue 44: on a
     # fresh install it took 5.5 minutes; localize compiled for 148 s saying "about 20 s" and calibrate for 63 s
-    # more, silently. Now the first command that needs kernels compiles all of them, with one line, and none after
-    # it compiles: the whole first try, compiling included, in 2 minutes on 2 cores.
+    # more, silently. Now the first command that needs kernels compiles all of them, with one line and an end line
+    # that says how long it took, and none after it compiles. Issue 61: counts, not seconds (a busy machine took
+    # 482 s); how long it takes is the README's measured figure.
     cache = tmp_path / "numba-cache"
     cache.mkdir()  # empty: Numba then ignores the kernels cached beside the sources
-    start = time.perf_counter()
     result, counts = _run_first_try(tmp_path, {**os.environ, "NUMBA_CACHE_DIR": str(cache)})
-    took_s = time.perf_counter() - start
-    assert result.stderr.count(COMPILING) == 1, result.stderr
+    assert result.stderr.count(COMPILING) == 1 and result.stderr.count(COMPILED) == 1, result.stderr
     first = next(n for n, count in enumerate(counts) if int(count) > 0)
     assert len(set(counts[first:])) == 1, list(zip(_readme_first_try(), counts, strict=True))  # none compiles after
     assert "compiling" not in result.stderr.replace(COMPILING, "")
-    assert took_s < 120, took_s
 
 
 def test_version_answers_at_once() -> None:
-    # Issue 44: `spotnav --version` took 2.6 s (every import first); the best of three runs, the machine's load aside.
-    took = []
-    for _ in range(3):
-        start = time.perf_counter()
-        result = subprocess.run([str(SPOTNAV), "--version"], capture_output=True, text=True, check=True)
-        took.append(time.perf_counter() - start)
-    assert result.stdout.startswith("spotnav ") and min(took) < 0.5, took
+    # Issue 44: `spotnav --version` took 2.6 s (every import first). It imports the standard library only, which is
+    # what makes it answer at once (benchmarks/test_service.py times it).
+    code = (
+        "import json, sys\nfrom spotnav.cli import main\ntry:\n    main(['--version'])\nexcept SystemExit:\n    pass\n"
+        "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules} - set(sys.stdlib_module_names))))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    version, imported = result.stdout.splitlines()
+    third_party = set(json.loads(imported)) - {"__main__", "spotnav", "_distutils_hack"}
+    assert version.startswith("spotnav ") and not third_party, third_party
 
 
 @pytest.mark.parametrize(

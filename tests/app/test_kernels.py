@@ -78,12 +78,12 @@ def test_an_interrupted_compilation_leaves_no_worker_and_no_mark(tmp_path: Path)
     argv = [str(SPOTNAV), "render", "--scene", str(scene), "--tip", "1", "1", "5", "--out", str(tmp_path / "f.png")]
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
     process = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 600  # a hang's guard, not a speed limit
     while time.monotonic() < deadline and not any(cache.rglob("*.nbi")):  # the workers are compiling
         time.sleep(0.1)
     process.send_signal(signal.SIGINT)
-    _, err = process.communicate(timeout=60)
+    _, err = process.communicate(timeout=600)
     assert process.returncode == 130 and err.splitlines()[-1] == "spotnav: interrupted" and "Traceback" not in err
     assert err.count("compiling spotnav's numerical kernels once") == 1
-    assert not _group_alive(process.pid, 10.0)  # the workers ended with the command
+    assert not _group_alive(process.pid, 600.0)  # the workers ended with the command
     assert not list(cache.rglob("spotnav-kernels-compiled.txt"))

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SteppedClock
 
 from spotnav.errors import InputError
 from spotnav.files.capture import Frame
@@ -68,14 +69,15 @@ def test_a_recording_replays_every_frame_bit_for_bit_with_its_capture_time(
     assert last.pixels is None and last.error == unreadable.error and last.image == "frame_6.png"
 
 
-def test_a_replay_keeps_the_recorded_pace_and_scales_it(tmp_path: Path) -> None:
+def test_a_replay_keeps_the_recorded_pace_and_scales_it(tmp_path: Path, replay_clock: SteppedClock) -> None:
+    # Issue 61: the schedule on a clock that moves only when the replay waits, not the machine's seconds.
     record(tmp_path / "rec", frames(6, interval_s=0.1))  # 0.5 s from the first frame to the last
     for speed, span_s in ((1.0, 0.5), (2.0, 0.25), (math.inf, 0.0)):
-        arrived = [time.perf_counter() for _ in read_recording(tmp_path / "rec", speed=speed)]
-        assert arrived[-1] - arrived[0] == pytest.approx(span_s, abs=0.06)
-        assert np.diff(arrived) == pytest.approx(np.full(5, span_s / 5), abs=0.03)
-    asked_to_stop = [time.perf_counter() for _ in read_recording(tmp_path / "rec", speed=1.0, stop=lambda: True)]
-    assert asked_to_stop[-1] - asked_to_stop[0] < 0.06  # a stop does not wait for the recorded times
+        arrived = [frame.ready_s for frame in read_recording(tmp_path / "rec", speed=speed)]
+        assert np.diff(arrived) == pytest.approx(np.full(5, span_s / 5), abs=1e-6)  # Unix seconds hold 0.2 us
+    waits = len(replay_clock.slept)
+    asked_to_stop = [f.ready_s for f in read_recording(tmp_path / "rec", speed=1.0, stop=lambda: True)]
+    assert asked_to_stop[-1] == asked_to_stop[0] and len(replay_clock.slept) == waits  # a stop does not wait
 
 
 def test_a_recording_s_frame_rate_comes_from_its_timestamps_and_iter_frames_replays_it(tmp_path: Path) -> None:

@@ -113,14 +113,16 @@ def compile_kernels_once(args: argparse.Namespace, report: Callable[[str], None]
     """Before a command that runs compiled kernels: compile all of them at once when Numba's cache lacks them.
 
     The first such command after an install or a change to the sources says so in one line
-    (:func:`spotnav.app.kernels.warm_kernels`); every later one loads them from the cache.
+    (:func:`spotnav.app.kernels.warm_kernels`), and in one more when they are done, with the time it took; every
+    later one loads them from the cache.
     """
     if args.command not in KERNEL_COMMANDS or getattr(args, "example", None) or _missing_input(args):
         return  # nothing to compile for, or a missing file the command names at once
     from spotnav.app.kernels import kernels_compiled, warm_kernels  # Numba only where it is needed
 
     if not kernels_compiled():
-        warm_kernels(report=report)
+        took = warm_kernels(report=report)
+        report(f"spotnav: kernels compiled in {took['total']:.0f} s; later commands load them")
 
 
 def end_stdout_if_left() -> bool:
