@@ -82,6 +82,8 @@ def _option(parser: _Parser, name: str, kind: type, text: str, **more: Any) -> N
 def _cluster(parser: _Parser) -> None:
     """``--scheduler``, ``--workers`` and ``--dashboard``: where a study's Dask tasks run (sweep, design)."""
     parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask cluster")
+    timeout_help = "with --scheduler: seconds to wait for it to answer, for a worker, for one back (default 20)"
+    _option(parser, "--scheduler-timeout", float, timeout_help, metavar="S")
     _option(parser, "--workers", int, "local cluster's worker processes (default: one per core; 0: no Dask)")
     dashboard_help = "serve the local Dask cluster's dashboard (default address :8787) and print its link"
     parser.add_argument("--dashboard", nargs="?", const=":8787", metavar="ADDRESS", help=dashboard_help)

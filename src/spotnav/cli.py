@@ -310,7 +310,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     if args.file is None or args.out is None:
         raise UsageError("sweep needs FILE and --out DIR (or --example)")
-    check_cluster_options(args.scheduler, args.workers, args.dashboard)  # before the file is read
+    check_cluster_options(args.scheduler, args.workers, args.dashboard, args.scheduler_timeout)  # before the file
     path = Path(args.file)
     run = run_sweep(
         path.read_text(encoding="utf-8"),
@@ -321,6 +321,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         resume=args.resume,
         dashboard=args.dashboard,
         log=partial(print, file=sys.stderr),
+        scheduler_timeout_s=args.scheduler_timeout,
     )
     print(run.summary())
     return 0
@@ -349,6 +350,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
         raise UsageError("design needs FILE and --out DIR (or --example)")
     path, log = Path(args.file), partial(print, file=sys.stderr)
     options = {"scheduler": args.scheduler, "workers": args.workers, "dashboard": args.dashboard, "log": log}
+    options["scheduler_timeout_s"] = args.scheduler_timeout
     print(run_design(path.read_text(encoding="utf-8"), args.out, base_dir=path.parent, **options).summary())
     return 0
 

@@ -1,4 +1,5 @@
-"""Design sweeps: the sweep file, the plan, Dask runs (worker count, a killed worker, resume) and the report."""
+"""Design sweeps: the sweep file, the plan, Dask runs (worker count, a killed worker, resume), each refusal's detail
+and the report."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from distributed import LocalCluster
 from hypothesis import given, settings
@@ -22,7 +24,7 @@ from spotnav.experiments.sweep_file import (
     design_points,
     sweep_from_toml,
 )
-from spotnav.experiments.sweep_report import error_curves, summary_rows, write_sweep_report
+from spotnav.experiments.sweep_report import availability_curves, error_curves, summary_rows, write_sweep_report
 from spotnav.setup.config import Setup
 from spotnav.setup.values import SetupError
 
@@ -41,6 +43,12 @@ methods = ["thesis", "precise"]
 chunk = 1
 """
 TINY_FRAMES = 2 * 2 * 3  # angles x samples x frames
+# Two design points: a light too dim to see (every frame no_spot, with its reason) and one that localizes.
+DARK = (
+    TINY.replace("instrument.beam_half_angle_deg = [8.0, 10.0]", "light.power_w = [0.00001, 1.0]")
+    .replace("[random]\nsamples = 2\nlight.power_w = [0.5, 1.5]\n", "")
+    .replace("count = 3", "count = 2")
+)
 
 
 def _same_results(a: pa.Table, b: pa.Table) -> bool:
@@ -178,8 +186,11 @@ def test_a_killed_worker_loses_no_frame_and_repeats_none(tmp_path: Path) -> None
                 os.kill(pid, signal.SIGKILL)
                 killed.append(pid)
 
-        run = run_sweep(text, tmp_path / "out", scheduler=cluster.scheduler_address, on_chunk=kill_one_worker)
+        lines: list[str] = []
+        out = tmp_path / "out"
+        run = run_sweep(text, out, scheduler=cluster.scheduler_address, on_chunk=kill_one_worker, log=lines.append)
     assert killed and run.chunks_run == 2 * 2 * 5
+    assert any(line.endswith("left mid-run: its tasks run again on the 1 left") for line in lines)  # issue 61
     table = read_sweep_table(tmp_path / "out")
     assert _each_frame_once(table, 2 * 2 * 5, 2)
     assert _same_results(table, read_sweep_table(run_sweep(text, tmp_path / "serial", workers=0).table.parent))
@@ -201,6 +212,54 @@ def test_resume_runs_only_the_missing_chunks(tmp_path: Path) -> None:
         run_sweep(TINY.replace("seed = 3", "seed = 4"), out, workers=0, resume=True)
 
 
+def test_each_refusal_keeps_its_detail_and_the_report_counts_and_plots_the_statuses(tmp_path: Path) -> None:
+    run_sweep(DARK, tmp_path, workers=0)
+    table = read_sweep_table(tmp_path)
+    assert table.column_names[table.column_names.index("status") + 1] == "detail"
+    power, statuses, details = (table[c].to_numpy(zero_copy_only=False) for c in ("light.power_w", "status", "detail"))
+    dim = power < 0.01
+    assert np.all(statuses[dim] == "no_spot") and np.all(statuses[~dim] == "ok")
+    assert all(d.startswith("no region brighter than the background") for d in details[dim])
+    assert all(d == "" for d in details[~dim])
+    header, rows = summary_rows(table)
+    assert [(row[header.index("method")], row[header.index("refused")]) for row in rows] == [
+        ("thesis", "2 no_spot"),
+        ("precise", "2 no_spot"),
+        ("thesis", "none"),
+        ("precise", "none"),
+    ]
+    x, fractions = availability_curves(table, "light.power_w")["1 beam, precise"]
+    assert list(x) == [0.00001, 1.0] and sorted(fractions) == ["no_spot", "ok"]
+    assert list(fractions["no_spot"]) == [1.0, 0.0] and list(fractions["ok"]) == [0.0, 1.0]
+    assert list(error_curves(table, "light.power_w")["1 beam, precise"][0]) == [1.0]  # the error: ok frames only
+    text = write_sweep_report(tmp_path)
+    assert "Statuses: 4 no_spot, 4 ok." in text and "| 1e-05 | helix | thesis | 2 | 0 | 0 | 2 no_spot | nan |" in text
+    assert "| thesis | no_spot | 2 | no region brighter than the background (contrast " in text
+    assert (tmp_path / "error_vs_power.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_sweep_from_before_the_detail_column_resumes_and_says_so(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    first = read_sweep_table(run_sweep(DARK, out, workers=0).table.parent)
+    (out / "frames.parquet").unlink()
+    chunks = sorted((out / "chunks").glob("chunk-*.parquet"))
+    for chunk in chunks[:2]:  # as a spotnav without the column wrote them
+        pq.write_table(pq.read_table(chunk).drop_columns(["detail"]), chunk)
+    chunks[-1].unlink()
+    lines: list[str] = []
+    resumed = run_sweep(DARK, out, workers=0, resume=True, log=lines.append)
+    assert resumed.chunks_run == 1 and lines == [
+        "2 chunks were written by an older spotnav, without the detail column: theirs is left empty (null)"
+    ]
+    table = read_sweep_table(out)
+    assert table.column_names == first.column_names
+    assert table["detail"].to_pylist() == [None] * 4 + first["detail"].to_pylist()[4:]
+    assert _same_results(table.drop_columns(["detail"]), first.drop_columns(["detail"]))
+    assert "| thesis | no_spot | 2 | (not kept: written by a spotnav without the detail column) |" in (
+        write_sweep_report(out)
+    )
+
+
 def test_the_report_summarises_each_design_point_and_plots_both_curves(tmp_path: Path) -> None:
     text = TINY.replace("samples = 2", "samples = 1").replace("light.power_w = [0.5, 1.5]", "")
     text = text.replace("[random]", "[random]\n").replace("[grid]", "[grid]\nlight.power_w = [0.3, 1.0]")
@@ -214,7 +273,7 @@ def test_the_report_summarises_each_design_point_and_plots_both_curves(tmp_path:
     assert list(curves["1 beam, precise"][0]) == [8.0, 10.0]
     assert np.all(curves["1 beam, precise"][1] < curves["1 beam, thesis"][1])  # the precise method is better
     text = write_sweep_report(tmp_path)
-    assert "| 8 | 0.3 | helix | precise | 3 |" in text
+    assert "| 8 | 0.3 | helix | precise | 3 |" in text and "| availability | refused | mean_mm |" in text
     for name in ("error_vs_cone_angle.png", "error_vs_power.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / name).stat().st_size > 20000
     assert "](error_vs_power.png)" in text

@@ -12,6 +12,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Patch
 
 from spotnav.app.status_style import status_style
 from spotnav.pose.estimate import STATUSES
@@ -188,24 +189,53 @@ def plot_track_by_status(
 
 
 def plot_error_against(
-    path: Path, curves: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]], xlabel: str, title: str, *, log_x: bool
+    path: Path,
+    curves: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+    availability: Mapping[str, tuple[np.ndarray, Mapping[str, np.ndarray]]],
+    xlabel: str,
+    title: str,
+    *,
+    log_x: bool,
 ) -> None:
-    """Mean (solid) and max (dotted) tip error against one parameter, one colour per curve.
+    """Mean (solid) and max (dotted) tip error against one parameter, one colour per curve; below it, one panel per
+    curve of the frames' statuses against the parameter (stacked bars: ``ok`` at the bottom, then each refusal in its
+    status's colour, one bar per value of the parameter), so that a curve with few or no ``ok`` frames is seen beside
+    its error.
 
     Parameters
     ----------
     curves : mapping of label to (x, mean_mm, max_mm), each shape (N,)
+    availability : mapping of label to (x, mapping of status to the fraction of frames with it), shapes (M,)
     log_x : bool
-        Logarithmic x axis (for power).
+        Logarithmic x axis of the error (for power).
     """
-    with _figure(path, 1, 1, (9.5, 4.5), title) as axes:
-        ax = axes[0, 0]
+    panels = max(len(availability), 1)
+    with _figure(path, 2, panels, (max(9.5, 3.4 * panels), 8.5), title, height_ratios=(3, 2)) as axes:
+        figure, grid = axes[0, 0].figure, axes[0, 0].get_gridspec()
+        for ax in axes[0]:
+            ax.remove()
+        ax = figure.add_subplot(grid[0, :])
         for number, (label, (x, mean, worst)) in enumerate(curves.items()):
             ax.plot(x, mean, "o-", color=f"C{number}", label=f"{label}, mean")
             ax.plot(x, worst, "v:", color=f"C{number}", label=f"{label}, max")
-        ax.set(xlabel=xlabel, ylabel="tip error [mm]", yscale="log", xscale="log" if log_x else "linear")
+        ax.set(xlabel=xlabel, ylabel="tip error of ok frames [mm]", yscale="log", xscale="log" if log_x else "linear")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        shown: dict[str, Patch] = {}
+        for ax, (label, (x, fractions)) in zip(axes[1], availability.items(), strict=False):
+            bottom, place = np.zeros(len(x)), np.arange(len(x))  # one bar per value: a design point's, or pooled
+            for status in [s for s in STATUSES if s in fractions] + [s for s in fractions if s not in STATUSES]:
+                style = status_style(status)
+                ax.bar(place, fractions[status], 0.7, bottom, color=style.colour)
+                shown.setdefault(status, Patch(color=style.colour, label=status))
+                bottom += fractions[status]
+            step = -(-len(x) // 8)  # at most 8 labels
+            ax.set_xticks(place[::step], [f"{v:.3g}" for v in x[::step]])
+            ax.set(xlabel=xlabel, ylim=(0, 1))
+            ax.set_title(label, fontsize="small")
+        axes[1, 0].set_ylabel("fraction of frames")
+        legend = {"fontsize": "x-small", "loc": "upper left", "bbox_to_anchor": (1.01, 1.0), "title": "status"}
+        axes[1, -1].legend(handles=list(shown.values()), **legend)
 
 
 def plot_fault_study(

@@ -26,7 +26,15 @@ import numpy as np
 
 from spotnav.app.progress import progress
 from spotnav.errors import SpotnavError
-from spotnav.experiments.cluster import Result, Task, TaskRunner, check_cluster_options, seed_of, task_runner
+from spotnav.experiments.cluster import (
+    Result,
+    Task,
+    TaskRunner,
+    Workers,
+    check_cluster_options,
+    seed_of,
+    task_runner,
+)
 from spotnav.experiments.design_file import DesignSearch, candidate_points, design_from_toml, reference_points
 from spotnav.experiments.scenes import with_true_edge
 from spotnav.experiments.sweep_file import apply_parameters
@@ -274,8 +282,8 @@ class DesignRun:
         By candidate index: the best ``verify.designs`` search designs and the thesis's.
     search_s, verify_s, wall_s : float
         Seconds: the bounds' phase, the verification's and the whole run (the cluster's start included).
-    workers : int
-        Dask workers (0 in this process).
+    workers, threads : int
+        Dask workers (0 in this process) and their threads in all.
     directory : Path
     """
 
@@ -287,7 +295,13 @@ class DesignRun:
     verify_s: float
     wall_s: float
     workers: int
+    threads: int
     directory: Path
+
+    @property
+    def where(self) -> str:
+        """Where the tasks ran: ``in this process``, ``on 1 Dask worker (2 threads)``."""
+        return Workers(self.workers, self.threads).where()
 
     @property
     def best(self) -> DesignResult | None:
@@ -301,11 +315,10 @@ class DesignRun:
 
     def summary(self) -> str:
         """A few lines: what ran where, the best design and the thesis's, each bound beside its simulated error."""
-        where = "in this process" if self.workers == 0 else f"on {self.workers} Dask workers"
         feasible = sum(r.feasible for r in self.results if not r.candidate.reference)
         lines = [
             f"wrote {self.directory / 'report.md'}: {len(self.results) - len(self.references)} candidates, "
-            f"{feasible} feasible, in {self.wall_s:.1f} s {where} (bounds {self.search_s:.1f} s, "
+            f"{feasible} feasible, in {self.wall_s:.1f} s {self.where} (bounds {self.search_s:.1f} s, "
             f"verification {self.verify_s:.1f} s)"
         ]
         best = self.best
@@ -364,6 +377,7 @@ def run_design(
     workers: int | None = None,
     dashboard: str | None = None,
     log: Callable[[str], None] = print,
+    scheduler_timeout_s: float | None = None,
 ) -> DesignRun:
     """Search a design file's space, verify its best designs and write the report into ``directory``.
 
@@ -378,6 +392,8 @@ def run_design(
         Where the design file's relative paths start.
     scheduler, workers, dashboard, log
         As :func:`spotnav.experiments.cluster.task_runner` takes them.
+    scheduler_timeout_s : float, optional
+        :func:`~spotnav.experiments.cluster.task_runner`'s ``timeout_s``.
 
     Raises
     ------
@@ -386,7 +402,7 @@ def run_design(
     """
     from spotnav.experiments.design_report import write_design_report
 
-    check_cluster_options(scheduler, workers, dashboard)
+    check_cluster_options(scheduler, workers, dashboard, scheduler_timeout_s)
     search = design_from_toml(text, base_dir)
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
@@ -395,7 +411,7 @@ def run_design(
     (directory / "design.toml").write_text(text, encoding="utf-8")
     start = time.perf_counter()
     candidates = plan_candidates(search)
-    with task_runner(scheduler, workers, dashboard, log) as (run, used):
+    with task_runner(scheduler, workers, dashboard, log, scheduler_timeout_s) as (run, used):
         found, search_s = _run_phase(run, partial(evaluate_candidate, search), candidates, "design")
         results = tuple(found)
         ranked = tuple(sorted((r for r in results if r.feasible), key=lambda r: r.objective_mm))
@@ -404,7 +420,9 @@ def run_design(
         checked, verify_s = _run_phase(run, partial(verify_design, search), chosen, "verify")
     verifications = {v.index: v for v in checked}
     wall_s = time.perf_counter() - start
-    design_run = DesignRun(search, results, ranked, verifications, search_s, verify_s, wall_s, used, directory)
+    design_run = DesignRun(
+        search, results, ranked, verifications, search_s, verify_s, wall_s, used.processes, used.threads, directory
+    )
     write_design_report(directory, design_run)
     return design_run
 

@@ -186,7 +186,6 @@ def write_design_report(directory: Path | str, run: DesignRun) -> str:
         table[-1] += verified_cells
     statuses = [r.status for r in run.results if not r.candidate.reference]
     broken = ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses) if s != "feasible") or "none"
-    where = "in this process" if run.workers == 0 else f"on {run.workers} Dask workers"
     limits = search.constraints
     workspace = search.workspace
     box = f" {list(workspace.min_mm)} to {list(workspace.max_mm)} mm" if workspace.kind == "box" else ""
@@ -199,7 +198,7 @@ def write_design_report(directory: Path | str, run: DesignRun) -> str:
         f"spots on the fundus and in the image: {'required' if limits.on_fundus else 'not required'}. "
         f"Infeasible: {broken}.",
         "",
-        f"Run: {run.wall_s:.1f} s {where} (bounds {run.search_s:.1f} s, verification {run.verify_s:.1f} s).",
+        f"Run: {run.wall_s:.1f} s {run.where} (bounds {run.search_s:.1f} s, verification {run.verify_s:.1f} s).",
         "",
         f"Verified: the first {search.verify_poses} workspace poses rendered and localized; the model fit (the "
         "efficient estimator, knowing the world) should come within "

@@ -32,7 +32,7 @@ import pyarrow.parquet as pq
 
 from spotnav.app.paths import path_poses
 from spotnav.app.progress import progress
-from spotnav.experiments.cluster import check_cluster_options, seed_of, task_runner
+from spotnav.experiments.cluster import Workers, check_cluster_options, seed_of, task_runner
 from spotnav.experiments.frame import run_timed_frame
 from spotnav.experiments.scenes import with_true_edge
 from spotnav.experiments.sweep_file import (
@@ -142,7 +142,7 @@ def run_chunk(sweep: Sweep, chunk: Chunk) -> list[dict[str, Any]]:
             axis = estimate.axis if estimate.axis is not None else np.full(3, np.nan)
             rows.append(
                 {"chunk": chunk.index, "point": chunk.point, **parameters, "path": chunk.path, "frame": frame}
-                | {"method": method, "status": estimate.status}
+                | {"method": method, "status": estimate.status, "detail": estimate.detail}
                 | _pose_columns("", truth.tip_in_eye, truth.axis)
                 | _pose_columns("est_", tip, axis)
                 | {
@@ -163,8 +163,24 @@ def _write_chunk(directory: Path, chunk: Chunk, rows: list[dict[str, Any]]) -> N
     os.replace(partial, directory / chunk.name)
 
 
+def _with_detail(table: pa.Table) -> pa.Table:
+    """Rows written before the ``detail`` column (by an older spotnav) with it beside ``status``, null: not kept."""
+    if "detail" in table.column_names:
+        return table
+    return table.add_column(table.column_names.index("status") + 1, "detail", pa.nulls(table.num_rows, pa.string()))
+
+
+def _read_chunks(files: list[Path]) -> tuple[pa.Table, int]:
+    """Chunk files joined in order, and how many of them had no ``detail`` column (:func:`_with_detail`)."""
+    tables = [pq.read_table(f) for f in files]
+    older = sum("detail" not in t.column_names for t in tables)
+    return pa.concat_tables([_with_detail(t) for t in tables]), older
+
+
 def read_sweep_table(directory: Path | str) -> pa.Table:
     """A sweep's rows: ``frames.parquet``, or the chunks written so far if the sweep did not finish.
+
+    Rows from before the ``detail`` column have it null.
 
     Raises
     ------
@@ -173,11 +189,11 @@ def read_sweep_table(directory: Path | str) -> pa.Table:
     """
     directory = Path(directory)
     if (directory / _TABLE).is_file():
-        return pq.read_table(directory / _TABLE)
+        return _with_detail(pq.read_table(directory / _TABLE))
     files = sorted((directory / _CHUNKS).glob("chunk-*.parquet"))
     if not files:
         raise SweepError(f"{directory} holds no sweep results ({_TABLE} or {_CHUNKS}/)")
-    return pa.concat_tables([pq.read_table(f) for f in files])
+    return _read_chunks(files)[0]
 
 
 @dataclass(frozen=True)
@@ -194,8 +210,8 @@ class SweepRun:
         Chunks computed in this run, and finished chunks found from an earlier run.
     wall_s : float
         Wall time of this run, seconds.
-    workers : int
-        Dask workers (0 in this process).
+    workers, threads : int
+        Dask workers (0 in this process) and their threads in all.
     table : Path
     """
 
@@ -205,11 +221,12 @@ class SweepRun:
     chunks_resumed: int
     wall_s: float
     workers: int
+    threads: int
     table: Path
 
     def summary(self) -> str:
         """What ``spotnav sweep`` prints of the run."""
-        where = "in this process" if self.workers == 0 else f"on {self.workers} Dask workers"
+        where = Workers(self.workers, self.threads).where()
         resumed = f" ({self.chunks_resumed} chunks done before)" if self.chunks_resumed else ""
         rate = self.frames_run / self.wall_s if self.wall_s > 0 else 0.0
         return (
@@ -242,6 +259,7 @@ def run_sweep(
     on_chunk: Callable[[Chunk], None] | None = None,
     dashboard: str | None = None,
     log: Callable[[str], None] = print,
+    scheduler_timeout_s: float | None = None,
 ) -> SweepRun:
     """Run a sweep file's frames and write ``directory/frames.parquet``.
 
@@ -267,9 +285,20 @@ def run_sweep(
         ``:0`` picks a free port); its link goes to ``log``. With
         ``scheduler``, the scheduler's own dashboard link is logged.
     log : callable
-        Receives the dashboard's link.
+        Receives the dashboard's link, a line for each Dask worker lost mid-run, and one for resumed chunks
+        written before the ``detail`` column.
+    scheduler_timeout_s : float, optional
+        How long the scheduler may take to answer, to have a worker, and to get one back when all have left
+        (:func:`spotnav.experiments.cluster.task_runner`'s ``timeout_s``).
+
+    Raises
+    ------
+    SweepError
+        A bad sweep file, or a folder that holds another sweep (or one without ``resume``).
+    spotnav.experiments.cluster.ClusterError
+        Cluster options that cannot be used, or a cluster that fails (said in one line).
     """
-    check_cluster_options(scheduler, workers, dashboard)
+    check_cluster_options(scheduler, workers, dashboard, scheduler_timeout_s)
     sweep = sweep_from_toml(text, base_dir)
     directory = Path(directory)
     finished = _prepare(directory, text, resume)
@@ -285,16 +314,19 @@ def run_sweep(
             on_chunk(chunk)
 
     try:
-        with task_runner(scheduler, workers, dashboard, log) as (run, used):
+        with task_runner(scheduler, workers, dashboard, log, scheduler_timeout_s) as (run, used):
             run(partial(run_chunk, sweep), todo, done, "sweep")
     finally:
         bar.close()
-    table = pa.concat_tables([pq.read_table(directory / _CHUNKS / c.name) for c in chunks])
+    table, older = _read_chunks([directory / _CHUNKS / c.name for c in chunks])
+    if older:
+        log(f"{older} chunks were written by an older spotnav, without the detail column: theirs is left empty (null)")
     pq.write_table(table, directory / _TABLE)
     frames = sum(c.stop - c.start for c in chunks)
     wall_s = time.perf_counter() - start
     frames_run = sum(c.stop - c.start for c in todo)
-    return SweepRun(frames, frames_run, len(todo), len(chunks) - len(todo), wall_s, used, directory / _TABLE)
+    resumed = len(chunks) - len(todo)
+    return SweepRun(frames, frames_run, len(todo), resumed, wall_s, used.processes, used.threads, directory / _TABLE)
 
 
 EXAMPLE_SWEEP = """\

@@ -1,15 +1,18 @@
-"""Summarise a sweep: error per design point, and a plot of the error against each parameter it swept."""
+"""Summarise a sweep: error and statuses per design point, and a plot of the error and the frames' statuses
+against each parameter it swept."""
 
 from __future__ import annotations
 
 import csv
-from collections.abc import Sequence
+from collections import Counter
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 
 from spotnav.app.figures import plot_error_against
+from spotnav.app.status_style import status_counts
 from spotnav.experiments.report import markdown_table
 from spotnav.experiments.sweep import read_sweep_table
 from spotnav.experiments.sweep_file import SWEEP_PARAMETERS
@@ -17,14 +20,16 @@ from spotnav.experiments.sweep_file import SWEEP_PARAMETERS
 __all__ = [
     "PARAMETER_LABELS",
     "SUMMARY_COLUMNS",
+    "availability_curves",
     "error_curves",
     "plot_name",
+    "refusal_rows",
     "summary_rows",
     "varied_parameters",
     "write_sweep_report",
 ]
 
-SUMMARY_COLUMNS = ("frames", "ok", "availability", "mean_mm", "max_mm", "localize_ms")
+SUMMARY_COLUMNS = ("frames", "ok", "availability", "refused", "mean_mm", "max_mm", "localize_ms")
 _BEAMS = "instrument.beam_count"  # one curve per beam count: never an x axis
 # Axis labels and file names of the parameters; any other is named by its key.
 PARAMETER_LABELS = {
@@ -39,6 +44,7 @@ PARAMETER_LABELS = {
     "eye.radius_mm": ("assumed eye radius [mm]", "eye_radius"),
     "world.eye_radius_mm": ("true eye radius [mm]", "true_eye_radius"),
 }
+_NOT_KEPT = "(not kept: written by a spotnav without the detail column)"
 _LOG_RANGE = 20.0  # positive values spanning more than this factor are plotted on a log axis
 
 
@@ -46,11 +52,15 @@ def _columns(table: pa.Table, names: Sequence[str]) -> list[np.ndarray]:
     return [table[name].to_numpy(zero_copy_only=False) for name in names]
 
 
-def _statistics(errors: np.ndarray, statuses: np.ndarray, localize_ms: np.ndarray) -> list[float]:
-    """``SUMMARY_COLUMNS`` over a group of rows; error statistics over its ``ok`` rows (NaN without any)."""
+def _statistics(errors: np.ndarray, statuses: np.ndarray, localize_ms: np.ndarray) -> list[object]:
+    """``SUMMARY_COLUMNS`` over a group of rows; error statistics over its ``ok`` rows (NaN without any).
+
+    ``refused`` counts the other statuses (``"2 mismatch, 1 no_spot"``, ``none``).
+    """
     ok = statuses == "ok"
     mean, worst = (float(f(errors[ok])) if ok.any() else float("nan") for f in (np.mean, np.max))
-    return [len(errors), int(ok.sum()), float(ok.mean()), mean, worst, float(np.median(localize_ms))]
+    refused = status_counts(Counter(statuses[~ok].tolist()), "none")
+    return [len(errors), int(ok.sum()), float(ok.mean()), refused, mean, worst, float(np.median(localize_ms))]
 
 
 def varied_parameters(table: pa.Table) -> list[str]:
@@ -74,23 +84,58 @@ def summary_rows(table: pa.Table) -> tuple[list[str], list[list[object]]]:
     return [*varied, "path", "method", *SUMMARY_COLUMNS], rows
 
 
+def _curves(table: pa.Table, x_name: str) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+    """Per beam count and method, in the table's order: its label (``"3 beams, precise"``), the values of
+    ``x_name`` and which rows are its."""
+    x, beams, methods = _columns(table, [x_name, _BEAMS, "method"])
+    for beam_count, method in dict.fromkeys(zip(beams, methods, strict=True)):
+        label = f"{int(beam_count)} beam{'s' if beam_count > 1 else ''}, {method}"
+        yield label, x, (beams == beam_count) & (methods == method)
+
+
 def error_curves(table: pa.Table, x_name: str) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Mean and max error of the ``ok`` rows against parameter ``x_name``, per beam count and method.
 
-    Rows that differ in other parameters are pooled. Returns label -> (x, mean_mm, max_mm).
+    Rows that differ in other parameters are pooled. Returns label -> (x, mean_mm, max_mm); a curve without
+    ``ok`` rows is left out (:func:`availability_curves` shows it).
     """
-    x, beams, methods, statuses, errors = _columns(table, [x_name, _BEAMS, "method", "status", "error_mm"])
-    ok = statuses == "ok"
+    statuses, errors = _columns(table, ["status", "error_mm"])
     curves = {}
-    for beam_count, method in dict.fromkeys(zip(beams, methods, strict=True)):
-        chosen = ok & (beams == beam_count) & (methods == method)
+    for label, x, rows in _curves(table, x_name):
+        chosen = rows & (statuses == "ok")
         values = np.unique(x[chosen])
         if len(values):
-            label = f"{int(beam_count)} beam{'s' if beam_count > 1 else ''}, {method}"
             mean = np.array([errors[chosen & (x == v)].mean() for v in values])
             worst = np.array([errors[chosen & (x == v)].max() for v in values])
             curves[label] = (values, mean, worst)
     return curves
+
+
+def availability_curves(table: pa.Table, x_name: str) -> dict[str, tuple[np.ndarray, dict[str, np.ndarray]]]:
+    """The fraction of frames with each status against parameter ``x_name``, per beam count and method.
+
+    Rows that differ in other parameters are pooled. Returns label -> (x, status -> fraction, each shape of x);
+    the fractions at each x sum to 1.
+    """
+    (statuses,) = _columns(table, ["status"])
+    curves = {}
+    for label, x, rows in _curves(table, x_name):
+        values = np.unique(x[rows])
+        counts = {s: np.array([np.sum(rows & (x == v) & (statuses == s)) for v in values]) for s in set(statuses[rows])}
+        frames = sum(counts.values())
+        curves[label] = (values, {s: n / frames for s, n in sorted(counts.items())})
+    return curves
+
+
+def refusal_rows(table: pa.Table) -> list[list[object]]:
+    """Per method and refusal status: its frames and its commonest ``detail`` (first line; a word if not kept)."""
+    methods, statuses, details = _columns(table, ["method", "status", "detail"])
+    rows: list[list[object]] = []
+    for method, status in sorted(set(zip(methods, statuses, strict=True)) - {(m, "ok") for m in set(methods)}):
+        chosen = (methods == method) & (statuses == status)
+        common = Counter(_NOT_KEPT if d is None else d.split("\n")[0] for d in details[chosen]).most_common(1)[0][0]
+        rows.append([method, status, int(chosen.sum()), common.replace("|", "/")])
+    return rows
 
 
 def write_sweep_report(directory: Path | str) -> str:
@@ -98,7 +143,10 @@ def write_sweep_report(directory: Path | str) -> str:
 
     The plots are ``error_vs_<name>.png`` (:func:`plot_name`), against every
     parameter that took more than one value but the beam count (one curve per
-    beam count and method). Returns the summary's Markdown.
+    beam count and method), each with the frames' statuses beneath
+    (:func:`availability_curves`). The summary counts the statuses per design
+    point, path and method, and lists each refusal's commonest detail
+    (:func:`refusal_rows`). Returns the summary's Markdown.
 
     Raises
     ------
@@ -117,16 +165,33 @@ def write_sweep_report(directory: Path | str) -> str:
         xlabel, _ = PARAMETER_LABELS.get(column, (column, ""))
         values = table[column].to_numpy().astype(float)
         log_x = bool(values.min() > 0 and values.max() > _LOG_RANGE * values.min())
-        title = f"Tip error against {xlabel.split(' [')[0]} (ok frames; other parameters pooled)"
-        plot_error_against(directory / plot_name(column), error_curves(table, column), xlabel, title, log_x=log_x)
-        figures += [f"![error against {xlabel.split(' [')[0]}]({plot_name(column)})", ""]
+        name = xlabel.split(" [")[0]
+        title = f"Tip error (ok frames) and the frames' statuses against {name} (other parameters pooled)"
+        curves, available = error_curves(table, column), availability_curves(table, column)
+        plot_error_against(directory / plot_name(column), curves, available, xlabel, title, log_x=log_x)
+        figures += [f"![error and statuses against {name}]({plot_name(column)})", ""]
     statuses = table["status"].to_numpy(zero_copy_only=False)
+    refusals = refusal_rows(table)
     text = "\n".join(
         [
             f"# Sweep: {table.num_rows} localizations, {int(np.sum(statuses == 'ok'))} ok",
             "",
+            f"Statuses: {status_counts(Counter(statuses.tolist()), 'none')}. Mean and max error over the ok frames.",
+            "",
             *markdown_table(header, [[_format(v) for v in row] for row in rows]),
             "",
+            *(
+                [
+                    "## Refusals",
+                    "",
+                    *markdown_table(
+                        ["method", "status", "frames", "commonest detail"], [[_format(v) for v in r] for r in refusals]
+                    ),
+                    "",
+                ]
+                if refusals
+                else []
+            ),
             *(figures or ["No parameter took more than one value: nothing to plot against.", ""]),
         ]
     )
