@@ -416,7 +416,9 @@ def judge_fit(
     which widens ``sigma_mm``. Then ``uncalibrated`` when the setup's stated
     geometry uncertainty takes the tip's uncertainty over
     :data:`MAX_SIGMA_MM` (a geometry that uncertain may also cause any other
-    problem, which the detail adds); ``mismatch`` where the widening does;
+    problem, which the detail adds); ``mismatch`` where the widening does for
+    three beams (one beam's excess this small the fundus under its edge may
+    cause as well: ``unreliable``, and the detail says both);
     else ``unreliable`` when the fit fails a
     consistency check (too few inliers, a residual too large in both degrees
     and pixels, its own tip uncertainty over that limit, a tip outside the
@@ -472,8 +474,14 @@ def judge_fit(
             problems.append(f"edge RMS {fit_ratio:.1f} times what the noise explains")
         return PoseEstimate("uncalibrated", detail="; ".join([_geometry_blame(solution, sigma), *problems]), **common)
     if FIT_RATIO_EXPLAINED < fit_ratio and sigma > MAX_SIGMA_MM >= stated and not structural:  # the misfit did
-        why = f"{_mismatch(solution, setup, rms_rad, noise_rad)}; it leaves the tip uncertain by {sigma:.3f} mm"
-        return PoseEstimate("mismatch", detail=why, **common)
+        if setup.instrument.beam_count > 1:  # three beams' edges bend alike where the light is not the setup's
+            why = f"{_mismatch(solution, setup, rms_rad, noise_rad)}; it leaves the tip uncertain by {sigma:.3f} mm"
+            return PoseEstimate("mismatch", detail=why, **common)
+        # One beam's excess under MAX_FIT_RATIO does not say which: the fundus under its edge bends it as well.
+        problems.append(
+            f"edge RMS {fit_ratio:.1f} times what the noise explains, which leaves the tip uncertain by {sigma:.3f} "
+            "mm: the fundus under the edge (spotnav show), or a setup unlike this frame (spotnav calibrate)"
+        )
     if problems:
         return PoseEstimate("unreliable", detail="; ".join(problems), **common)
     return PoseEstimate(
