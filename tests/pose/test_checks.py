@@ -7,13 +7,15 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
+from spotnav.experiments.scenes import with_true_edge
 from spotnav.image.rays import SpotEdge
 from spotnav.optics.camera import camera_depth_mm
 from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
 from spotnav.pose.checks import FIT_RATIO_EXPLAINED, MAX_FIT_RATIO, _depth_of, _fit_spread, blur_shift_px, residuals_px
 from spotnav.pose.localize import localize
-from spotnav.setup.config import Setup
+from spotnav.setup.config import Setup, setup_from_toml
+from spotnav.setup.examples import EXAMPLE_SETUP
 from spotnav.setup.geometry import InstrumentPose, edge_angle_of_blend
 
 
@@ -129,3 +131,75 @@ def test_three_beams_wider_than_the_setup_says_are_refused_as_a_mismatch_that_na
     right = localize(Renderer(setup).render(pose, seed=3), setup, "precise")
     assert right.ok and right.fit_ratio < FIT_RATIO_EXPLAINED
     assert np.linalg.norm(right.pose()[0] - pose.tip_in_eye) < 3 * right.sigma_mm
+
+
+def _six_degrees(texture: str = "retina") -> tuple[Setup, Setup]:
+    """512 px, one 6 deg beam, 1 W, Blender's blend (the sweep's smallest design point): the world and the setup that
+    knows it exactly (its edge model the world's)."""
+    world = small_setup(512, blend=0.15, texture=texture)
+    world = replace(world, instrument=replace(world.instrument, beam_half_angle_deg=6.0))
+    edge = np.degrees(edge_angle_of_blend(world.instrument.beam_half_angle, 0.15))
+    return world, replace(world, instrument=replace(world.instrument, edge_half_angle_deg=edge))
+
+
+# Spots 0.25-0.3 mm across on the retina, 8-11 px in radius: vessels under their edge bent it by harmonics the fit
+# test took for a misfit (fit_ratio 2.8-3.2 at (2, 0, 3), refused ``mismatch``: calibrate the geometry).
+_SMALL_SPOT_TIPS = [(2.0, 0.0, 3.0), (2.0, 0.0, 2.5), (1.0, 1.0, 2.5), (-1.0, -1.7, 3.0)]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_an_exact_world_s_small_spots_are_not_a_mismatch(seed: int) -> None:
+    """The world the setup says, spots 8-11 px in radius: never ``mismatch``; the residuals are what the noise (the
+    fundus's bends among it) explains; on a flat fundus as before, the noise alone."""
+    world, setup = _six_degrees()
+    flat_world, flat_setup = _six_degrees("flat")
+    for tip in _SMALL_SPOT_TIPS:
+        pose = InstrumentPose.through_insertion(np.array(tip), setup.instrument.insertion_in_eye)
+        estimate = localize(Renderer(world).render(pose, seed=seed), setup, "precise")
+        assert estimate.status != "mismatch", (tip, estimate)
+        assert estimate.fit_ratio < FIT_RATIO_EXPLAINED, (tip, estimate)
+        flat = localize(Renderer(flat_world).render(pose, seed=seed), flat_setup, "precise")
+        assert flat.ok and flat.fit_ratio == pytest.approx(1.0, abs=0.2), (tip, flat)
+        assert np.linalg.norm(flat.pose()[0] - pose.tip_in_eye) < 3 * flat.sigma_mm
+
+
+def test_one_beam_s_excess_that_widens_sigma_too_far_is_unreliable_and_says_both_causes() -> None:
+    """One beam, residuals 1.6 times their noise from the vessels under a 0.6 mm spot's edge in an exact world: the
+    widened sigma (0.040 mm) refuses it, as ``unreliable`` that names the fundus and the setup, not a ``mismatch``
+    that tells the user to calibrate a geometry that is exact (the sweep's frame that did)."""
+    world, setup = _six_degrees()
+    pose = InstrumentPose.through_insertion(np.array([2.0, 0.0, 6.0]), setup.instrument.insertion_in_eye)
+    estimate = localize(Renderer(world).render(pose, seed=2529356301), setup, "precise")
+    assert estimate.status == "unreliable", estimate
+    assert FIT_RATIO_EXPLAINED < estimate.fit_ratio < MAX_FIT_RATIO
+    assert "the fundus under the edge" in estimate.detail and "spotnav calibrate" in estimate.detail
+
+
+def _first_try_frame_3(texture: str) -> tuple[float, float]:
+    """The README's first try's helix frame 3 (its tip, noise seed 3) at 512 px, read by the setup that knows the world
+    exactly: the tip's error and ``sigma_mm``, mm."""
+    world = setup_from_toml(EXAMPLE_SETUP.replace("_px = 5000", "_px = 512"))
+    world = replace(world, render=replace(world.render, texture=texture))
+    tip = np.array([1.651774, 1.205726, 3.181965])
+    pose = InstrumentPose.through_insertion(tip, world.instrument.insertion_in_eye)
+    estimate = localize(Renderer(world).render(pose, seed=3), with_true_edge(world), "precise")
+    assert estimate.ok, estimate
+    return float(np.linalg.norm(estimate.pose()[0] - tip)), estimate.sigma_mm
+
+
+def test_the_first_try_s_frame_3_is_exact_on_a_flat_fundus() -> None:
+    """Not the prediction, the calibration or an acquisition: on a flat fundus the frame's tip is within 0.001 mm and
+    3 sigma."""
+    error, sigma = _first_try_frame_3("flat")
+    assert error < 0.001 and error < 3 * sigma
+
+
+# Known gap (issue 61, for issue 65): two vessels cross this spot (0.5 mm on the retina, 19 px in radius) near its
+# edge and read it 0.6 px inside on average (RMS 0.73 px about the true cone, 0.02 px on a flat fundus): the tip is
+# 0.096 mm low at 4.4 sigma_mm. The fit's covariance sees the scatter (lag-1 correlation 0.82) but not a whole-edge
+# shift that large; tracked, the frame is 2.3 sigma along the covariance's major axis (the height), and sigma_mm, a
+# third of the trace, is 1/sqrt(3) of that where one direction holds 94-99.9 % of it.
+@pytest.mark.xfail(strict=True, reason="vessels under a small spot's edge shift it as a whole by more than sigma says")
+def test_the_first_try_s_frame_3_is_within_3_sigma_on_the_retina() -> None:
+    error, sigma = _first_try_frame_3("retina")
+    assert error < 3 * sigma
