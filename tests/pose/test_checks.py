@@ -13,6 +13,7 @@ from spotnav.optics.camera import camera_depth_mm
 from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
 from spotnav.pose.checks import FIT_RATIO_EXPLAINED, MAX_FIT_RATIO, _depth_of, _fit_spread, blur_shift_px, residuals_px
+from spotnav.pose.estimate import within_sigmas
 from spotnav.pose.localize import localize
 from spotnav.setup.config import Setup, setup_from_toml
 from spotnav.setup.examples import EXAMPLE_SETUP
@@ -194,12 +195,12 @@ def test_the_first_try_s_frame_3_is_exact_on_a_flat_fundus() -> None:
     assert error < 0.001 and error < 3 * sigma
 
 
-# Known gap (issue 61, for issue 65): two vessels cross this spot (0.5 mm on the retina, 19 px in radius) near its
-# edge and read it 0.6 px inside on average (RMS 0.73 px about the true cone, 0.02 px on a flat fundus): the tip is
-# 0.096 mm low at 4.4 sigma_mm. The fit's covariance sees the scatter (lag-1 correlation 0.82) but not a whole-edge
-# shift that large; tracked, the frame is 2.3 sigma along the covariance's major axis (the height), and sigma_mm, a
-# third of the trace, is 1/sqrt(3) of that where one direction holds 94-99.9 % of it.
-@pytest.mark.xfail(strict=True, reason="vessels under a small spot's edge shift it as a whole by more than sigma says")
+# Issue 61: two vessels cross this spot (0.5 mm on the retina, 19 px in radius) near its edge and read it 0.6 px inside
+# on average (RMS 0.73 px about the true cone, 0.02 px on a flat fundus): the tip is 0.096 mm low. The fit's
+# covariance sees the scatter (sigma_mm 0.028 against 0.008 for its neighbours; lag-1 correlation 0.82), and the
+# error lies along its major axis (the height, 94-99.9 % of the trace): 4.4 sigma_mm, a per-axis sigma, but 2.5 of
+# the 3-D standard error that a 3-D distance is measured against (evaluate's, before issue 61, was the per-axis one).
+# A model of the vessels' whole-edge shift is issue 65's.
 def test_the_first_try_s_frame_3_is_within_3_sigma_on_the_retina() -> None:
     error, sigma = _first_try_frame_3("retina")
-    assert error < 3 * sigma
+    assert within_sigmas(error, sigma) and not error < 3 * sigma, (error, sigma)

@@ -21,6 +21,7 @@ import numpy as np
 from spotnav.app.figures import plot_errors_by_status, plot_track_by_status
 from spotnav.errors import InputError
 from spotnav.files.poses import KnownPose, PoseRow
+from spotnav.pose.estimate import within_sigmas
 
 __all__ = ["Evaluation", "FrameEvaluation", "evaluate_poses", "evaluation_text", "write_evaluation"]
 
@@ -74,7 +75,8 @@ class Evaluation:
     axis_mean_deg, axis_max_deg : float
         Axis angle error, degrees.
     within_3_sigma : float
-        Fraction of the ``ok`` frames with a ``sigma_mm`` whose error is within 3 of it (NaN without any).
+        Fraction of the ``ok`` frames with a ``sigma_mm`` whose 3-D error is within 3 of its 3-D standard error
+        (:func:`spotnav.pose.estimate.within_sigmas`; NaN without any).
     unposed : int
         Truth rows without a pose row (a run stopped early), left out.
     """
@@ -147,6 +149,7 @@ def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Eval
             return float("nan")
         return float(np.percentile(values, 95)) if pick == "p95" else float(getattr(np, pick)(values))
 
+    sigmaed = [f for f in ok if np.isfinite(f.sigma_mm)]
     return Evaluation(
         frames=tuple(frames),
         counts=dict(Counter(f.status for f in frames).most_common()),
@@ -157,7 +160,7 @@ def evaluate_poses(poses: Sequence[PoseRow], truth: Sequence[KnownPose]) -> Eval
         bias_mm=np.mean([f.error_xyz_mm for f in ok], axis=0) if ok else np.full(3, np.nan),
         axis_mean_deg=stat(angles, "mean"),
         axis_max_deg=stat(angles, "max"),
-        within_3_sigma=stat(np.array([f.error_mm <= 3 * f.sigma_mm for f in ok if np.isfinite(f.sigma_mm)]), "mean"),
+        within_3_sigma=stat(within_sigmas([f.error_mm for f in sigmaed], [f.sigma_mm for f in sigmaed]), "mean"),
         unposed=len(missing_pose),
     )
 
@@ -178,7 +181,10 @@ def evaluation_text(evaluation: Evaluation) -> str:
             f"axis error [deg]: mean {evaluation.axis_mean_deg:.3f}, max {evaluation.axis_max_deg:.3f}",
         ]
     if np.isfinite(evaluation.within_3_sigma):
-        lines.append(f"within 3 sigma_mm: {100 * evaluation.within_3_sigma:.0f} % of the ok frames")
+        lines.append(
+            f"within 3 sigma: {100 * evaluation.within_3_sigma:.0f} % of the ok frames "
+            "(the 3-D error against 3 sqrt(3) sigma_mm, its 3-D standard error: sigma_mm is per axis)"
+        )
     return "\n".join(lines)
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from spotnav.app.progress import progress
 from spotnav.experiments.frame import localize_timed, render_timed, run_timed_frame
 from spotnav.optics.render import Renderer
-from spotnav.pose.estimate import PoseEstimate
+from spotnav.pose.estimate import PoseEstimate, within_sigmas
 from spotnav.pose.thesis import fit_height_correction
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose, angles_between, axis_rotations
@@ -127,7 +127,8 @@ class ErrorSummary:
     render_ms, localize_ms : float
         Medians.
     within_3_sigma : float
-        Fraction of the ``ok`` frames whose error is within 3 reported sigmas (NaN without sigmas).
+        Fraction of the ``ok`` frames whose 3-D error is within 3 of its 3-D standard error
+        (:func:`spotnav.pose.estimate.within_sigmas`; NaN without sigmas).
     sigma_median_mm : float
         Median reported 1-sigma tip uncertainty (NaN without sigmas).
     """
@@ -164,7 +165,7 @@ def summarize(results: Sequence[FrameResult]) -> ErrorSummary:
         rotation_max_deg=rotations.max(axis=0) if ok.any() else nan3,
         render_ms=float(np.median([r.render_ms for r in results])),
         localize_ms=float(np.median([r.localize_ms for r in results])),
-        within_3_sigma=float(np.mean(errors[with_sigma] <= 3.0 * sigmas[with_sigma])) if with_sigma.any() else nan,
+        within_3_sigma=float(within_sigmas(errors[with_sigma], sigmas[with_sigma]).mean()) if with_sigma.any() else nan,
         sigma_median_mm=float(np.median(sigmas[with_sigma])) if with_sigma.any() else nan,
     )
 
