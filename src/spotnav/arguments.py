@@ -219,6 +219,12 @@ def _bench_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]
     _option(bench, "--hide-every", int, "with --stress, hide the spot every Nth frame (default 8)", default=8)
     _flag(
         bench,
+        "--record",
+        "what track --record costs instead: a helix video's tracked frames' latency, --passes sessions without a "
+        "recording and as many with one, alternating",
+    )
+    _flag(
+        bench,
         "--profile",
         "where the time goes instead: the acquisition (right after the thesis method) and the tracked frames, "
         "function by function, split into compiled kernels, OpenCV and Python",

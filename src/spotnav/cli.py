@@ -197,6 +197,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
     from spotnav.experiments.bench import bench_markdown, run_bench, run_stress, stress_markdown
     from spotnav.experiments.profiling import profile_markdown, run_profile
+    from spotnav.experiments.recording_cost import recording_cost_markdown, run_recording_cost
 
     if any(size < 128 for size in args.sizes):
         raise UsageError(f"--sizes must be at least 128 px, got {' '.join(map(str, args.sizes))}")
@@ -204,9 +205,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     _at_least(1, full_every=args.full_every, passes=args.passes)
     if not (np.isfinite(args.memory_mb) and args.memory_mb >= 0):
         raise UsageError(f"--memory-mb must be a number >= 0, got {args.memory_mb}")
+    if sum((args.profile, args.stress, args.record)) > 1:
+        raise UsageError("--profile, --stress and --record are different runs: give one of them")
+    if args.record:
+        print(recording_cost_markdown(run_recording_cost(args.sizes, args.frames, args.passes, args.beams)))
+        return 0
     if args.profile:
-        if args.stress:
-            raise UsageError("--profile and --stress are two different runs: give one of them")
         print(profile_markdown(run_profile(args.sizes, frames=args.frames, beams=args.beams)))
         return 0
     if args.stress:

@@ -1,9 +1,14 @@
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
-import re
+import os
+import shutil
+import signal
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -93,28 +98,56 @@ def test_a_recording_s_frame_rate_comes_from_its_timestamps_and_iter_frames_repl
     assert recording_fps(tmp_path / "one") is None
 
 
-def test_a_slow_disk_keeps_every_frame_and_says_so_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    write = RecordingWriter._write
+@contextlib.contextmanager
+def stalled(writer: RecordingWriter, seconds: float) -> Iterator[None]:
+    """The writing process stopped (a disk that does not answer) for ``seconds`` from now."""
+    os.kill(writer.process.pid, signal.SIGSTOP)
+    again = threading.Timer(seconds, os.kill, (writer.process.pid, signal.SIGCONT))
+    again.start()
+    try:
+        yield
+    finally:
+        again.join()
 
-    def slow_write(self: RecordingWriter, pending: object) -> str:
-        time.sleep(0.02)
-        return write(self, pending)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(RecordingWriter, "_write", slow_write)
+def test_a_slow_disk_keeps_every_frame_and_says_so_once(tmp_path: Path) -> None:
     said: list[str] = []
     kept = frames(20)
     size = 2 * kept[0].pixels.nbytes  # type: ignore[union-attr]
     start = time.perf_counter()
-    writer = record(tmp_path / "rec", kept, max_pending_bytes=size, report=said.append)
-    assert time.perf_counter() - start >= 20 * 0.02  # close() waited for the last frame
+    with RecordingWriter(tmp_path / "rec", "", max_pending_bytes=size, report=said.append) as writer:
+        with stalled(writer, 0.4):
+            for frame in kept:
+                writer.add(frame)
+    assert time.perf_counter() - start >= 0.4  # add waited for the disk
     assert writer.frames == 20 and len(list((tmp_path / "rec").glob("frame_*.png"))) == 20
     assert len(said) == 1 and "the disk is behind: tracking waits for it" in said[0]
-    assert writer.wait_s > 10 * 0.02 > writer.copy_s  # the caller waited for the disk, apart from copying
+    assert writer.wait_s > 0.2 > writer.copy_s  # the caller waited for the disk, apart from copying
     said.clear()
-    writer = record(tmp_path / "more", frames(30), report=said.append)  # room for every frame: none waits
+    with RecordingWriter(tmp_path / "more", "", report=said.append) as writer:  # room for every frame: none waits
+        with stalled(writer, 0.4):
+            for frame in frames(30):
+                writer.add(frame)
+            writer.close()  # while the disk is stalled
     assert writer.frames == 30 and writer.wait_s == 0
-    note = re.fullmatch(r".*more: writing the (\d+) frames still in memory \.\.\.", said[0])
-    assert len(said) == 1 and note is not None and 20 <= int(note.group(1)) <= 30  # 20 ms a frame: most wait
+    assert said == [f"{tmp_path / 'more'}: writing the 30 frames still in memory ..."]
+    assert len(list((tmp_path / "more").glob("frame_*.png"))) == 30
+
+
+def test_the_writing_process_keeps_off_the_tracker_s_core_at_a_lower_priority(tmp_path: Path) -> None:
+    cores = os.sched_getaffinity(0)
+    if len(cores) < 2:
+        pytest.skip("one core: nothing to keep off")
+    own = {min(cores)}
+    try:
+        os.sched_setaffinity(0, own)  # as a video's decoder keeps the tracker's thread
+        with RecordingWriter(tmp_path / "rec", "") as writer:
+            writer.add(frames(1)[0])
+            assert os.sched_getaffinity(writer.process.pid) == cores - own
+            assert os.getpriority(os.PRIO_PROCESS, writer.process.pid) > os.getpriority(os.PRIO_PROCESS, 0)
+    finally:
+        os.sched_setaffinity(0, cores)
+    assert writer.frames == 1
 
 
 def test_recordings_that_cannot_be_used_are_user_errors(tmp_path: Path) -> None:
@@ -132,24 +165,22 @@ def test_recordings_that_cannot_be_used_are_user_errors(tmp_path: Path) -> None:
         read_recording(tmp_path / "bad")
 
 
-@pytest.mark.parametrize("failure", ["raises", "refuses"])
-def test_a_frame_that_cannot_be_written_stops_the_recording_and_says_so(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, failure: str
-) -> None:
-    # Review: an encoder that raised killed the writing thread silently, and add then waited forever for memory the
-    # thread would never give back; a write that failed on the last frames was never told.
-    import spotnav.files.recording as recording
-
-    def broken(path: str, *_: object) -> bool:
-        if failure == "raises":
-            raise RuntimeError("the encoder broke")
-        return False
-
-    monkeypatch.setattr(recording.cv2, "imwrite", broken)
+@pytest.mark.parametrize("failure", ["raises", "refuses", "killed"])
+def test_a_frame_that_cannot_be_written_stops_the_recording_and_says_so(tmp_path: Path, failure: str) -> None:
+    # Review: an encoder that raised killed the writer silently, and add then waited forever for memory the writer
+    # would never give back; a write that failed on the last frames was never told.
     kept = frames(8)
     writer = RecordingWriter(tmp_path / "rec", "", max_pending_bytes=kept[0].pixels.nbytes)  # type: ignore[union-attr]
+    if failure == "raises":  # two channels: OpenCV's PNG encoder raises
+        kept = [Frame(f.index, "", np.zeros((24, 32, 2), np.uint8), 0.0, 0.0) for f in kept]
+    elif failure == "refuses":  # the folder is gone: OpenCV returns False
+        shutil.rmtree(tmp_path / "rec")
+    else:
+        os.kill(writer.process.pid, signal.SIGKILL)
     with pytest.raises(InputError, match="recording stopped"):
         for frame in kept:  # at most one frame waits in memory: add must not wait forever
             writer.add(frame)
     with pytest.raises(InputError, match="recording stopped after 0 frames"):
         writer.close()
+    if failure == "killed":
+        assert "its writing process ended (exit code -9)" in str(writer.error)

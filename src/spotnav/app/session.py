@@ -256,7 +256,7 @@ class TrackSession:
         :data:`DEFAULT_OVERLAY_FPS` with a note.
     record : str or Path, optional
         Also keep every frame, losslessly, with its capture time, in this new folder
-        (:class:`spotnav.files.recording.RecordingWriter`), written in a thread of its own.
+        (:class:`spotnav.files.recording.RecordingWriter`), written by a process of its own.
     replay_speed : float
         A recording's pace (:func:`replay_speed`): 1 as recorded (the default), 2 twice as fast, ``math.inf`` as
         fast as it decodes. Other sources ignore it.
@@ -319,8 +319,8 @@ class TrackSession:
                 server = None
                 try:
                     server = self._server(signals)
-                    # The recording's thread starts before the first frame: a video's decoder keeps the threads
-                    # started after it to the tracker's core.
+                    # The recording's process starts before the first frame, and keeps off the tracker's core once a
+                    # video's decoder keeps the tracker to it (from the first frame on).
                     with (
                         self._recording() as recording,  # first: a folder that holds one is refused before
                         PosesWriter(self.out, TRACK_COLUMNS) as out,  # poses.csv is emptied
@@ -368,7 +368,7 @@ class TrackSession:
         self.report(
             f"recorded {recording.frames} frames in {recording.folder}: {1000 * recording.copy_s / frames:.2f} ms a "
             f"frame copying in the tracker's thread{waited}, {1000 * recording.write_s / frames:.1f} ms a frame "
-            "writing in the background"
+            "writing in a process of its own"
         )
 
     def _server(self, signals: StopSignals) -> PoseServer | None:

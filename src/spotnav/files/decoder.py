@@ -27,6 +27,7 @@ import numpy as np
 from spotnav.files.capture import Frame, grabbed, open_capture, read_capture
 from spotnav.files.images import ImageReadError
 from spotnav.files.numbers import parse_int
+from spotnav.files.processes import shared_memory, start_python
 
 __all__ = ["decode_frames_main", "read_capture_in_process"]
 
@@ -70,26 +71,11 @@ def read_capture_in_process(
     shared memory to decode into."""
     own, others = _split_cores()
     shape = (ring + 1, int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)), int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), 3)
-    buffers = _shared_buffers(math.prod(shape)) if own and min(shape) > 0 else None
+    buffers = shared_memory(math.prod(shape), "spotnav-frames") if own and min(shape) > 0 else None
     if buffers is None:
         return read_capture(capture, ring)
     capture.release()
     return _frames_from_process(source, buffers, shape, (own, others), while_waiting)
-
-
-def _shared_buffers(size: int) -> int | None:
-    """A file descriptor of ``size`` bytes of anonymous shared memory, allocated (so that no write to it can fail
-    later), which no file names (nothing is left behind however the process ends); None where there is none or
-    no room."""
-    if not hasattr(os, "memfd_create"):
-        return None
-    descriptor = os.memfd_create("spotnav-frames")
-    try:
-        os.posix_fallocate(descriptor, 0, size)
-    except OSError:
-        os.close(descriptor)
-        return None
-    return descriptor
 
 
 def _frames_from_process(
@@ -114,13 +100,11 @@ def _frames_from_process(
     ring = np.frombuffer(mmap.mmap(buffers, math.prod(shape), flags=populate), dtype=np.uint8).reshape(shape)
     records, records_out = os.pipe()
     arguments = [source, str(buffers), ",".join(map(str, shape)), str(records_out), ",".join(map(str, others))]
-    package_root = str(Path(__file__).resolve().parents[2])
-    paths = [package_root, *filter(None, [os.environ.get("PYTHONPATH")])]
-    decoder = subprocess.Popen(
-        [sys.executable, "-P", "-c", "import spotnav.files.decoder as d; d.decode_frames_main()", *arguments],
+    decoder = start_python(
+        "spotnav.files.decoder:decode_frames_main",
+        arguments,
         stdin=subprocess.PIPE,
         pass_fds=(buffers, records_out),
-        env={**os.environ, "PYTHONPATH": os.pathsep.join(paths)},
         start_new_session=True,
     )
     to_decoder = decoder.stdin
