@@ -240,11 +240,6 @@ class TrackResult:
         return 130 if self.signal else 2 if self.wrong_size_stop else 0
 
 
-def _no_frames() -> Generator[Frame, None, None]:
-    """The frames of a source that a stop came before: none (it is not opened)."""
-    yield from ()
-
-
 class TrackSession:
     """Track a source's frames into ``poses.csv``, serving and drawing each pose if asked, until a stop.
 
@@ -309,10 +304,11 @@ class TrackSession:
         SpotnavError
             For a source, an output or a server that cannot be used.
         """
-        setup = self.setup
+        # Before the stops are caught: an interrupt while the tracker starts (seconds on a busy machine) ends the
+        # command at once, with the header alone (spotnav.app.start), as one before the run began.
+        with compiling_note():
+            tracker = Tracker(self.setup, through_insertion=self.through_insertion)
         with StopSignals() as signals:
-            with compiling_note():
-                tracker = Tracker(setup, through_insertion=self.through_insertion)
             rates: list[float] = []  # the source's frame rate, if it has one
             source = self._frames(tracker, signals, rates.append)
             with contextlib.closing(source) as frames:
@@ -341,10 +337,7 @@ class TrackSession:
     def _frames(
         self, tracker: Tracker, signals: StopSignals, fps: Callable[[float], object]
     ) -> Generator[Frame, None, None]:
-        """The source's frames, opened (none, and the source left unopened, after a stop while the tracker started:
-        a camera takes seconds to open, a video's decoder process to start)."""
-        if signals.received:
-            return _no_frames()
+        """The source's frames, opened; they end early on a stop (a video's while a frame is awaited)."""
         size = (self.setup.camera.width_px, self.setup.camera.height_px)
         # --fps asks a live source for its rate; with an overlay, it is the overlay's for a source without one.
         overlay_fps = self.overlay is not None and not is_live(self.source)
