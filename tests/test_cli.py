@@ -422,7 +422,7 @@ def test_a_stopped_track_keeps_every_finished_frame(
     poses = tmp_path / "poses.csv"
     argv = [sys.executable, "-m", "spotnav", "track", "--scene", str(scene), str(video), "--out", str(poses)]
     process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.monotonic() + 120
+    deadline = time.monotonic() + 600  # a margin for a hang, which no busy machine reaches (issue 61)
     while time.monotonic() < deadline and (not poses.exists() or poses.read_bytes().count(b"\n") < 6):
         time.sleep(0.02)
     assert poses.exists() and poses.read_bytes().count(b"\n") >= 6, "tracking did not start"
@@ -430,8 +430,8 @@ def test_a_stopped_track_keeps_every_finished_frame(
         os.killpg(process.pid, number)
     else:
         process.send_signal(number)
-    _, err = process.communicate(timeout=60)
-    assert process.returncode == 0, err
+    _, err = process.communicate(timeout=600)
+    assert process.returncode == 130, err
     rows = _complete_rows(poses)
     assert 5 <= len(rows) < 1200
     assert [int(row["frame"]) for row in rows] == list(range(len(rows)))
@@ -617,29 +617,29 @@ def test_version_answers_at_once() -> None:
 @pytest.mark.parametrize(
     ("number", "delay_s"), [(signal.SIGINT, 0.2), (signal.SIGINT, 1.0), (signal.SIGINT, 5.0), (signal.SIGTERM, 1.0)]
 )
-def test_an_interrupt_at_any_moment_leaves_a_valid_poses_csv(
+def test_an_interrupt_at_any_moment_exits_130_with_every_finished_row(
     tmp_path: Path, long_video: tuple[Path, Path], number: signal.Signals, delay_s: float
 ) -> None:
     # Issue 44: Ctrl-C in the first seconds printed a traceback from `import scipy.stats`, exit 130 and no
-    # poses.csv. Now: before tracking starts, one line, exit 130 and the header; after, the frames done and exit 0.
+    # poses.csv. Issue 61: Ctrl-C one second in exited 0 with "0 frames" once the video's decoder had started, later
+    # exit 0 with the frames done, earlier 130. Now one exit at any moment: 130, every finished row (the header at
+    # least), and what was done: the run's summary, or before the run began, one line.
     scene, video = long_video
     poses = tmp_path / "poses.csv"
     argv = [str(SPOTNAV), "track", "--scene", str(scene), str(video), "--out", str(poses)]
     process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     time.sleep(delay_s)
     process.send_signal(number)
-    _, err = process.communicate(timeout=120)
-    assert "Traceback" not in err, err
+    _, err = process.communicate(timeout=600)
+    assert process.returncode == 130 and "Traceback" not in err, err
     rows = _complete_rows(poses)
     assert poses.read_text().splitlines()[0] == ",".join(TRACK_COLUMNS)
-    assert [int(row["frame"]) for row in rows] == list(range(len(rows)))
-    if process.returncode == 130:  # before tracking started
-        assert err.strip().splitlines()[-1] == "spotnav: interrupted" and rows == [], err
+    assert [int(row["frame"]) for row in rows] == list(range(len(rows))) and len(rows) < 1200
+    last = err.strip().splitlines()[-1]
+    if last != "spotnav: interrupted":  # the run had begun
+        assert re.fullmatch(rf"wrote {re.escape(str(poses))}: {len(rows)} frames, .*\(stopped by {number.name}\)", last)
     else:
-        assert process.returncode == 0 and f"wrote {poses}: {len(rows)} frames" in err, err
-        assert f"stopped by {number.name}" in err or len(rows) == 1200
-    if delay_s < 0.5:
-        assert process.returncode == 130
+        assert rows == [], err
 
 
 def test_user_errors_found_in_review_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -700,20 +700,22 @@ def test_a_closed_stdout_is_not_an_error(
     assert (tmp_path / "ev" / "errors.csv").read_text().count("\n") == 21
 
 
-def test_a_setup_without_the_camera_s_width_warns_and_a_batch_of_wrong_sizes_fails(
+def test_a_setup_without_the_camera_s_width_is_refused_and_a_batch_of_wrong_sizes_fails(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # Issue 44: a setup without width_px silently took 5000, every frame came back wrong_size, and the exit was 0.
+    # Issue 61: a setup file without a key of the contract is incomplete: one line naming the file and the key.
     scene = tmp_path / "setup.toml"
-    scene.write_text(EXAMPLE_SETUP.replace("width_px = 5000", "").replace("height_px = 5000", "height_px = 256"))
+    scene.write_text(EXAMPLE_SETUP.replace("width_px = 5000\n", "").replace("height_px = 5000", "height_px = 256"))
     frames = [str(tmp_path / f"{i}.png") for i in range(3)]
     for frame in frames:
         cv2.imwrite(frame, np.zeros((256, 256, 3), np.uint8))
-    assert main(["localize", "--scene", str(scene), *frames, "--out", str(tmp_path / "poses.csv")]) == 2
+    argv = ["localize", "--scene", str(scene), *frames, "--out", str(tmp_path / "poses.csv")]
+    assert main(argv) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"spotnav: error: {scene}: incomplete: no camera.width_px (")
+    scene.write_text(EXAMPLE_SETUP.replace("height_px = 5000", "height_px = 256"))
+    assert main(argv) == 2
     err = capsys.readouterr().err.splitlines()
-    assert err[0] == (
-        f"spotnav: warning: {scene} does not give the camera's size: assuming camera.width_px = 5000, the thesis's "
-        "(frames that are not 5000x256 px are wrong_size)"
-    )
     assert err[-1].startswith("spotnav: error: none of the 3 images could be localized (wrong_size: 3)")
     assert [row["status"] for row in read_poses(tmp_path / "poses.csv")] == ["wrong_size"] * 3

@@ -151,8 +151,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: {run.summary()}", file=sys.stderr)
     if run.wrong_size_stop:
         print(f"spotnav: error: {run.wrong_size} frames in a row are not the setup's camera size", file=sys.stderr)
-        return 2
-    return 0
+    return run.exit_code
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:
@@ -377,8 +376,9 @@ _COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code (130: Ctrl-C or SIGTERM before a run could stop by itself, one
-    line said, an interrupted ``--out poses.csv`` left with at least its header; README, "Use")."""
+    """Run the command line; returns the exit code (130: Ctrl-C or SIGTERM, at any moment: ``track`` and
+    ``localize`` end after the frame in hand with every finished row and their summary, or, before their run began,
+    with ``spotnav: interrupted`` and ``--out poses.csv``'s header; README, "Use")."""
     words = list(sys.argv[1:] if argv is None else argv)
     try:
         from spotnav.app import start

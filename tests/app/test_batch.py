@@ -1,5 +1,8 @@
 from __future__ import annotations
 
+import os
+import signal
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -32,6 +35,34 @@ def test_localize_keeps_going_past_bad_files(tmp_path: Path, capsys: pytest.Capt
     assert batch.rows == 4 and batch.statuses == {"ok": 1, "unreadable": 2, "no_spot": 1}
     assert batch.stopped_by is None and batch.radius is None
     assert batch.all_failed is None and batch.exit_code == 0  # one frame has a pose
+
+
+class _InterruptedAt(list[str]):
+    """Images that send SIGINT to this process as the one at ``at`` is taken: a Ctrl-C during the image before it."""
+
+    def __init__(self, images: list[str], at: int, number: signal.Signals = signal.SIGINT) -> None:
+        super().__init__(images)
+        self.at, self.number = at, number
+
+    def __iter__(self) -> Iterator[str]:
+        for index, name in enumerate(list.__iter__(self)):
+            if index == self.at:
+                os.kill(os.getpid(), self.number)
+            yield name
+
+
+def test_a_signal_stops_the_batch_with_its_rows_and_exit_130(tmp_path: Path) -> None:
+    # Issue 61: one exit for an interrupt: localize once begun exited 0. Now 130, with every finished row.
+    scene = write_scene(tmp_path / "setup.toml", size_px=384)
+    frame = tmp_path / "f.png"
+    assert main(["render", "--scene", str(scene), "--tip", "0", "0", "4", "--out", str(frame)]) == 0
+    images = _InterruptedAt([str(frame)] * 5, at=2, number=signal.SIGTERM)
+    batch = localize_batch(images, read_setup(scene), "precise", tmp_path / "poses.csv")
+    assert (batch.rows, batch.stopped_by, batch.exit_code) == (2, "SIGTERM", 130)
+    assert [row["status"] for row in read_poses(tmp_path / "poses.csv")] == ["ok", "ok"]
+    batch = localize_batch(_InterruptedAt([str(tmp_path / "none.png")] * 3, at=1), read_setup(scene), "thesis",
+                           tmp_path / "poses.csv")  # fmt: skip
+    assert (batch.rows, batch.none_read, batch.exit_code) == (1, True, 130)  # the interrupt, not the files
 
 
 def test_localize_fit_radius_needs_the_precise_method_and_20_frames(tmp_path: Path) -> None:

@@ -5,6 +5,8 @@ import gc
 import itertools
 import json
 import math
+import os
+import signal
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -50,6 +52,49 @@ def test_a_slow_start_says_so(monkeypatch: pytest.MonkeyPatch, capsys: pytest.Ca
         pass
     time.sleep(0.05)
     assert capsys.readouterr().err == ""  # a quick start says nothing
+
+
+def test_a_signal_ends_the_run_after_the_frame_in_hand_with_exit_130(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Issue 61: one exit for an interrupt, whatever the source: the rows finished, the signal named, exit 130.
+    setup = read_setup(write_scene(tmp_path / "setup.toml", size_px=256, blend=0.15))
+    frames = tmp_path / "frames"
+    render_sequence(setup, "helix", frames, frames=12, fps=100.0, tremor_mm=0.0, seed=0)
+    update, seen = Tracker.update, []
+
+    def interrupted_update(self: Tracker, image: np.ndarray) -> TrackedFrame:
+        seen.append(image)
+        tracked = update(self, image)
+        if len(seen) == 3:
+            os.kill(os.getpid(), signal.SIGINT)  # while the third frame is in hand
+        return tracked
+
+    monkeypatch.setattr(Tracker, "update", interrupted_update)
+    result = TrackSession(setup, str(frames), tmp_path / "poses.csv").run()
+    assert (result.rows, result.signal, result.stop, result.exit_code) == (3, "SIGINT", "stopped by SIGINT", 130)
+    with (tmp_path / "poses.csv").open() as handle:
+        assert [row["frame"] for row in csv.DictReader(handle)] == ["0", "1", "2"]
+    assert result.summary().startswith("3 frames, ") and result.summary().endswith("(stopped by SIGINT)")
+
+
+def test_an_interrupt_while_the_tracker_starts_ends_the_run_at_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Issue 61: the tracker's start (its kernels loaded and rehearsed: seconds on a busy machine) went on after a
+    # Ctrl-C, then the run ended with "0 frames". Now an interrupt then ends it at once, before the source is opened
+    # (here a video that does not exist) or poses.csv written: the command line leaves the header and exits 130.
+    setup = read_setup(write_scene(tmp_path / "setup.toml", size_px=256, blend=0.15))
+    start = Tracker.__init__
+
+    def interrupted_start(self: Tracker, *args: object, **kwargs: object) -> None:
+        start(self, *args, **kwargs)  # type: ignore[arg-type]
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(Tracker, "__init__", interrupted_start)
+    with pytest.raises(KeyboardInterrupt):
+        TrackSession(setup, str(tmp_path / "none.mkv"), tmp_path / "poses.csv").run()
+    assert not (tmp_path / "poses.csv").exists()
 
 
 def test_a_session_runs_its_loop_with_the_heap_frozen(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -129,3 +129,22 @@ def test_the_tracker_keeps_to_the_core_it_runs_on() -> None:
     assert decoder._current_core(set(range(10_000, 10_002))) == 10_000  # a core it may not run on: the first allowed
     own, others = decoder._split_cores()
     assert (len(own), own | others, own & others) == ((1, cores, set()) if len(cores) > 1 else (0, set(), set()))
+
+
+@pytest.mark.skipif(
+    not Path("/proc/self/task").is_dir() or len(os.sched_getaffinity(0)) < 2, reason="a decoder process: Linux, 2 cores"
+)
+def test_a_stop_ends_a_decoder_s_frames_and_the_decoder(tmp_path: Path) -> None:
+    # Issue 61: Ctrl-C as track started waited for the decoder process to start and decode a frame no one would
+    # track, then for it to end. Now a stop ends the frames while one is awaited, and the decoder with them.
+    clip, _ = _clip(tmp_path, 6)
+    before, stopped = _child_processes(), list[bool]()
+    source = iter_frames(str(clip), ring=2, while_waiting=lambda pixels: None, stop=lambda: bool(stopped))
+    assert [next(source).index, next(source).index] == [0, 1]
+    stopped.append(True)
+    with pytest.raises(StopIteration):
+        next(source)
+    assert _child_processes() == before
+    asked: list[bool] = []  # a stop before the first frame: none, and the decoder (still starting) is not waited for
+    source = iter_frames(str(clip), ring=2, while_waiting=lambda pixels: None, stop=lambda: asked.append(True) is None)
+    assert list(source) == [] and asked == [True] and _child_processes() == before

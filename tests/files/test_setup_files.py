@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import re
+from dataclasses import fields, replace
 from pathlib import Path
 
 import cv2
@@ -9,8 +11,30 @@ import pytest
 from spotnav.errors import SpotnavError
 from spotnav.files.setup_files import read_opencv_camera, read_setup, setup_to_toml
 from spotnav.setup.config import Setup, setup_from_toml
+from spotnav.setup.examples import EXAMPLE_SETUP, EXAMPLES
 from spotnav.setup.sections import Bump, Instrument, World
+from spotnav.setup.uncertainty import Uncertainty
 from spotnav.setup.values import SetupError
+
+# The setup file as the contract writes it (shared/contract.md, "The setup file"), without [light].
+CONTRACT_FILE = """\
+[eye]
+radius_mm = 12.5
+
+[camera]
+width_px = 5000
+height_px = 5000
+sensor_width_mm = 36.0
+focal_length_mm = 300.0
+distance_mm = 110.0
+
+[instrument]
+insertion_point_mm = [0.0, 6.0, 20.0]
+beam_half_angle_deg = 9.0
+beam_count = 1          # 1 or 3
+beam_tilt_deg = 15.0    # used when beam_count > 1
+"""
+UNCERTAINTY_KEYS = [item.name for item in fields(Uncertainty)]
 
 
 def test_read_setup_names_the_file(tmp_path: Path) -> None:
@@ -30,20 +54,87 @@ def test_a_byte_that_is_not_utf8_is_found_by_line_and_column(tmp_path: Path) -> 
     assert str(error.value) == f"{path}: line 3, column 14: byte 0xe9 is not UTF-8 (TOML files are UTF-8)"
 
 
-def test_a_setup_without_the_camera_s_size_warns_of_the_size_assumed(tmp_path: Path) -> None:
-    # The contract's keys take the thesis's values when missing (docs/setup.md), but the camera's size decides which
-    # frames are read at all: every frame of a 512 px camera was wrong_size, silently.
-    warnings: list[str] = []
+@pytest.mark.parametrize(
+    ("cut_before", "missing"),
+    [
+        ("[camera]", "[camera], [instrument]"),
+        ("[instrument]", "[instrument]"),
+        ("distance_mm =", "camera.distance_mm, [instrument]"),
+    ],
+)
+def test_a_setup_file_cut_short_names_what_it_lacks(tmp_path: Path, cut_before: str, missing: str) -> None:
+    # Issue 61: a file cut after a complete section loaded with the rest silently defaulted ([instrument] among
+    # them), and the user was then told to calibrate, not that the file was incomplete.
     path = tmp_path / "setup.toml"
-    path.write_text("[camera]\nheight_px = 512\n")
-    assert read_setup(path, report=warnings.append).camera.width_px == 5000
-    assert warnings == [
-        f"spotnav: warning: {path} does not give the camera's size: assuming camera.width_px = 5000, the thesis's "
-        "(frames that are not 5000x512 px are wrong_size)"
-    ]
-    path.write_text(setup_to_toml(Setup(), "complete"))
+    path.write_text(EXAMPLE_SETUP[: EXAMPLE_SETUP.index(cut_before)])
+    with pytest.raises(SetupError) as error:
+        read_setup(path)
+    assert str(error.value).startswith(f"{path}: incomplete: no {missing} (")
+    assert setup_from_toml(path.read_text()) == Setup()  # the Python API takes the thesis's values
+
+
+def test_each_key_of_the_contract_is_required_of_a_setup_file(tmp_path: Path) -> None:
+    # contract: [eye] radius_mm; [camera] the size and the ideal or the calibrated camera; [instrument] insertion
+    # point, half-angle, beam count, and the tilt with three beams.
+    path = tmp_path / "setup.toml"
+    contract = "\n".join(line for line in CONTRACT_FILE.splitlines() if not line.startswith("#"))
+    keys = [line.split("=")[0].strip() for line in contract.splitlines() if "=" in line]
+    assert len(keys) == 10
+    for key in keys[:-1]:  # beam_tilt_deg, last, is needed with more than one beam only
+        path.write_text(re.sub(rf"(?m)^{key} =.*\n", "", contract))
+        with pytest.raises(SetupError, match=rf"incomplete: no \w+\.{key} \("):
+            read_setup(path, report=[].append)
+    path.write_text(contract.replace("beam_tilt_deg", "# beam_tilt_deg"))
+    assert read_setup(path, report=[].append) == Setup()
+    calibrated = setup_to_toml(replace(Setup(), camera=Setup().camera.as_calibrated()))
+    path.write_text(calibrated.replace("rotation = ", "# rotation = "))
+    with pytest.raises(SetupError, match=r"camera\.rotation is missing: a calibrated camera gives camera\.matrix,"):
+        read_setup(path)
+    three = contract.replace("beam_count = 1", "beam_count = 3")
+    path.write_text(three)
+    assert read_setup(path, report=[].append).instrument.beam_count == 3
+    path.write_text(three.replace("beam_tilt_deg", "# beam_tilt_deg"))
+    with pytest.raises(SetupError, match=r"incomplete: no instrument\.beam_tilt_deg \("):
+        read_setup(path)
+
+
+def test_a_wrong_value_is_said_before_a_missing_key(tmp_path: Path) -> None:
+    path = tmp_path / "setup.toml"
+    path.write_text("[eye]\nradius = 12.5\n")  # a typo: the key's own name is the better message
+    with pytest.raises(SetupError, match=r"eye\.radius is not a known key, allowed: radius_mm"):
+        read_setup(path)
+
+
+def test_the_uncertainty_a_setup_file_leaves_out_is_named_in_a_warning(tmp_path: Path) -> None:
+    # The contract's file (as the Cycles sets give it) reads, with one warning: its geometry's uncertainty is a
+    # typical microscope's, not its own, and decides which poses are refused as uncalibrated.
+    path = tmp_path / "setup.toml"
+    path.write_text(CONTRACT_FILE)
+    warnings: list[str] = []
+    assert read_setup(path, report=warnings.append) == Setup()
+    (warning,) = warnings
+    assert warning.startswith(f"spotnav: warning: {path} does not give [uncertainty]: assuming a typical microscope's")
+    assert "edge_half_angle_deg 0.3, light_radius_mm 0.05, eye_radius_mm 0.25," in warning
+    assert "until spotnav calibrate measures the geometry" in warning
+    path.write_text(CONTRACT_FILE + "[uncertainty]\n" + "".join(f"{name} = 0.0\n" for name in UNCERTAINTY_KEYS[:-2]))
+    warnings.clear()
     read_setup(path, report=warnings.append)
-    assert len(warnings) == 1
+    (warning,) = warnings
+    names = ", ".join(f"uncertainty.{name}" for name in UNCERTAINTY_KEYS[-2:])
+    assert (
+        f"does not give {names}: assuming a typical microscope's (distortion_px 5, insertion_point_mm 0.5)" in warning
+    )
+
+
+@pytest.mark.parametrize("name", sorted(EXAMPLES))
+def test_the_example_setups_read_without_a_warning(tmp_path: Path, name: str) -> None:
+    path = tmp_path / "setup.toml"
+    path.write_text(EXAMPLES[name])
+    warnings: list[str] = []
+    assert read_setup(path, report=warnings.append) == setup_from_toml(EXAMPLES[name])
+    path.write_text(setup_to_toml(Setup(), "what setup_to_toml writes is whole"))
+    assert read_setup(path, report=warnings.append) == Setup()
+    assert warnings == []
 
 
 def test_setup_to_toml_round_trips() -> None:

@@ -4,10 +4,10 @@
 its row as it is done; with ``fit_radius`` the precise method's frames wait for
 one joint fit of the eye's radius (each frame's edges kept, not the frame), and
 their rows are written after it. An image that cannot be read is a row with its
-status, never a stop; SIGINT or SIGTERM stops after the image in hand. It returns
-a :class:`BatchResult` for the caller to print, with the batch's exit code: a batch
-that could read none of its images (each ``unreadable`` or ``wrong_size``) did not
-run, and says so in one line; one that read them exits 0 even if none has a pose,
+status, never a stop; SIGINT or SIGTERM stops after the image in hand (exit 130). It
+returns a :class:`BatchResult` for the caller to print, with the batch's exit code: a
+batch that could read none of its images (each ``unreadable`` or ``wrong_size``) did
+not run, and says so in one line; one that read them exits 0 even if none has a pose,
 as the contract says.
 """
 
@@ -61,20 +61,28 @@ class BatchResult:
 
     @property
     def exit_code(self) -> int:
-        """2 when the batch could read none of its images (each ``unreadable`` or ``wrong_size``), else 0."""
-        return 2 if self.rows and set(self.statuses) <= UNREAD else 0
+        """130 when a signal stopped the batch (whatever its rows), 2 when it could read none of its images (each
+        ``unreadable`` or ``wrong_size``), else 0."""
+        if self.stopped_by:
+            return 130
+        return 2 if self.none_read else 0
+
+    @property
+    def none_read(self) -> bool:
+        """Whether the batch could read none of its images (each ``unreadable`` or ``wrong_size``)."""
+        return bool(self.rows) and set(self.statuses) <= UNREAD
 
     @property
     def all_failed(self) -> str | None:
         """One line when no image has a pose: how many, by status, and what to check; None when one has.
 
-        ``spotnav: error: ...`` when none could be read (:attr:`exit_code` 2), ``spotnav: warning: ...`` when they
-        were read and localized without a pose (exit 0: each row says why).
+        ``spotnav: error: ...`` when none could be read (:attr:`none_read`: exit 2), ``spotnav: warning: ...`` when
+        they were read and localized without a pose (exit 0: each row says why).
         """
         if not self.rows or self.statuses["ok"]:
             return None
         counts = ", ".join(f"{status}: {n}" for status, n in sorted(self.statuses.items()))
-        if self.exit_code:
+        if self.none_read:
             hint = "check the image files and the setup's camera.width_px and camera.height_px"
             return f"spotnav: error: none of the {self.rows} images could be localized ({counts}): {hint}"
         return f"spotnav: warning: no pose in any of the {self.rows} images ({counts}): each row's detail says why"

@@ -20,7 +20,7 @@ import sys
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
@@ -91,7 +91,9 @@ def ready(setup: Setup) -> None:
 
 
 class StopSignals:
-    """SIGINT and SIGTERM ask a loop to stop after the frame in hand: a requested stop, not a failure.
+    """SIGINT and SIGTERM ask a loop to stop after the frame in hand, and any wait for the next frame to end: the run
+    keeps every row it finished and says what it did, and the command exits 130 (issue 61: one exit for an
+    interrupt, at any moment).
 
     A second signal of the same kind while the first is pending ends the run at once, as
     Python's default would.
@@ -202,6 +204,8 @@ class TrackResult:
         Why it stopped before the source ended (``""``: the source ended).
     verdict : str
         The sequence's test: what of the setup the frames contradict (``""``: nothing).
+    signal : str
+        The signal that stopped it (``"SIGINT"``, ``"SIGTERM"``; ``""``: none).
     """
 
     out: Path
@@ -211,6 +215,7 @@ class TrackResult:
     wrong_size: int = 0
     stop: str = ""
     verdict: str = ""
+    signal: str = ""
 
     def summary(self) -> str:
         """``"N frames, 3 ok, 1 lost; latency ..."``: what the command line says of the run."""
@@ -228,6 +233,11 @@ class TrackResult:
     def wrong_size_stop(self) -> bool:
         """Whether the run stopped on :data:`WRONG_SIZE_STOP` frames of the wrong size in a row."""
         return self.wrong_size >= WRONG_SIZE_STOP
+
+    @property
+    def exit_code(self) -> int:
+        """130 when a signal stopped the run (whatever else it met), 2 when frames of the wrong size did, else 0."""
+        return 130 if self.signal else 2 if self.wrong_size_stop else 0
 
 
 class TrackSession:
@@ -294,27 +304,13 @@ class TrackSession:
         SpotnavError
             For a source, an output or a server that cannot be used.
         """
-        setup = self.setup
+        # Before the stops are caught: an interrupt while the tracker starts (seconds on a busy machine) ends the
+        # command at once, with the header alone (spotnav.app.start), as one before the run began.
+        with compiling_note():
+            tracker = Tracker(self.setup, through_insertion=self.through_insertion)
         with StopSignals() as signals:
-            with compiling_note():
-                tracker = Tracker(setup, through_insertion=self.through_insertion)
-            size = (setup.camera.width_px, setup.camera.height_px)
-            # --fps asks a live source for its rate; with an overlay, it is the overlay's for a source without one.
-            overlay_fps = self.overlay is not None and not is_live(self.source)
             rates: list[float] = []  # the source's frame rate, if it has one
-            # The tracker keeps no image: a frame's buffer is reused two frames later; a video is decoded in a
-            # second process, and the tracker rehearses the last frame while it waits.
-            source = iter_frames(
-                self.source,
-                ring=2,
-                camera=replace(self.camera, fps=None) if overlay_fps else self.camera,
-                report=self.report,
-                expected_size=size,
-                while_waiting=tracker.rehearse,
-                replay_speed=self.replay_speed,
-                fps=rates.append,
-                stop=lambda: bool(signals.received),
-            )
+            source = self._frames(tracker, signals, rates.append)
             with contextlib.closing(source) as frames:
                 server = None
                 try:
@@ -333,7 +329,31 @@ class TrackSession:
                         server.close()
                         self._report_clients(server)
         result.rows = out.rows
+        result.signal = signals.received or ""
+        if result.signal:
+            result.stop = f"stopped by {result.signal}"
         return result
+
+    def _frames(
+        self, tracker: Tracker, signals: StopSignals, fps: Callable[[float], object]
+    ) -> Generator[Frame, None, None]:
+        """The source's frames, opened; they end early on a stop (a video's while a frame is awaited)."""
+        size = (self.setup.camera.width_px, self.setup.camera.height_px)
+        # --fps asks a live source for its rate; with an overlay, it is the overlay's for a source without one.
+        overlay_fps = self.overlay is not None and not is_live(self.source)
+        # The tracker keeps no image: a frame's buffer is reused two frames later; a video is decoded in a
+        # second process, and the tracker rehearses the last frame while it waits.
+        return iter_frames(
+            self.source,
+            ring=2,
+            camera=replace(self.camera, fps=None) if overlay_fps else self.camera,
+            report=self.report,
+            expected_size=size,
+            while_waiting=tracker.rehearse,
+            replay_speed=self.replay_speed,
+            fps=fps,
+            stop=lambda: bool(signals.received),
+        )
 
     def _report_clients(self, server: PoseServer) -> None:
         """Say how many clients the server served, dropped and refused."""
@@ -405,8 +425,7 @@ class TrackSession:
         started = time.monotonic()
         bar = progress(frames, desc="track", unit="frame")
         for frame in bar:
-            if signals.received:  # before the first frame (a signal while compiling or opening the source)
-                result.stop = f"stopped by {signals.received}"
+            if signals.received:  # it came while this frame was awaited: the run ends without it
                 break
             if frame.pixels is None:
                 tracker.lose()

@@ -32,7 +32,8 @@ from spotnav.files.processes import shared_memory, start_python
 __all__ = ["decode_frames_main", "read_capture_in_process"]
 
 
-_DECODER_JOIN_S = 5.0  # how long a decoder told to stop may take to finish its frame
+_DECODER_JOIN_S = 5.0  # how long a decoder that sent the video's end may take to exit
+_STOP_POLL_MS = 50  # awaiting the first frame (nothing to rehearse), the stop is looked at this often
 # A decoder process's record of a frame: its index (or _END, or _FAILED), the length of the note that follows (why
 # a frame has no pixels, or the failure), decoding ms, Unix seconds when grabbed, perf_counter seconds when decoded.
 _RECORD = struct.Struct("<qqddd")
@@ -63,19 +64,24 @@ def _current_core(cores: set[int]) -> int:
 
 
 def read_capture_in_process(
-    source: str, capture: cv2.VideoCapture, ring: int, while_waiting: Callable[[np.ndarray], object]
+    source: str,
+    capture: cv2.VideoCapture,
+    ring: int,
+    while_waiting: Callable[[np.ndarray], object],
+    stop: Callable[[], bool] = lambda: False,
 ) -> Generator[Frame, None, None]:
     """:func:`~spotnav.files.sequences.iter_frames`'s video frames from a decoder process, through a ring of
     ``ring + 1`` buffers in shared memory: a frame's buffer is written again once the frame ``ring`` later is handed
-    over. In this thread, as :func:`~spotnav.files.capture.read_capture`, without a second core to decode on or
-    shared memory to decode into."""
+    over; the frames end early once ``stop`` returns true while the next one is awaited. In this thread, as
+    :func:`~spotnav.files.capture.read_capture`, without a second core to decode on or shared memory to decode
+    into."""
     own, others = _split_cores()
     shape = (ring + 1, int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)), int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), 3)
     buffers = shared_memory(math.prod(shape), "spotnav-frames") if own and min(shape) > 0 else None
     if buffers is None:
         return read_capture(capture, ring)
     capture.release()
-    return _frames_from_process(source, buffers, shape, (own, others), while_waiting)
+    return _frames_from_process(source, buffers, shape, (own, others), (while_waiting, stop))
 
 
 def _frames_from_process(
@@ -83,17 +89,21 @@ def _frames_from_process(
     buffers: int,
     shape: tuple[int, int, int, int],
     cores: tuple[set[int], set[int]],
-    while_waiting: Callable[[np.ndarray], object],
+    waiting: tuple[Callable[[np.ndarray], object], Callable[[], bool]],
 ) -> Generator[Frame, None, None]:
     """Start :func:`decode_frames_main` in a new interpreter (not a fork: OpenCV's threads do not survive one) and
     hand over the frames it decodes into ``buffers`` (a file descriptor), this thread on the first of ``cores``
-    (own, the decoder's) meanwhile.
+    (own, the decoder's) meanwhile. While a frame is awaited, ``waiting``'s first is called with the last one's
+    pixels, again and again; its second, asked before each frame and while one is awaited, ends the frames when it
+    returns true (a Ctrl-C): the decoder is then killed, not waited for (it may still be starting, or decoding a
+    frame no one will read).
 
     The decoder decodes a frame once the one before was handed over (a byte on its standard input each) and sends
     a :data:`_RECORD` for each, then :data:`_END` (or :data:`_FAILED`), each followed by its note if any. It runs in
     its own session: a signal to this process group is this process's to act on.
     """
     own, others = cores
+    while_waiting, stop = waiting
     # Mapped in full now (Linux's MAP_POPULATE), not page by page as the first frames are read: that cost the first
     # frame, an acquisition, 190 page faults and 2-4 ms.
     populate = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
@@ -115,19 +125,26 @@ def _frames_from_process(
     arrived = select.poll()
     arrived.register(records, select.POLLIN)
     affinity = os.sched_getaffinity(0)
+    ended = False  # the decoder said the video's end (or its failure): it ends by itself
     try:
         os.sched_setaffinity(0, own)
         last: np.ndarray | None = None
         while True:
             asked = time.perf_counter()
-            while last is not None and not arrived.poll(0):
-                while_waiting(last)
+            while not stop():
+                if arrived.poll(0 if last is not None else _STOP_POLL_MS):
+                    break
+                if last is not None:
+                    while_waiting(last)
+            else:  # a stop while the frame was awaited (or before): no more frames
+                return
             record = _read_exactly(records, _RECORD.size)
             if len(record) < _RECORD.size:
                 code = decoder.wait(_DECODER_JOIN_S)
                 raise ImageReadError(f"{source}: the decoder process ended before the video did (exit code {code})")
             index, note_length, decode_ms, stamp, decoded = _RECORD.unpack(record)
             note = _read_exactly(records, note_length).decode(errors="replace")
+            ended = index in (_END, _FAILED)
             if index == _END:
                 return
             if index == _FAILED:
@@ -145,8 +162,8 @@ def _frames_from_process(
             os.close(records)
             to_decoder.close()
             try:
-                decoder.wait(_DECODER_JOIN_S)
-            except subprocess.TimeoutExpired:
+                decoder.wait(_DECODER_JOIN_S if ended else 0)
+            except subprocess.TimeoutExpired:  # stopped early (or stuck): nothing of its work is left to keep
                 decoder.kill()
                 decoder.wait()
 

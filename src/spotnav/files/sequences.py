@@ -135,7 +135,8 @@ def iter_frames(
         Called once, before the first frame, with the source's frame rate (frames per second) if it has one: a
         video's or a live source's (as it reports it), a recording's (from its timestamps); not for images.
     stop : callable
-        A recording waiting for a frame's time hands it over at once while this returns true.
+        A stop asked for (Ctrl-C): while it returns true, a recording waiting for a frame's time hands it over at
+        once, and a video awaited from its decoder process ends.
 
     Raises
     ------
@@ -170,7 +171,7 @@ def iter_frames(
     if fps is not None and math.isfinite(rate) and rate > 0:
         fps(rate)
     if while_waiting is not None and not is_live(source):
-        return read_capture_in_process(source, capture, ring, while_waiting)
+        return read_capture_in_process(source, capture, ring, while_waiting, stop)
     return read_capture(capture, ring)
 
 

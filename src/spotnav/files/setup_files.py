@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import json
 import sys
-import tomllib
-from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, fields
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +19,8 @@ import cv2
 import numpy as np
 
 from spotnav.errors import InputError
-from spotnav.setup.config import Setup, setup_from_toml
+from spotnav.setup.config import Setup, setup_from_dict, toml_data
+from spotnav.setup.uncertainty import Uncertainty
 from spotnav.setup.values import SetupError
 
 __all__ = ["read_opencv_camera", "read_setup", "setup_to_dict", "setup_to_toml"]
@@ -28,8 +29,10 @@ __all__ = ["read_opencv_camera", "read_setup", "setup_to_dict", "setup_to_toml"]
 def read_setup(path: str | Path, *, report: Callable[[str], None] | None = None) -> Setup:
     """Read and validate a TOML setup file.
 
-    A missing key takes the thesis's value (docs/setup.md). The camera's size decides which frames are read at all,
-    so a file without ``camera.width_px`` or ``camera.height_px`` is warned of: the warning names the size assumed.
+    The file gives the contract's keys (:func:`spotnav.setup.config.missing_keys`): one that lacks any (a section
+    left out, a file cut short) is an error naming them. The other keys take spotnav's values (docs/setup.md); of
+    those, ``[uncertainty]`` is a typical microscope's, not this one's: its keys that the file does not give are named
+    in a warning, with the values assumed.
 
     Parameters
     ----------
@@ -40,7 +43,8 @@ def read_setup(path: str | Path, *, report: Callable[[str], None] | None = None)
     Raises
     ------
     SetupError
-        Naming the file, and the key for invalid values (the line and column of a byte that is not UTF-8).
+        Naming the file, and the keys it lacks or the key of an invalid value (the line and column of a byte that is
+        not UTF-8).
     """
     path = Path(path)
     try:
@@ -52,22 +56,29 @@ def read_setup(path: str | Path, *, report: Callable[[str], None] | None = None)
     except UnicodeDecodeError as error:
         raise SetupError(f"{path}: {_not_utf8(data, error.start)}") from None
     try:
-        setup = setup_from_toml(text)
+        tables = toml_data(text)
+        setup = setup_from_dict(tables, complete=True)
     except SetupError as error:
         raise SetupError(f"{path}: {error}") from None
-    camera = tomllib.loads(text).get("camera", {})
-    sizes = {"width_px": setup.camera.width_px, "height_px": setup.camera.height_px}
-    assumed = [f"camera.{key} = {value}" for key, value in sizes.items() if key not in camera]
+    assumed = _assumed_uncertainty(tables.get("uncertainty"))
     if assumed:
-        message = (
-            f"spotnav: warning: {path} does not give the camera's size: assuming {' and '.join(assumed)}, the "
-            f"thesis's (frames that are not {sizes['width_px']}x{sizes['height_px']} px are wrong_size)"
-        )
-        if report is None:
-            print(message, file=sys.stderr)
-        else:
-            report(message)
+        (report or partial(print, file=sys.stderr))(f"spotnav: warning: {path} {assumed}")
     return setup
+
+
+def _assumed_uncertainty(table: Mapping[str, Any] | None) -> str:
+    """What of ``[uncertainty]`` a setup file leaves to a typical microscope's values (``table``: the section as
+    given, None without it), said after the file's name; ``""`` when it gives every key."""
+    defaults = Uncertainty()
+    names = [item.name for item in fields(Uncertainty) if table is None or item.name not in table]
+    if not names:
+        return ""
+    what = "[uncertainty]" if table is None else ", ".join(f"uncertainty.{name}" for name in names)
+    values = ", ".join(f"{name} {getattr(defaults, name):g}" for name in names)
+    return (
+        f"does not give {what}: assuming a typical microscope's ({values}), not this one's; the precise methods "
+        "refuse the poses it makes too uncertain (uncalibrated) until spotnav calibrate measures the geometry"
+    )
 
 
 def _not_utf8(data: bytes, start: int) -> str:

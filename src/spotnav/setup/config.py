@@ -2,7 +2,8 @@
 
 :func:`setup_from_toml` (and :func:`setup_from_dict`, for TOML already parsed) builds each section's dataclass from
 its table and the :class:`Setup` from them; every bad value raises :class:`~spotnav.setup.values.SetupError` with a
-one-line message that names the TOML key and the allowed range. Missing sections and keys take the thesis's values.
+one-line message that names the TOML key and the allowed range. Missing sections and keys take the thesis's values;
+:func:`missing_keys` names the contract's keys that a setup file must give itself.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from spotnav.setup.sections import Bump, Eye, Faults, Instrument, Light, Render,
 from spotnav.setup.uncertainty import CalibrationRecord, Uncertainty
 from spotnav.setup.values import SetupError, hash_once, state_without_hash
 
-__all__ = ["Setup", "setup_from_dict", "setup_from_toml"]
+__all__ = ["CONTRACT_KEYS", "Setup", "missing_keys", "setup_from_dict", "setup_from_toml", "toml_data"]
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,41 @@ _SECTIONS: dict[str, type] = {
 }
 
 
+CONTRACT_KEYS: dict[str, tuple[str, ...]] = {
+    "eye": ("radius_mm",),
+    "camera": ("width_px", "height_px"),
+    "instrument": ("insertion_point_mm", "beam_half_angle_deg", "beam_count"),
+}
+"""The keys a setup file must give (contract, "The setup file"), besides the camera's model (:data:`IDEAL_KEYS` or
+:data:`CALIBRATED_KEYS`) and ``instrument.beam_tilt_deg`` with more than one beam: a localizer needs each of them, and
+none has a value that a real microscope shares."""
+
+
+def missing_keys(data: Mapping[str, Any]) -> list[str]:
+    """The contract's keys that a setup file's parsed TOML ``data`` does not give, in the contract's order: a whole
+    section as ``"[instrument]"``, a key as ``"camera.distance_mm"``.
+
+    The camera's model is the ideal one's :data:`IDEAL_KEYS` unless the section gives one of the calibrated camera's
+    :data:`CALIBRATED_KEYS` (then those four); ``instrument.beam_tilt_deg`` is needed when ``beam_count`` is over 1.
+    The Python API's :func:`setup_from_dict` and :func:`setup_from_toml` take the thesis's values for every missing
+    key; a setup file read by :func:`spotnav.files.setup_files.read_setup` must give these.
+    """
+    missing: list[str] = []
+    for section, keys in CONTRACT_KEYS.items():
+        table = data.get(section)
+        if not isinstance(table, Mapping):  # absent (a table of another type is an error of its own)
+            missing += [f"[{section}]"] if table is None else []
+            continue
+        needed = list(keys)
+        if section == "camera":
+            needed += CALIBRATED_KEYS if any(key in table for key in CALIBRATED_KEYS) else IDEAL_KEYS
+        count = table.get("beam_count") if section == "instrument" else None
+        if isinstance(count, int) and not isinstance(count, bool) and count > 1:
+            needed.append("beam_tilt_deg")
+        missing += [f"{section}.{key}" for key in needed if key not in table]
+    return missing
+
+
 def _build_section(name: str, cls: type, table: Any) -> Any:
     if not isinstance(table, Mapping):
         raise SetupError(f"[{name}] must be a table, got {table!r}")
@@ -141,15 +177,23 @@ def _build_bump(index: int, value: Any) -> Bump:
     raise SetupError(f"world.bumps[{index}] must be a table with x_mm, y_mm, radius_mm, height_mm")
 
 
-def setup_from_dict(data: Mapping[str, Any]) -> Setup:
+def setup_from_dict(data: Mapping[str, Any], *, complete: bool = False) -> Setup:
     """Build a validated :class:`Setup` from parsed TOML.
 
-    Missing sections and keys take the thesis's values (see :data:`EXAMPLE_SETUP`).
+    Missing sections and keys take the thesis's values (see :data:`EXAMPLE_SETUP`), unless ``complete``.
+
+    Parameters
+    ----------
+    data : mapping
+        The setup's sections, as TOML tables.
+    complete : bool
+        Require the contract's keys (:func:`missing_keys`), as a setup file gives them: after each section's own
+        checks, before those across sections.
 
     Raises
     ------
     SetupError
-        Naming the first offending key.
+        Naming the first offending key (with ``complete``, every missing key).
     """
     unknown = sorted(set(data) - set(_SECTIONS))
     if unknown:
@@ -158,6 +202,12 @@ def setup_from_dict(data: Mapping[str, Any]) -> Setup:
         sections = {name: _build_section(name, cls, data.get(name, {})) for name, cls in _SECTIONS.items()}
     except TypeError as error:  # a required Bump key is missing
         raise SetupError(f"world.bumps: {error}") from None
+    missing = missing_keys(data) if complete else []
+    if missing:
+        raise SetupError(
+            f"incomplete: no {', '.join(missing)} (a setup file gives every key of the contract; "
+            "spotnav scene --example prints a whole one)"
+        )
     return Setup(**sections)
 
 
@@ -169,8 +219,18 @@ def setup_from_toml(text: str) -> Setup:
     SetupError
         For TOML syntax errors and for every invalid key.
     """
+    return setup_from_dict(toml_data(text))
+
+
+def toml_data(text: str) -> dict[str, Any]:
+    """A setup's TOML, parsed (not checked).
+
+    Raises
+    ------
+    SetupError
+        For TOML syntax errors.
+    """
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise SetupError(f"not valid TOML: {error}") from None
-    return setup_from_dict(data)
