@@ -9,8 +9,9 @@ import pytest
 from conftest import small_setup
 
 from spotnav.experiments import geometry, mismatch, reproduce
-from spotnav.experiments.chapter6 import EXPOSURES, GALLERY_POSE, POWERS_W, gallery_centre, saturating_exposure_stops
+from spotnav.experiments.chapter6 import EXPOSURES, POWERS_W
 from spotnav.experiments.core import approximation_rows
+from spotnav.experiments.gallery import GALLERY_POSE, gallery_centre, saturating_exposure_stops
 from spotnav.experiments.profiling import PARTS, PROFILED_STAGES, run_profile
 from spotnav.experiments.runner import run_frames, summarize
 from spotnav.experiments.scenes import bump_grid, thesis_world

@@ -16,5 +16,6 @@ def test_light_study_smoke(tmp_path: Path) -> None:
         assert f"| blur {blur_px:.1f} px | " in report
     # The thesis's exposure is answered; a blur of 3 px after the encoding leaves the edge unknown: refused.
     assert "| exposure +4.5 stops | 1/1 | " in report
-    assert "| blur 3.0 px | 0/1 | - | - | - | blurred 1 |" in report
-    assert experiments[0].summary.startswith("light: exposure 5/5 ok, max ")
+    refused = "- (no ok frame: 0/1; blurred 1)"  # a missing figure says why
+    assert f"| blur 3.0 px | 0/1 | {refused} | {refused} | {refused} | blurred 1 |" in report
+    assert experiments[0].summary.startswith("light: exposure: 5/5 frames ok, max error ")

@@ -24,6 +24,7 @@ from spotnav.experiments.light import run_light
 from spotnav.experiments.mismatch import run_mismatch
 from spotnav.experiments.report import Experiment, Options
 from spotnav.experiments.runner import FrameRunner
+from spotnav.experiments.summary import summary_lines
 
 __all__ = ["EXPERIMENTS", "ON_REQUEST", "approximation_rows", "reproduce"]
 
@@ -57,6 +58,9 @@ def reproduce(
     log: Callable[[str], None] = print,
 ) -> list[Experiment]:
     """Run the experiments and write their CSVs, figures and ``report.md`` into ``out``.
+
+    ``report.md`` opens with the summary table (:func:`spotnav.experiments.summary.summary_lines`), then each
+    experiment's section in order.
 
     Parameters
     ----------
@@ -96,6 +100,7 @@ def reproduce(
         f"Mode: {'quick' if quick else 'full'}, {size_px} px, {count} poses per path, {workers} workers, "
         f"{time.perf_counter() - started:.0f} s. Regenerate with `{command}`.",
         "",
+        *summary_lines(done),
         "",
     ]
     (out / "report.md").write_text("\n".join(header) + "\n\n".join(e.markdown for e in done) + "\n", encoding="utf-8")

@@ -25,6 +25,7 @@ from spotnav.experiments.runner import (
     FrameResult,
     FrameRunner,
     Variant,
+    error_cells,
     localize_variants,
     render_frame,
     run_frame,
@@ -99,14 +100,8 @@ def run_frame_with_edges(
 
 def _row(label: str, results: list[FrameResult], extra: str) -> list[str]:
     s = summarize(results)
-    return [
-        label,
-        f"{s.mean_mm:.4f}",
-        f"{s.max_mm:.4f}",
-        f"{s.ok}/{s.frames}",
-        f"{100 * s.within_3_sigma:.0f} %",
-        extra,
-    ]
+    mean, worst, share = error_cells(s)
+    return [label, mean, worst, f"{s.ok}/{s.frames}", share, extra]
 
 
 def run_calibration(options: Options) -> Experiment:
@@ -157,7 +152,8 @@ def run_calibration(options: Options) -> Experiment:
             for i, r in enumerate(results)
         ]
         s = summarize(self_results)
-        summary.append(f"radius {b}: self-calibrated {fitted.radius_mm:.3f} mm, max {s.max_mm:.4f} mm")
+        worst = f"max error {s.max_mm:.4f} mm ({s.ok}/{s.frames} frames ok)" if s.ok else s.why_none
+        summary.append(f"radius {b}: self-calibrated {fitted.radius_mm:.3f} mm (true 13.5), {worst}")
     true_edge = float(np.degrees(edge_angle_of_blend(np.radians(Instrument().beam_half_angle_deg), SOFT_BLEND)))
     lines += [
         f"### B: a softer beam (blend {SOFT_BLEND}, half-light angle {true_edge:.4f} deg) than the default model",
@@ -185,13 +181,15 @@ def run_calibration(options: Options) -> Experiment:
             _row(v.label, [o[k] for o in edge_outputs], fitted_edge if k == 2 else "-")
             for k, v in enumerate(edge_variants)
         ]
-        ratio = summarize([o[2] for o in edge_outputs]).mean_mm / summarize([o[1] for o in edge_outputs]).mean_mm
+        after, true = summarize([o[2] for o in edge_outputs]), summarize([o[1] for o in edge_outputs])
+        ratio = after.mean_mm / true.mean_mm
+        ratio_line = f"{ratio:.2f}" if np.isfinite(ratio) else f"- ({(after if not after.ok else true).why_none})"
         lines += [
             f"{b}:",
             "",
             *markdown_table(header, rows),
             "",
-            f"Mean error after / with the true edge: {ratio:.2f}.",
+            f"Mean error after calibrating / with the true edge model: {ratio_line}.",
             "",
         ]
         csv_rows += [
@@ -199,6 +197,6 @@ def run_calibration(options: Options) -> Experiment:
             for k, v in enumerate(edge_variants)
             for i, o in enumerate(edge_outputs)
         ]
-        summary.append(f"edge {b}: after/true {ratio:.2f}")
+        summary.append(f"edge {b}: mean error after calibrating / with the true edge model {ratio_line}")
     write_results_csv(options.out / "calibration.csv", csv_rows)
     return Experiment("calibration", "\n".join(lines), "; ".join(summary))

@@ -10,6 +10,7 @@ same world) and with the precise method. The ellipse tests of sections 6.2-6.3 a
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -19,8 +20,10 @@ import numpy as np
 
 from spotnav.app.figures import plot_against_power, plot_gallery, plot_path_3d, plot_per_step
 from spotnav.app.paths import path_poses
+from spotnav.app.status_style import status_counts
 from spotnav.experiments.bounds import bound_rows, path_bounds
-from spotnav.experiments.report import Experiment, Options, markdown_table, write_results_csv
+from spotnav.experiments.gallery import power_gallery, saturating_exposure_stops
+from spotnav.experiments.report import Experiment, Headline, Options, markdown_table, write_results_csv
 from spotnav.experiments.runner import (
     ErrorSummary,
     FrameJob,
@@ -28,31 +31,24 @@ from spotnav.experiments.runner import (
     FrameRunner,
     Variant,
     calibrate_height,
-    render_frame,
     run_frame,
     summarize,
 )
 from spotnav.experiments.scenes import BEAMS, PATH_SEEDS, bump_grid, thesis_world, with_true_edge
-from spotnav.optics.camera import camera_depth_mm, project_points
-from spotnav.optics.render import Renderer
-from spotnav.optics.response import decode_values
+from spotnav.experiments.summary import error_headline, pair_text
 from spotnav.pose.bound import PoseBound
 from spotnav.setup.config import Setup
 from spotnav.setup.examples import THESIS_EXPOSURE_STOPS
 from spotnav.setup.geometry import InstrumentPose
-from spotnav.setup.microscope import Camera
 from spotnav.setup.paths import HELIX, SQUARE_CORNERS_MM
 from spotnav.setup.sections import Instrument, World
 
 __all__ = [
     "EXPOSURES",
-    "GALLERY_POSE",
     "POWERS_W",
     "THESIS",
-    "gallery_centre",
     "run_paths",
     "run_world",
-    "saturating_exposure_stops",
 ]
 
 POWERS_W = (0.01, 0.1, 0.25, 0.5, 1.0, 1.5, 2.0)
@@ -169,8 +165,10 @@ def _uncertainty_lines(by_case: Mapping[str, Mapping[str, list[FrameResult]]]) -
     for case, results in by_case.items():
         s = summarize(results[PRECISE])
         lines.append(
-            f"- precise, {case}: {100 * s.within_3_sigma:.0f} % of the errors within 3 sigma "
+            f"- precise, {case}: {s.within_3_sigma_text} of the errors within 3 sigma "
             f"(median 1-sigma {s.sigma_median_mm:.4f} mm)."
+            if s.ok
+            else f"- precise, {case}: {s.why_none}."
         )
     return lines
 
@@ -199,13 +197,6 @@ def _rotation_cell(summary: ErrorSummary | None, index: int, component: int) -> 
     if summary is None:
         return "no calibration"
     return _cell((summary.rotation_mean_deg if index == 0 else summary.rotation_max_deg)[component])
-
-
-def _statuses(results: Sequence[FrameResult]) -> str:
-    counts: dict[str, int] = {}
-    for r in results:
-        counts[r.estimate.status] = counts.get(r.estimate.status, 0) + 1
-    return ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
 
 
 def _tips(results: Sequence[FrameResult]) -> np.ndarray:
@@ -262,10 +253,11 @@ def run_paths(options: Options) -> Experiment:
         section, at_1w_regime, thesis_means[regime] = _run_regime(options, regime, stops, csv_rows)
         sections += section
         at_1w |= {(regime, path): by_beams for path, by_beams in at_1w_regime.items()}
-    lines += [*_side_by_side(at_1w), "", *sections, *_gap_lines(at_1w, thesis_means)]
+    side_by_side, headlines = _side_by_side(at_1w)
+    lines += [*side_by_side, "", *sections, *_gap_lines(at_1w, thesis_means)]
     write_results_csv(out / "paths.csv", csv_rows)
     summary = "; ".join(f"{regime}, {path}: {_summary_text(by_beams)}" for (regime, path), by_beams in at_1w.items())
-    return Experiment("paths", "\n".join(lines), summary + " at 1 W")
+    return Experiment("paths", "\n".join(lines), "at 1 W: " + summary, tuple(headlines))
 
 
 def _run_regime(
@@ -279,13 +271,13 @@ def _run_regime(
     out, size = options.out, options.size_px
     suffix = EXPOSURE_SUFFIX[regime]
     insertion = Instrument().insertion_in_eye
-    gallery = _power_gallery(options, stops)
+    gallery = power_gallery(options, POWERS_W, stops)
     plot_gallery(
         out / f"power_gallery{suffix}.png",
         gallery,
         f"Spot at (0, 0, 8) mm, straight down, per power, {regime} (Figure 6.16)",
     )
-    lines = [f"### {regime.capitalize()} ({stops:+g} stops)", ""]
+    lines = [f"### {_regime_heading(regime)}", ""]
     power_curves: dict[str, dict[str, dict[str, list[float]]]] = {"mean": {}, "max": {}}
     at_1w = {}
     for path in ("square", "helix"):
@@ -348,30 +340,39 @@ def _run_regime(
     return lines, at_1w, plain
 
 
-def _side_by_side(at_1w: Mapping[tuple[str, str], Mapping[str, Mapping[str, list[FrameResult]]]]) -> list[str]:
-    """The thesis's printed mean and max at 1 W beside both exposures' (Tables 6.9 and 6.11)."""
+def _regime_heading(regime: str) -> str:
+    return f"{regime.capitalize()} ({EXPOSURES[regime]:+g} stops)"
+
+
+def _side_by_side(
+    at_1w: Mapping[tuple[str, str], Mapping[str, Mapping[str, list[FrameResult]]]],
+) -> tuple[list[str], list[Headline]]:
+    """The thesis's printed mean and max at 1 W beside both exposures' (Tables 6.9 and 6.11), and the same as
+    rows of the report's summary."""
     header = ["path, beams", "thesis (printed)"]
     header += [f"{regime}: {m}" for regime in EXPOSURES for m in (PLAIN, "ratio to printed", PRECISE)]
-    rows = []
+    rows, headlines = [], []
     for path in ("square", "helix"):
         for b in BEAMS:
             printed = THESIS[path][b]
             row = [f"{path}, {b}", f"{printed[0]:.3f} / {printed[1]:.3f}"]
             for regime in EXPOSURES:
                 plain, precise = (summarize(at_1w[(regime, path)][b][m]) for m in (PLAIN, PRECISE))
-                row += [f"{_cell(plain.mean_mm)} / {_cell(plain.max_mm)}", f"{plain.mean_mm / printed[0]:.2f}"]
-                row.append(f"{_cell(precise.mean_mm, 4)} / {_cell(precise.max_mm, 4)} ({precise.ok}/{precise.frames})")
+                row += [pair_text(plain), plain.text(plain.mean_mm / printed[0], ".2f"), pair_text(precise, 4)]
+                figure = f"Table {THESIS_TABLE_NUMBERS[path][0]}: {path}, {b}, {regime}"
+                headlines.append(error_headline(figure, printed, plain, precise, _regime_heading(regime)))
             rows.append(row)
     return [
         "### Side by side at 1 W: mean / max tip error [mm]",
         "",
         *markdown_table(header, rows),
         "",
-        "The precise method's cells give its frames with a pose. Where a spot is at full scale inside its edge, "
+        "Where some frames gave no pose, a cell counts the frames `ok` and names the others' statuses. "
+        "Where a spot is at full scale inside its edge, "
         "the half level is gone: its edge is read from the unclipped flank by the photometric model "
         "(docs/methods.md); only a beam without a soft band, blown out to a step, is refused (`unreliable`, "
         '"... at full scale in every channel").',
-    ]
+    ], headlines
 
 
 def _gap_lines(
@@ -412,7 +413,7 @@ def _gap_lines(
         "flattens: the thesis's light may have had a narrower blend, a light of finite size or Blender's Filmic "
         "view transform, none of which it states."
     )
-    return [
+    lines = [
         "### Section 6.9: calibration, and the gap to the printed numbers",
         "",
         "The thesis found that its height factor did not help and left it out. At the default exposure the edge "
@@ -421,6 +422,11 @@ def _gap_lines(
         "(compare the `thesis method` and `thesis + 5.5` columns). The precise method needs no such factor: its "
         "edge model puts the edge where the light is half of its full value.",
         "",
+    ]
+    if not np.all(np.isfinite([*bias.values(), *ratio, ours])):
+        return [*lines, "No average of the gap: some path gave the thesis's method no pose at 0.5, 1 or 2 W."]
+    return [
+        *lines,
         f"At 1 W the thesis method's mean errors are {ratio[0]:.1f} times the printed ones at the default exposure "
         f"and {ratio[1]:.1f} times at the thesis's (both paths, both beam counts): {explained} A saturated spot's "
         "plateau is clipped, so Otsu's threshold lies at a small fraction of the light's unclipped value and the "
@@ -440,7 +446,8 @@ def _statuses_lines(by_case: Mapping[str, Mapping[str, list[FrameResult]]]) -> l
             frames = results[method]
             partial = sum(1 for r in frames if r.estimate.ok and r.estimate.spots < beams)
             if partial or any(not r.estimate.ok for r in frames):
-                text = f"{_statuses(frames)}; {partial} poses answered from fewer spots than beams"
+                statuses = status_counts(Counter(r.estimate.status for r in frames), "none")
+                text = f"{statuses}; {partial} poses answered from fewer spots than beams"
                 lines.append(f"- {case}, {method}: {text}.")
     return lines
 
@@ -488,45 +495,6 @@ def _plot_path(
     plot_per_step(out / f"rotation_{path}{suffix}.png", panels, "error [deg]", f"{title}: rotation error")
 
 
-GALLERY_POSE = InstrumentPose(np.array([0.0, 0.0, 8.0]), np.array([0.0, 0.0, -1.0]))  # Figure 6.16
-
-
-def _power_gallery(options: Options, exposure_stops: float) -> dict[str, np.ndarray]:
-    """Crops of a spot at (0, 0, 8) mm, straight down, at each power (Figure 6.16)."""
-    worlds = [thesis_world(options.size_px, 1, p, exposure_stops=exposure_stops) for p in POWERS_W]
-    frames = options.runner.map(render_frame, [FrameJob(w, GALLERY_POSE, 5, ()) for w in worlds], "power gallery")
-    camera = worlds[0].camera
-    u, v = project_points(camera, np.zeros(3))
-    half = round(1.8 * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3))))  # the spot's radius: 1.27 mm
-    return {
-        f"{p:g} W": frame[max(int(v) - half, 0) : int(v) + half, max(int(u) - half, 0) : int(u) + half].copy()
-        for p, frame in zip(POWERS_W, frames, strict=True)
-    }
-
-
-def saturating_exposure_stops(size_px: int) -> float:
-    """The exposure at which the Figure 6.16 spot is white at 1 W: the thesis's exposure's criterion.
-
-    Renders the spot at (0, 0, 8) mm, straight down, at 1 W and the default exposure,
-    without noise, and returns the stops that bring the median of the darkest channel's
-    linear light over the spot's centre (a disc of 0.5 mm on the retina) to full scale.
-    """
-    world = thesis_world(size_px, 1)
-    world = replace(world, render=replace(world.render, full_well_e=0.0, bit_depth=16))
-    frame = Renderer(world).render(GALLERY_POSE, seed=5)
-    light = decode_values(frame[gallery_centre(world.camera)] / 65535.0, world.camera.pixel_response)
-    return float(-np.log2(np.median(light.min(axis=1))))
-
-
-def gallery_centre(camera: Camera) -> np.ndarray:
-    """The pixels (height, width) bool of the Figure 6.16 spot's centre: a disc of 0.5 mm about the pole."""
-    centre = project_points(camera, np.zeros(3))
-    radius_px = 0.5 * camera.focal_px / float(camera_depth_mm(camera, np.zeros(3)))
-    rows, cols = np.indices((camera.height_px, camera.width_px))
-    inside: np.ndarray = np.hypot(cols - centre[0], rows - centre[1]) <= radius_px
-    return inside
-
-
 # --- 6.7 and 6.8: a deformed and a larger eye ----------------------------------------------------------------
 
 
@@ -534,6 +502,7 @@ WORLDS: dict[str, Callable[[], World]] = {
     "bumps": lambda: World(bumps=bump_grid()),
     "radius": lambda: World(eye_radius_mm=13.5),
 }
+WORLD_FIGURES = {"bumps": "deformed retina", "radius": "eye radius 13.5 mm, assumed 12.5"}
 WORLD_TEXT = {
     "bumps": (
         "Section 6.7: a deformed retina (Table 6.17)",
@@ -576,7 +545,18 @@ def run_world(name: str, options: Options) -> Experiment:
         for i, r in enumerate(frames)
     ]
     write_results_csv(options.out / f"{name}.csv", csv_rows)
-    return Experiment(name, "\n".join(lines), _summary_text(by_beams))
+    table = "6.17" if name == "bumps" else "6.18"
+    headlines = tuple(
+        error_headline(
+            f"Table {table}: {WORLD_FIGURES[name]}, helix, {b}",
+            THESIS[name][b],
+            summarize(by_beams[b][PLAIN]),
+            summarize(by_beams[b][PRECISE]),
+            title,
+        )
+        for b in BEAMS
+    )
+    return Experiment(name, "\n".join(lines), _summary_text(by_beams), headlines)
 
 
 def _summary_text(by_beams: Mapping[str, Mapping[str, list[FrameResult]]]) -> str:
@@ -584,8 +564,12 @@ def _summary_text(by_beams: Mapping[str, Mapping[str, list[FrameResult]]]) -> st
     parts = []
     for b, results in by_beams.items():
         plain, precise = summarize(results[PLAIN]), summarize(results[PRECISE])
-        parts.append(
-            f"{b} thesis {_cell(plain.mean_mm, 4)}/{_cell(plain.max_mm, 4)}, "
-            f"precise {_cell(precise.mean_mm, 4)}/{_cell(precise.max_mm, 4)} ({precise.ok}/{precise.frames})"
-        )
-    return "; ".join(parts) + " mm mean/max"
+        parts.append(f"{b} thesis's method {_pair_ok(plain)}, precise {_pair_ok(precise)}")
+    return "mean/max tip error [mm], frames ok: " + "; ".join(parts)
+
+
+def _pair_ok(summary: ErrorSummary) -> str:
+    """``0.0312/0.1330 (25/25 ok)``, or why no frame gave a pose."""
+    if not summary.ok:
+        return summary.why_none
+    return f"{summary.mean_mm:.4f}/{summary.max_mm:.4f} ({summary.ok}/{summary.frames} ok)"

@@ -235,7 +235,7 @@ def run_faults(options: Options) -> Experiment:
             results = [output[number] for output in outputs]
             silent, summary = count_silent_failures(results), summarize(results)
             row = [case.category, case.severity, variant.label, f"{summary.ok}/{summary.frames}"]
-            row += [f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}", str(silent), count_refusals(results)]
+            row += [summary.text(summary.mean_mm), summary.text(summary.max_mm), str(silent), count_refusals(results)]
             rows.append(row)
             severity = case.severity + (" (known limit)" if case.limit else "")
             cells[(case.category, severity, variant.label)] = (summary.ok / summary.frames, silent, case.default)
@@ -266,8 +266,8 @@ def run_faults(options: Options) -> Experiment:
         + ".",
     ]
     summary_line = (
-        f"faults: precise method {silent_total} silent failures in {frames} frames outside the known limits; "
-        f"shaft {shaft[1]} available {shaft[3]}, max {shaft[5]} mm"
+        f"faults: precise method {silent_total} silent failures (ok, over {SILENT_ERROR_MM} mm off) in {frames} "
+        f"frames outside the known limits; shaft {shaft[1]}: {shaft[3]} frames ok, max error {shaft[5]} mm"
     )
     if limits:
         summary_line += "; known limits: " + "; ".join(line for line, _ in limits)

@@ -192,9 +192,11 @@ def run_geometry(options: Options) -> Experiment:
                 ]
         everything = cells.get(("everything at once", beams, VARIANTS[2]))
         if everything is not None:
+            errors = f"mean {everything.mean_mm:.4f} mm, max {everything.max_mm:.4f} mm" if everything.ok else ""
             summary.append(
                 f"{beams} beam{'s' * (beams > 1)} everything at once, calibrated: "
-                f"{everything.ok}/{everything.frames} ok, mean {everything.mean_mm:.4f} mm, max {everything.max_mm:.4f}"
+                f"{everything.ok}/{everything.frames} frames ok"
+                + (f", {errors}" if errors else f" ({everything.refusals})")
             )
     write_results_csv(options.out / "geometry.csv", csv_rows)
     plot_geometry_study(options.out / "geometry.png", cells, [case.name for case in GEOMETRY_CASES], VARIANTS)

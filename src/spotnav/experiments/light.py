@@ -67,7 +67,9 @@ def run_light(options: Options) -> Experiment:
         *markdown_table(header, rows),
     ]
     summary_line = "light: " + "; ".join(
-        f"{kind} {answered[kind][0]}/{answered[kind][1]} ok, max {worst[kind]:.4f} mm" for kind in answered
+        f"{kind}: {answered[kind][0]}/{answered[kind][1]} frames ok"
+        + (f", max error {worst[kind]:.4f} mm" if answered[kind][0] else "")
+        for kind in answered
     )
     return Experiment("light", "\n".join(lines), summary_line)
 

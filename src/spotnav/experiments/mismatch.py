@@ -150,7 +150,7 @@ def run_mismatch(options: Options) -> Experiment:
                 row += [calibrated, ""]
             else:
                 after = summarize([output[2] for output in outputs])
-                row += [f"{after.ok}/{after.frames}", f"{after.mean_mm:.4f} / {after.max_mm:.4f}"]
+                row += [f"{after.ok}/{after.frames}", f"{after.text(after.mean_mm)} / {after.text(after.max_mm)}"]
             single.append(row)
             sequence = path_poses("helix", SEQUENCE_FRAMES, world.instrument.insertion_in_eye)
             jobs = [FrameJob(world, pose, seed + 500 + i, ()) for i, pose in enumerate(sequence)]

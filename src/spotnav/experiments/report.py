@@ -3,7 +3,9 @@ every localized frame.
 
 Every study is a function of :class:`Options` (output folder, image size, poses per path, the frame runner) that
 writes its CSVs and figures into the output folder and returns an :class:`Experiment`: its section of
-``report.md`` and one line for the console.
+``report.md``, one line for the console and its :class:`Headline` rows for the report's summary table
+(:mod:`spotnav.experiments.summary`). A figure that could not be measured (NaN: no frame gave a pose) is written
+as :func:`number_text` writes it, ``-`` with the reason, never ``nan``.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import numpy as np
 
 from spotnav.experiments.runner import FrameResult, FrameRunner
 
-__all__ = ["Experiment", "Options", "markdown_table", "write_results_csv"]
+__all__ = ["Experiment", "Headline", "Options", "markdown_table", "number_text", "write_results_csv"]
 
 
 @dataclass(frozen=True)
@@ -31,18 +33,50 @@ class Options:
 
 
 @dataclass(frozen=True)
+class Headline:
+    """One row of the report's summary table: a figure the thesis prints beside spotnav's.
+
+    Attributes
+    ----------
+    figure : str
+        What is measured, with the thesis's table.
+    thesis : str
+        The thesis's printed figure.
+    plain, precise : str
+        spotnav's figure by the thesis's method and by the precise method (``n/a ...`` where one does not apply).
+    verdict : str
+        How spotnav's figure compares, in words.
+    section : str
+        The heading (without its ``#``) of the report's section that holds the full table.
+    """
+
+    figure: str
+    thesis: str
+    plain: str
+    precise: str
+    verdict: str
+    section: str
+
+
+@dataclass(frozen=True)
 class Experiment:
-    """A finished experiment: a Markdown section and one line for the console."""
+    """A finished experiment: a Markdown section, one line for the console and its rows of the summary table."""
 
     name: str
     markdown: str
     summary: str
+    headlines: tuple[Headline, ...] = ()
 
 
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     """A Markdown table of ``header`` and ``rows`` (cells as given), one line a row."""
     lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+def number_text(value: float, spec: str, why: str) -> str:
+    """``value`` as ``spec`` formats it, or ``- (why)`` where it is not a finite number (nothing was measured)."""
+    return format(value, spec) if np.isfinite(value) else f"- ({why})"
 
 
 def write_results_csv(path: Path, rows: Sequence[tuple[dict[str, object], FrameResult]]) -> None:

@@ -131,6 +131,8 @@ class ErrorSummary:
         (:func:`spotnav.pose.estimate.within_sigmas`; NaN without sigmas).
     sigma_median_mm : float
         Median reported 1-sigma tip uncertainty (NaN without sigmas).
+    refusals : str
+        The statuses of the frames without a pose, with their counts (:func:`count_refusals`; ``-``: none).
     """
 
     frames: int
@@ -144,6 +146,25 @@ class ErrorSummary:
     localize_ms: float
     within_3_sigma: float
     sigma_median_mm: float
+    refusals: str = "-"
+
+    @property
+    def why_none(self) -> str:
+        """Why these frames have no error to report: ``no ok frame: 0/3; mismatch 3``."""
+        refused = f"; {self.refusals}" if self.refusals != "-" else ""
+        return f"no ok frame: {self.ok}/{self.frames}{refused}"
+
+    def text(self, value: float, spec: str = ".4f") -> str:
+        """One of these frames' figures as ``spec`` formats it, or ``-`` and why it is missing: no ``ok`` frame, or
+        (a sigma's figure) no ``ok`` frame that reported a sigma."""
+        if np.isfinite(value):
+            return format(value, spec)
+        return f"- ({self.why_none if not self.ok else 'no ok frame reported a sigma'})"
+
+    @property
+    def within_3_sigma_text(self) -> str:
+        """:attr:`within_3_sigma` in per cent (``92 %``), or ``-`` and why."""
+        return self.text(100 * self.within_3_sigma, ".0f") + (" %" if np.isfinite(self.within_3_sigma) else "")
 
 
 def summarize(results: Sequence[FrameResult]) -> ErrorSummary:
@@ -167,6 +188,7 @@ def summarize(results: Sequence[FrameResult]) -> ErrorSummary:
         localize_ms=float(np.median([r.localize_ms for r in results])),
         within_3_sigma=float(within_sigmas(errors[with_sigma], sigmas[with_sigma]).mean()) if with_sigma.any() else nan,
         sigma_median_mm=float(np.median(sigmas[with_sigma])) if with_sigma.any() else nan,
+        refusals=count_refusals(results),
     )
 
 
@@ -177,11 +199,9 @@ def count_refusals(results: Sequence[FrameResult]) -> str:
 
 
 def error_cells(summary: ErrorSummary) -> list[str]:
-    """A report's mean and max tip error (mm, 4 decimals) and share within 3 sigma (per cent); ``-`` where none."""
-    if not summary.ok:
-        return ["-", "-", "-"]
-    share = "-" if not np.isfinite(summary.within_3_sigma) else f"{100 * summary.within_3_sigma:.0f} %"
-    return [f"{summary.mean_mm:.4f}", f"{summary.max_mm:.4f}", share]
+    """A report's mean and max tip error (mm, 4 decimals) and share within 3 sigma (per cent); ``-`` and why where
+    there is none (:meth:`ErrorSummary.text`)."""
+    return [summary.text(summary.mean_mm), summary.text(summary.max_mm), summary.within_3_sigma_text]
 
 
 def run_frame(job: FrameJob) -> tuple[FrameResult, ...]:

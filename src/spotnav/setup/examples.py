@@ -90,7 +90,7 @@ glow = 0.0                    # an endo-illuminator's broad uneven glow: peak, f
 # The exposure at which the thesis's spots saturate (docs/methods.md, "The thesis's exposure"): its Figure 6.16
 # shows the spot at (0, 0, 8) mm brightening up to 0.5 W and no more from 1 W. A spot stops brightening when it
 # is white, full scale in every channel: at 1 W the median of its centre's darkest channel (blue) reaches full
-# scale at +4.44 stops on spotnav's retina (spotnav.experiments.chapter6.saturating_exposure_stops), and
+# scale at +4.44 stops on spotnav's retina (spotnav.experiments.gallery.saturating_exposure_stops), and
 # the preset rounds that up to the half stop.
 THESIS_EXPOSURE_STOPS = 4.5
 
