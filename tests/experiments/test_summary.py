@@ -93,7 +93,7 @@ def test_report_opens_with_the_summary_and_has_no_bare_nan(tmp_path: Path) -> No
     assert not NAN.search(report), NAN.findall(report)
     # Section 6.3's precise cells say why they are refused, and precise-free's columns are there.
     sphere = next(line for line in report.splitlines() if line.startswith("| sphere, perpendicular") and "/" in line)
-    assert "| mismatch (right: the axis misses the insertion point; precise-free fits it; note 1) |" in sphere
+    assert "| mismatch (right: the axis misses the insertion point; precise-free beside it; note 1) |" in sphere
     assert "its axis passes 4.2 mm from that point, 15.8 deg from the line the method assumes" in report
     assert "precise-free, 3 beams" in report
     for line in lines:

@@ -97,7 +97,8 @@ def reproduce(
     header = [
         "# spotnav reproduction of Hennerkes (2020)",
         "",
-        f"Mode: {'quick' if quick else 'full'}, {size_px} px, {count} poses per path, {workers} workers, "
+        f"Mode: {'quick' if quick else 'full'}, {size_px} px, {count} poses per path, "
+        f"{workers} worker{'s' * (workers != 1)}, "
         f"{time.perf_counter() - started:.0f} s. Regenerate with `{command}`.",
         "",
         *summary_lines(done),

@@ -148,7 +148,7 @@ def _precise_text(estimate: PoseEstimate | None, truth: np.ndarray, off_line: bo
     if estimate is None:
         return "n/a: assumes the sphere"
     if not estimate.ok and off_line:
-        return f"{estimate.status} (right: the axis misses the insertion point; precise-free fits it; note 1)"
+        return f"{estimate.status} (right: the axis misses the insertion point; precise-free beside it; note 1)"
     if not estimate.ok:
         return f"{estimate.status}: {estimate.detail}"
     return f"{np.linalg.norm(estimate.tip_in_eye - truth):.4f} mm (sigma {estimate.sigma_mm:.4f})"
