@@ -14,6 +14,7 @@ TYPE_CHECKING = False  # mypy reads the block below; at run time the start impor
 if TYPE_CHECKING:
     import argparse
     from collections.abc import Callable, Sequence
+    from typing import Any
 
     import numpy as np
 
@@ -301,11 +302,18 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cluster(args: argparse.Namespace) -> dict[str, Any]:
+    """``sweep``'s and ``design``'s cluster options, checked before their file is read, and their log."""
+    from spotnav.experiments.cluster import check_cluster_options
+
+    check_cluster_options(args.scheduler, args.workers, args.dashboard, args.scheduler_timeout)
+    options = {"scheduler": args.scheduler, "workers": args.workers, "dashboard": args.dashboard}
+    return options | {"scheduler_timeout_s": args.scheduler_timeout, "log": lambda line: print(line, file=sys.stderr)}
+
+
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from functools import partial
     from pathlib import Path
 
-    from spotnav.experiments.cluster import check_cluster_options
     from spotnav.experiments.sweep import EXAMPLE_SWEEP, run_sweep
 
     if args.example:
@@ -313,19 +321,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     if args.file is None or args.out is None:
         raise UsageError("sweep needs FILE and --out DIR (or --example)")
-    check_cluster_options(args.scheduler, args.workers, args.dashboard, args.scheduler_timeout)  # before the file
-    path = Path(args.file)
-    run = run_sweep(
-        path.read_text(encoding="utf-8"),
-        args.out,
-        base_dir=path.parent,
-        scheduler=args.scheduler,
-        workers=args.workers,
-        resume=args.resume,
-        dashboard=args.dashboard,
-        log=partial(print, file=sys.stderr),
-        scheduler_timeout_s=args.scheduler_timeout,
-    )
+    options, path = _cluster(args), Path(args.file)
+    run = run_sweep(path.read_text(encoding="utf-8"), args.out, base_dir=path.parent, resume=args.resume, **options)
     print(run.summary())
     return 0
 
@@ -341,7 +338,6 @@ def _cmd_sweep_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_design(args: argparse.Namespace) -> int:
-    from functools import partial
     from pathlib import Path
 
     from spotnav.experiments.design import EXAMPLE_DESIGN, run_design
@@ -351,9 +347,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
         return 0
     if args.file is None or args.out is None:
         raise UsageError("design needs FILE and --out DIR (or --example)")
-    path, log = Path(args.file), partial(print, file=sys.stderr)
-    options = {"scheduler": args.scheduler, "workers": args.workers, "dashboard": args.dashboard, "log": log}
-    options["scheduler_timeout_s"] = args.scheduler_timeout
+    options, path = _cluster(args), Path(args.file)
     print(run_design(path.read_text(encoding="utf-8"), args.out, base_dir=path.parent, **options).summary())
     return 0
 

@@ -58,7 +58,7 @@ def test_sigterm_interrupts_within_the_block_only() -> None:
 def test_only_the_commands_with_kernels_compile_them(monkeypatch: pytest.MonkeyPatch) -> None:
     warmed: list[str] = []
     monkeypatch.setattr("spotnav.app.kernels.kernels_compiled", lambda: False)
-    monkeypatch.setattr("spotnav.app.kernels.warm_kernels", lambda report: warmed.append("warm"))
+    monkeypatch.setattr("spotnav.app.kernels.warm_kernels", lambda report: warmed.append("warm") or {"total": 1.0})
     for command, example in [("scene", "thesis"), ("evaluate", None), ("sweep", True), ("sweep-report", None)]:
         start.compile_kernels_once(argparse.Namespace(command=command, example=example), report=print)
     assert warmed == []
@@ -85,7 +85,7 @@ def test_a_missing_input_is_said_before_any_compiling(tmp_path: Path, monkeypatc
     # Review: `spotnav localize --scene typo.toml ...` compiled for a minute before saying the file was missing.
     warmed: list[str] = []
     monkeypatch.setattr("spotnav.app.kernels.kernels_compiled", lambda: False)
-    monkeypatch.setattr("spotnav.app.kernels.warm_kernels", lambda report: warmed.append("warm"))
+    monkeypatch.setattr("spotnav.app.kernels.warm_kernels", lambda report: warmed.append("warm") or {"total": 1.0})
     setup = tmp_path / "setup.toml"
     setup.write_text("")
     missing = str(tmp_path / "typo.toml")

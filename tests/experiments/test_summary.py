@@ -35,9 +35,10 @@ def test_a_figure_without_an_ok_frame_says_why() -> None:
     assert refused.why_none == "no ok frame: 0/3; blurred 1, mismatch 2"
     assert error_cells(refused) == ["- (no ok frame: 0/3; blurred 1, mismatch 2)"] * 3
     assert pair_text(refused) == "- (no ok frame: 0/3; blurred 1, mismatch 2)"
-    some = summarize([_result("ok", 0.02), _result("ok", 0.04), _result("blurred")])
-    assert pair_text(some) == "0.030 / 0.040 (2/3 ok; blurred 1)"
-    assert error_cells(some) == ["0.0300", "0.0400", "50 %"]  # sigma 10 um: 20 um within 3 sigma, 40 um not
+    some = summarize([_result("ok", 0.02), _result("ok", 0.06), _result("blurred")])
+    assert pair_text(some) == "0.040 / 0.060 (2/3 ok; blurred 1)"
+    assert error_cells(some) == ["0.0400", "0.0600", "50 %"]  # sigma 10 um per axis: 20 um within 3 sigma in 3-D
+    # (52 um), 60 um not
 
 
 def test_verdicts_and_anchors() -> None:
