@@ -199,6 +199,7 @@ def _without_seconds(path: Path) -> list[dict[str, str]]:
         return [{k: v for k, v in row.items() if k != "seconds"} for row in csv.DictReader(handle)]
 
 
+@pytest.mark.slow  # a design search twice, on a cluster (40 s): make test-all
 def test_a_local_dask_cluster_gives_the_same_designs_and_verification_as_this_process(tmp_path: Path) -> None:
     text = TINY.replace("poses = 12\n[constraints]", "poses = 3\n[constraints]").replace("poses = 12\n", "poses = 3\n")
     lines: list[str] = []

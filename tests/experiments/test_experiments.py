@@ -110,6 +110,7 @@ def _without_timings(path: Path) -> list[list[str]]:
     return [[row[i] for i in keep] for row in rows]
 
 
+@pytest.mark.slow  # every table of reproduce, a study (a minute): make test-all
 def test_reproduce_every_thesis_table(tmp_path: Path) -> None:
     # The chapter-6 experiments at a tiny size: every table is there, no cell is empty,
     # and the numbers do not depend on the number of workers.
@@ -169,6 +170,7 @@ def test_reproduce_calibration_experiment(tmp_path: Path) -> None:
     assert len(rows) - 1 == 2 * 20 * 3 + 2 * 20 * 3  # parts x beam counts x poses x variants
 
 
+@pytest.mark.slow  # a study (40 s): make test-all
 def test_geometry_study_smoke(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # Two cases at a small size: every variant reported, the trusted nominal geometry 0.4 mm off with a
     # shifted camera, the calibrated one right, no silent failure where spotnav knows what it does not know.

@@ -159,6 +159,7 @@ def test_random_text_parses_or_raises_a_sweep_error(text: str) -> None:
         assert str(error)
 
 
+@pytest.mark.slow  # a sweep on clusters of 1 and 2 workers (30 s): make test-all
 def test_results_do_not_depend_on_the_number_of_workers(tmp_path: Path) -> None:
     lines: list[str] = []
     one = run_sweep(TINY, tmp_path / "one", workers=1, dashboard="127.0.0.1:0", log=lines.append)

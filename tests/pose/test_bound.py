@@ -72,7 +72,7 @@ def test_light_that_misses_the_retina_has_no_bound() -> None:
     assert bound.status == "no_light" and not bound.ok and np.isnan(bound.tip_mm)
 
 
-@pytest.mark.parametrize("beams", [1, 3])
+@pytest.mark.parametrize("beams", [1, pytest.param(3, marks=pytest.mark.slow)])  # three beams: 35 s, make test-all
 def test_an_efficient_fit_of_200_noisy_frames_spreads_as_the_bound(beams: int) -> None:
     """The bound is the spread of the model fit's estimates over 200 noisy renders of one pose, within 20 %."""
     world = _world(384, beams=beams)
