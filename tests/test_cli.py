@@ -608,6 +608,8 @@ def test_the_readme_first_try_runs_as_written(tmp_path: Path) -> None:
     result, _ = _run_first_try(tmp_path, dict(os.environ))
     assert result.stderr.count(COMPILING) == result.stderr.count(COMPILED) <= 1, result.stderr
     assert "compiling" not in result.stderr.replace(COMPILING, "")
+    # Issue 61: the frame and the tracked helix, every ok frame within 3 of its 3-D standard error
+    assert result.stdout.count("within 3 sigma: 100 % of the ok frames") == 2, result.stdout
 
 
 def test_version_answers_at_once() -> None:
