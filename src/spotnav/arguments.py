@@ -30,7 +30,7 @@ METHODS = ("precise", "precise-free", "thesis")
 DEFAULT_METHOD = "precise"
 PARAMETER_GROUPS = (
     *("edge-angle", "light-radius", "eye-radius", "camera-rotation", "camera-position", "focal-length"),
-    *("principal-point", "distortion", "insertion-point"),
+    *("principal-point", "distortion", "insertion-point", "beam-tilt"),
 )
 EXPERIMENTS = (
     *("approximation", "ellipse", "paths", "efficiency", "bumps", "radius", "calibration", "volume", "faults", "light"),

@@ -348,7 +348,8 @@ def test_the_jacobian_is_the_residuals_derivative(seed: int, beams: int, axis: s
     )
     x = problem.start + rng.normal(0.0, 1e-3, problem.size) * (np.arange(problem.size) >= SHARED_SIZE)
     jacobian = problem.jacobian_matrix(x)
-    steps = np.concatenate([1e-4 * sigmas, np.full(problem.size - SHARED_SIZE, 1e-5)])
+    # One beam has no tilt (its sigma 0): its column is 0, differenced at a tilt's step.
+    steps = np.concatenate([1e-4 * np.where(sigmas > 0, sigmas, 1e-2), np.full(problem.size - SHARED_SIZE, 1e-5)])
     lost = 1e4 * np.finfo(float).eps * np.abs(problem.residuals(x)).max()
     for column in range(problem.size):
         step = np.zeros(problem.size)
@@ -453,12 +454,13 @@ def test_setup_with_geometry_is_the_perturbed_camera() -> None:
     change = np.zeros(SHARED_SIZE)
     change[[0, 1, 2]] = np.radians(0.1), 0.02, 0.1
     change[3:17] = [1e-3, -2e-3, 3e-3, 0.1, -0.2, 0.3, 0.004, 2.0, -1.0, -2.5, 10.0, 1e-3, -1e-3, 0.0]
-    change[17:] = [0.1, -0.1, 0.2]
+    change[17:] = [0.1, -0.1, 0.2, np.radians(0.3)]
     setup = setup_with_geometry(EXACT, change)
     np.testing.assert_allclose(camera_model(setup.camera), perturbed_model(camera_model(EXACT.camera), change[3:17]))
     assert setup.eye.radius_mm == pytest.approx(12.6) and setup.instrument.light_radius_mm == pytest.approx(0.02)
     assert setup.instrument.edge_half_angle_deg == pytest.approx(np.degrees(edge_angle(EXACT)) + 0.1)
     np.testing.assert_allclose(setup.instrument.insertion_point_mm, [0.1, 5.9, 20.2])
+    assert setup.instrument.beam_tilt_deg == pytest.approx(EXACT.instrument.beam_tilt_deg + 0.3)
     assert setup_with_geometry(EXACT, np.zeros(SHARED_SIZE)).camera == EXACT.camera  # unchanged stays ideal
 
 

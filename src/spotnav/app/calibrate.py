@@ -90,6 +90,8 @@ def calibrate(
     for name in (*fit, *fix):
         if name not in PARAMETER_GROUPS:
             raise InputError(f"{name!r} is not a parameter group, allowed: {', '.join(PARAMETER_GROUPS)}")
+    if "beam-tilt" in fit and setup.instrument.beam_count == 1:
+        raise InputError("one beam has no tilt: leave --fit beam-tilt out")
     both = sorted(set(fit) & set(fix))
     if both:
         raise InputError(f"{both[0]} cannot be both fitted and fixed")

@@ -32,6 +32,7 @@ _SETUP_KEYS = {
     "edge_half_angle_deg": "instrument.edge_half_angle_deg",
     "light_radius_mm": "instrument.light_radius_mm",
     "eye_radius_mm": "eye.radius_mm",
+    "beam_tilt_deg": "instrument.beam_tilt_deg",
 }
 
 

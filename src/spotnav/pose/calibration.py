@@ -6,7 +6,7 @@ camera has turned it into a point on the retina. All frames' points are fitted
 at once (:mod:`spotnav.pose.conefit`) to the geometry's parameters
 (:data:`spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`: the edge model, the eye's
 radius, the camera's rotation, centre, scale, principal point and distortion,
-the insertion point) and each three-beam frame's roll.
+the insertion point, the beams' tilt) and each three-beam frame's roll.
 
 :func:`fit_geometry` chooses the model itself. A first fit with every
 parameter free, held by priors (the setup's ``[uncertainty]``), reaches the
@@ -78,6 +78,7 @@ DETERMINED_RATIO = 0.25
 # alike (a tilt and a shift of the camera, its focal length and its height) the first is fitted.
 PRIORITY: tuple[int, ...] = (
     *PARAMETER_GROUPS["edge-angle"],
+    *PARAMETER_GROUPS["beam-tilt"],
     *PARAMETER_GROUPS["camera-rotation"],
     *PARAMETER_GROUPS["focal-length"],
     *PARAMETER_GROUPS["light-radius"],
@@ -296,6 +297,7 @@ _UNCERTAINTY_KEYS = {
     "principal-point": "principal_point_percent",
     "distortion": "distortion_px",
     "insertion-point": "insertion_point_mm",
+    "beam-tilt": "beam_tilt_deg",
 }
 
 
@@ -328,6 +330,8 @@ def fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str],
         setup = replace(setup, uncertainty=replace(setup.uncertainty, **typical))
         prior = np.sqrt(np.diag(geometry_covariance(setup, one_frame=False)))
     reasons.update({i: "known exactly ([uncertainty] 0)" for i in range(SHARED_SIZE) if prior[i] == 0})
+    if setup.instrument.beam_count == 1:
+        reasons.update({i: "one beam has no tilt" for i in PARAMETER_GROUPS["beam-tilt"]})
     known_axes = all(frame.axis is not None for frame in frames)
     lines = None
     if known_axes:

@@ -42,7 +42,8 @@ shaft_diameter_mm = 0.6       # precise method: ignore the edge the shaft hides 
                               # A simulation rendered from this very file knows it exactly: every value 0.
                               # Without this section spotnav assumes a real microscope's: edge 0.3 deg, light
                               # radius 0.05 mm, eye radius 0.25 mm, camera 0.5 deg and 0.5 mm, focal length 1 %,
-                              # principal point 1 % of the width, distortion 5 px, insertion point 0.5 mm.
+                              # principal point 1 % of the width, distortion 5 px, insertion point 0.5 mm,
+                              # beams' tilt 0.5 deg.
                               # spotnav calibrate measures it and writes [calibration].
 edge_half_angle_deg = 0.0
 light_radius_mm = 0.0
@@ -53,6 +54,7 @@ focal_length_percent = 0.0
 principal_point_percent = 0.0
 distortion_px = 0.0
 insertion_point_mm = 0.0
+beam_tilt_deg = 0.0
 
 [light]                       # simulator only, Blender's conventions
 power_w = 1.0                 # radiant intensity power_w / (4 pi) W/sr on the axis

@@ -37,6 +37,7 @@ GEOMETRY_PARAMETERS: tuple[str, ...] = (
     "insertion_x_mm",
     "insertion_y_mm",
     "insertion_z_mm",
+    "beam_tilt_deg",
 )
 """The geometry's parameters, each a small change of the setup's value (``docs/setup.md``).
 
@@ -44,7 +45,8 @@ The edge model's angle (the beam's edge) and light radius; the eye's radius;
 the camera's rotation about its own centre, about its own ``x``, ``y``, ``z``
 axes; the camera centre's shift in the eye frame; both focal lengths scaled by
 a percentage; the principal point; OpenCV's first five distortion
-coefficients; the insertion point's shift. ``[uncertainty]`` and
+coefficients; the insertion point's shift; the beams' tilt from the
+instrument's axis (several beams). ``[uncertainty]`` and
 ``[calibration]`` state how well each is known.
 """
 
@@ -82,6 +84,10 @@ class Uncertainty:
         tangential terms (p1, p2) a quarter.
     insertion_point_mm : float
         The insertion point, along each axis, mm.
+    beam_tilt_deg : float
+        The beams' tilt from the instrument's axis (``instrument.beam_tilt_deg``,
+        several beams; one beam has none), degrees: how well the fibres'
+        directions in the tip are known.
     """
 
     edge_half_angle_deg: float = 0.3
@@ -93,6 +99,7 @@ class Uncertainty:
     principal_point_percent: float = 1.0
     distortion_px: float = 5.0
     insertion_point_mm: float = 0.5
+    beam_tilt_deg: float = 0.5
 
     def __post_init__(self) -> None:
         for item in fields(self):

@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from spotnav.optics.camera import CHANGE_SIZE, perturbed_model, sphere_point_rates, sphere_points
-from spotnav.pose.conefit.parameters import _CAMERA, _CAMERA_END, _EDGE, _INSERTION, _LIGHT, _RADIUS
+from spotnav.pose.conefit.parameters import _CAMERA, _CAMERA_END, _EDGE, _INSERTION, _LIGHT, _RADIUS, _TILT
 from spotnav.setup.geometry import _beam_axes
 
 __all__ = ["ConeArrays"]
@@ -128,7 +128,7 @@ def _frame_beams(frame: np.ndarray, f: int, shared: np.ndarray, arrays: ConeArra
         insertion[i] = arrays.base[3 + i] + shared[_INSERTION + i]
     axis = np.empty(3)
     axis[0], axis[1], axis[2] = _instrument_axis(frame, arrays.axis_mode[f], insertion, arrays.known_axes[f])
-    return _beam_axes(axis, arrays.beam_count, arrays.tilt, frame[5])
+    return _beam_axes(axis, arrays.beam_count, arrays.tilt + shared[_TILT], frame[5])
 
 
 @njit(cache=True)
@@ -182,7 +182,7 @@ def _shared_columns(x: np.ndarray, arrays: ConeArrays, ids: np.ndarray) -> np.nd
 
     Differentiated through the residual of :func:`_frame_residuals` and the points on the sphere
     (:func:`spotnav.optics.camera.sphere_point_rates`) in one pass over the points; only the beam axes' derivatives with
-    respect to the insertion point (per frame, not per point) are central differences.
+    respect to the insertion point and the beams' tilt (per frame, not per point) are central differences.
     """
     shared, frames = _unpack(x, arrays.shared, arrays.shared_index, arrays.frames, arrays.frame_index)
     base, starts, beam_of = arrays.base, arrays.starts, arrays.beam

@@ -2,8 +2,8 @@
 
 Shared by all frames of a cone fit, the geometry (:data:`SHARED_SIZE` values,
 :data:`spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`, each a change of the setup's value): the edge angle, the light's
-radius, the eye's radius, the camera's rotation, centre, focal length, principal point and distortion, and the
-insertion point, grouped as calibrate's flags name them (:data:`PARAMETER_GROUPS`). Per frame
+radius, the eye's radius, the camera's rotation, centre, focal length, principal point and distortion, the
+insertion point and the beams' tilt, grouped as calibrate's flags name them (:data:`PARAMETER_GROUPS`). Per frame
 (:data:`FRAME_PARAMETERS`): the tip, the instrument axis (through the insertion point, free as two angles, or known,
 :data:`AXIS_MODES`) and the roll of three beams. How well the setup knows its geometry is
 :func:`geometry_covariance`.
@@ -45,9 +45,10 @@ EDGE_CONTOUR_SIGMA = float(np.radians(0.007))
 SHARED_SIZE = len(GEOMETRY_PARAMETERS)
 _EDGE, _LIGHT, _RADIUS, _CAMERA = 0, 1, 2, 3  # where each part of the shared vector starts
 _CAMERA_END = _INSERTION = _CAMERA + CHANGE_SIZE
+_TILT = _INSERTION + 3
 # File units (degrees, per cent) to the engine's (radians, fractions), per shared parameter.
 _TO_ENGINE = np.ones(SHARED_SIZE)
-_TO_ENGINE[[_EDGE, _CAMERA, _CAMERA + 1, _CAMERA + 2]] = np.pi / 180.0
+_TO_ENGINE[[_EDGE, _CAMERA, _CAMERA + 1, _CAMERA + 2, _TILT]] = np.pi / 180.0
 _TO_ENGINE[_CAMERA + 6] = 0.01
 # A lens's distortion beyond k1 is smaller: these shares of the stated displacement for k2, k3 and p1, p2.
 _K2_SHARE, _K3_SHARE, _TANGENTIAL_SHARE = 0.5, 0.25, 0.25
@@ -62,6 +63,7 @@ PARAMETER_GROUPS: dict[str, tuple[int, ...]] = {
     "principal-point": (_CAMERA + 7, _CAMERA + 8),
     "distortion": tuple(range(_CAMERA + 9, _CAMERA_END)),
     "insertion-point": (_INSERTION, _INSERTION + 1, _INSERTION + 2),
+    "beam-tilt": (_TILT,),
 }
 
 
@@ -83,7 +85,7 @@ def prior_sigmas(setup: Setup) -> np.ndarray:
     the higher radial terms and the tangential ones, smaller in real lenses,
     get a share of it (:data:`_K2_SHARE`, :data:`_K3_SHARE`,
     :data:`_TANGENTIAL_SHARE`): ``r^5`` for ``k2``, ``r^7`` for ``k3``,
-    ``r^2`` for ``p1`` and ``p2``.
+    ``r^2`` for ``p1`` and ``p2``. One beam has no tilt (0).
     """
     uncertainty, camera = setup.uncertainty, setup.camera
     focal = camera.focal_px
@@ -106,6 +108,7 @@ def prior_sigmas(setup: Setup) -> np.ndarray:
             _TANGENTIAL_SHARE * distortion / edge**2,
             _K3_SHARE * distortion / edge**7,
             *[uncertainty.insertion_point_mm] * 3,
+            uncertainty.beam_tilt_deg if setup.instrument.beam_count > 1 else 0.0,
         ]
     )
     return values * _TO_ENGINE
@@ -116,7 +119,7 @@ def geometry_values(setup: Setup) -> np.ndarray:
 
     The values that the changes add to: the edge angle (deg), light and eye
     radii, the camera's centre in the eye frame, its principal point and
-    distortion coefficients, the insertion point; 0 for the rotation and the
+    distortion coefficients, the insertion point, the beams' tilt (deg); 0 for the rotation and the
     focal length's percentage (changes only).
     """
     camera = setup.camera
@@ -127,7 +130,8 @@ def geometry_values(setup: Setup) -> np.ndarray:
     values[_CAMERA + 3 : _CAMERA + 6] = camera.center_in_eye
     values[_CAMERA + 7 : _CAMERA + 9] = camera.principal_point_px
     values[_CAMERA + 9 : _CAMERA_END] = camera.distortion_coefficients[:5]
-    values[_INSERTION:] = setup.instrument.insertion_in_eye
+    values[_INSERTION:_TILT] = setup.instrument.insertion_in_eye
+    values[_TILT] = setup.instrument.beam_tilt_deg
     return values
 
 
@@ -141,12 +145,13 @@ def setup_with_geometry(setup: Setup, shared: np.ndarray) -> Setup:
     camera = setup.camera
     if np.any(shared[_CAMERA:_CAMERA_END] != 0.0):
         camera = camera_of_model(camera, perturbed_model(camera_model(camera), shared[_CAMERA:_CAMERA_END]))
-    x, y, z = (float(v) for v in setup.instrument.insertion_in_eye + shared[_INSERTION:])
+    x, y, z = (float(v) for v in setup.instrument.insertion_in_eye + shared[_INSERTION:_TILT])
     instrument = replace(
         setup.instrument,
         edge_half_angle_deg=float(np.degrees(edge_angle(setup) + shared[_EDGE])),
         light_radius_mm=max(float(setup.instrument.light_radius_mm + shared[_LIGHT]), 0.0),
         insertion_point_mm=(x, y, z),
+        beam_tilt_deg=float(setup.instrument.beam_tilt_deg + np.degrees(shared[_TILT])),
     )
     eye = replace(setup.eye, radius_mm=float(setup.eye.radius_mm + shared[_RADIUS]))
     return replace(setup, camera=camera, eye=eye, instrument=instrument)

@@ -17,7 +17,7 @@ from numba import njit
 
 from spotnav.pose.conefit.covariance import FitUncertainty, _block_uncertainty, _uncertainty
 from spotnav.pose.conefit.model import _instrument_axis
-from spotnav.pose.conefit.parameters import _EDGE, _INSERTION
+from spotnav.pose.conefit.parameters import _EDGE, _INSERTION, _TILT
 from spotnav.pose.conefit.problem import ConeProblem, EdgePoints
 
 __all__ = ["ConeSolution"]
@@ -92,7 +92,7 @@ class ConeSolution:
     @cached_property
     def insertion_in_eye(self) -> np.ndarray:
         """The fitted (or fixed) insertion point, shape (3,), mm (read-only)."""
-        point: np.ndarray = self.problem.base[3:6] + self.shared[_INSERTION:]
+        point: np.ndarray = self.problem.base[3:6] + self.shared[_INSERTION:_TILT]
         point.setflags(write=False)
         return point
 
