@@ -96,8 +96,11 @@ def _scene_command(commands: argparse._SubParsersAction[argparse.ArgumentParser]
         nargs="?",
         const="thesis",
         choices=list(EXAMPLES),
-        help="the thesis's setup, commented; thesis-exposure: the same with the thesis's saturated spots",
+        help="a microscope's nominal setup with the thesis's values, commented, its geometry to be calibrated; "
+        "thesis-exposure: the same with the thesis's saturated spots",
     )
+    exact_help = "with --example: the simulation's own setup, its geometry exact (every [uncertainty] value 0)"
+    scene.add_argument("--exact", action="store_true", help=exact_help)
     scene.add_argument(
         "--opencv",
         metavar="FILE",

@@ -33,13 +33,13 @@ def _cmd_scene(args: argparse.Namespace) -> int:
 
     from spotnav.files.setup_files import read_opencv_camera, read_setup, setup_to_toml
     from spotnav.setup.config import Setup
-    from spotnav.setup.examples import EXAMPLES
+    from spotnav.setup.examples import EXAMPLES, MICROSCOPE_EXAMPLES
     from spotnav.setup.microscope import Camera
 
-    if (args.example is None) == (args.opencv is None):
-        raise UsageError("scene needs --example (print the thesis's setup) or --opencv FILE (a calibrated camera)")
+    if (args.example is None) == (args.opencv is None) or (args.exact and args.example is None):
+        raise UsageError("scene needs --example [--exact] (a setup with the thesis's values) or --opencv FILE")
     if args.example is not None:
-        sys.stdout.write(EXAMPLES[args.example])
+        sys.stdout.write((EXAMPLES if args.exact else MICROSCOPE_EXAMPLES)[args.example])
         return 0
     base = read_setup(args.scene) if args.scene else Setup()
     width, height, matrix, distortion = read_opencv_camera(args.opencv)
@@ -131,7 +131,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
     from spotnav.app.session import IgtlSettings, TrackLimits, TrackSession, camera_settings, replay_speed
     from spotnav.files.setup_files import read_setup
 
-    setup = read_setup(args.scene)
+    setup = read_setup(args.scene, localizing=True)
     limits = TrackLimits(args.max_frames, args.duration)
     camera = camera_settings(args.camera_size, args.fps, args.exposure)
     igtl_args = (args.igtl_host, args.igtl_device, args.igtl_wait, args.igtl_stale)
@@ -160,7 +160,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     from spotnav.app.status_style import status_counts
     from spotnav.files.setup_files import read_setup
 
-    setup = read_setup(args.scene)
+    setup = read_setup(args.scene, localizing=True)
     batch = localize_batch(args.images, setup, args.method, args.out, fit_radius=args.fit_radius)
     if batch.radius is not None:
         fitted = batch.radius
@@ -182,7 +182,7 @@ def _cmd_show(args: argparse.Namespace) -> int:
     from spotnav.files.images import read_image, write_image
     from spotnav.files.setup_files import read_setup
 
-    setup = read_setup(args.scene)
+    setup = read_setup(args.scene, localizing=True)
     image = read_image(args.frame, expected_size=(setup.camera.width_px, setup.camera.height_px))
     ready(setup)
     shown = show_frame(image, setup, args.method, crop=args.crop)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from spotnav.errors import SpotnavError
-from spotnav.files.setup_files import read_opencv_camera, read_setup, setup_to_toml
+from spotnav.files.setup_files import CLAIMS_EXACT_GEOMETRY, read_opencv_camera, read_setup, setup_to_toml
 from spotnav.setup.config import Setup, setup_from_toml
-from spotnav.setup.examples import EXAMPLE_SETUP, EXAMPLES
+from spotnav.setup.examples import EXAMPLE_SETUP, EXAMPLES, MICROSCOPE_EXAMPLES
 from spotnav.setup.sections import Bump, Instrument, World
-from spotnav.setup.uncertainty import Uncertainty
+from spotnav.setup.uncertainty import CalibrationRecord, Uncertainty
 from spotnav.setup.values import SetupError
 
 # The setup file as the contract writes it (shared/contract.md, "The setup file"), without [light].
@@ -126,14 +126,46 @@ def test_the_uncertainty_a_setup_file_leaves_out_is_named_in_a_warning(tmp_path:
     )
 
 
+@pytest.mark.parametrize("examples", [EXAMPLES, MICROSCOPE_EXAMPLES])
 @pytest.mark.parametrize("name", sorted(EXAMPLES))
-def test_the_example_setups_read_without_a_warning(tmp_path: Path, name: str) -> None:
+def test_the_example_setups_read_without_a_warning(tmp_path: Path, examples: dict[str, str], name: str) -> None:
     path = tmp_path / "setup.toml"
-    path.write_text(EXAMPLES[name])
+    path.write_text(examples[name])
     warnings: list[str] = []
-    assert read_setup(path, report=warnings.append) == setup_from_toml(EXAMPLES[name])
+    assert read_setup(path, report=warnings.append) == setup_from_toml(examples[name])
     path.write_text(setup_to_toml(Setup(), "what setup_to_toml writes is whole"))
     assert read_setup(path, report=warnings.append) == Setup()
+    assert warnings == []
+
+
+def test_a_setup_that_claims_exact_geometry_is_told_so_when_it_is_to_answer_frames(tmp_path: Path) -> None:
+    # Issue 62: a newcomer's frames from a world 0.5 deg wider in the beam and 0.5 mm higher in the camera, read with
+    # the old `scene --example` (every [uncertainty] value 0), were 20/20 ok at 0.22 mm, none within 3 sigma, and no
+    # word of warning. Now a setup that claims its geometry exactly, read to answer frames, says so in one line with
+    # the way to a microscope's answers; read for anything else (render, calibrate) it says nothing.
+    path = tmp_path / "setup.toml"
+    path.write_text(EXAMPLE_SETUP)
+    warnings: list[str] = []
+    assert read_setup(path, report=warnings.append) == setup_from_toml(EXAMPLE_SETUP) and warnings == []
+    read_setup(path, report=warnings.append, localizing=True)
+    assert warnings == [f"spotnav: warning: {path} {CLAIMS_EXACT_GEOMETRY}"]
+    assert "\n" not in warnings[0] and "leave [uncertainty] out" in warnings[0] and "spotnav calibrate" in warnings[0]
+
+
+@pytest.mark.parametrize(
+    "setup",
+    [
+        replace(setup_from_toml(EXAMPLE_SETUP), uncertainty=replace(Uncertainty.exact(), eye_radius_mm=0.01)),
+        replace(setup_from_toml(EXAMPLE_SETUP), calibration=CalibrationRecord(("eye_radius_mm",), ((1e-4,),))),
+        Setup(),
+    ],
+    ids=["one-value-stated", "calibrated", "a-microscope's"],
+)
+def test_a_setup_that_states_any_uncertainty_or_a_calibration_is_not_told(tmp_path: Path, setup: Setup) -> None:
+    path = tmp_path / "setup.toml"
+    path.write_text(setup_to_toml(setup, "a setup"))
+    warnings: list[str] = []
+    assert read_setup(path, report=warnings.append, localizing=True) == setup
     assert warnings == []
 
 

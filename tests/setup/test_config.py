@@ -3,7 +3,7 @@ from __future__ import annotations
 import math
 import pickle
 import re
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
@@ -11,9 +11,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from spotnav.setup.config import Setup, setup_from_dict, setup_from_toml
-from spotnav.setup.examples import EXAMPLE_SETUP
+from spotnav.setup.examples import EXAMPLE_SETUP, MICROSCOPE_SETUP
 from spotnav.setup.sections import Bump
-from spotnav.setup.uncertainty import Uncertainty
+from spotnav.setup.uncertainty import CalibrationRecord, Uncertainty
 from spotnav.setup.values import SetupError
 
 
@@ -24,6 +24,24 @@ def test_example_is_the_thesis_setup() -> None:
     assert setup.camera.principal_point_px == (2499.5, 2499.5)
     assert setup.instrument.insertion_point_mm == (0.0, 6.0, 20.0)
     assert math.degrees(setup.instrument.beam_half_angle) == pytest.approx(9.0)
+
+
+def test_the_microscope_example_is_the_thesis_setup_with_a_real_microscope_s_uncertainty() -> None:
+    # Issue 62: what `scene --example` writes states every [uncertainty] key at spotnav's defaults (a key added to
+    # Uncertainty and not to the example fails here), and differs from the simulation's exact file in that alone.
+    setup = setup_from_toml(MICROSCOPE_SETUP)
+    assert setup == Setup() and setup.uncertainty == Uncertainty() != Uncertainty.exact()
+    assert replace(setup, uncertainty=Uncertainty.exact()) == setup_from_toml(EXAMPLE_SETUP)
+    assert not setup.claims_exact_geometry and setup_from_toml(EXAMPLE_SETUP).claims_exact_geometry
+
+
+def test_a_setup_claims_exact_geometry_only_with_every_uncertainty_0_and_no_calibration() -> None:
+    exact = Setup(uncertainty=Uncertainty.exact())
+    assert exact.claims_exact_geometry
+    for name in (item.name for item in fields(Uncertainty)):
+        assert not replace(exact, uncertainty=replace(Uncertainty.exact(), **{name: 0.1})).claims_exact_geometry, name
+    calibrated = replace(exact, calibration=CalibrationRecord(("camera_z_mm",), ((0.01,),), ("camera_z_mm",)))
+    assert not calibrated.claims_exact_geometry
 
 
 def test_empty_file_takes_the_thesis_defaults() -> None:

@@ -23,10 +23,10 @@ from spotnav.setup.config import Setup, setup_from_dict, toml_data
 from spotnav.setup.uncertainty import Uncertainty
 from spotnav.setup.values import SetupError
 
-__all__ = ["read_opencv_camera", "read_setup", "setup_to_dict", "setup_to_toml"]
+__all__ = ["CLAIMS_EXACT_GEOMETRY", "read_opencv_camera", "read_setup", "setup_to_dict", "setup_to_toml"]
 
 
-def read_setup(path: str | Path, *, report: Callable[[str], None] | None = None) -> Setup:
+def read_setup(path: str | Path, *, report: Callable[[str], None] | None = None, localizing: bool = False) -> Setup:
     """Read and validate a TOML setup file.
 
     The file gives the contract's keys (:func:`spotnav.setup.config.missing_keys`): one that lacks any (a section
@@ -38,7 +38,11 @@ def read_setup(path: str | Path, *, report: Callable[[str], None] | None = None)
     ----------
     path : str or Path
     report : callable, optional
-        Takes the warning (default: stderr).
+        Takes the warnings (default: stderr).
+    localizing : bool
+        The setup is to answer frames (``localize``, ``track``, ``show``; not the studies, which render from exact
+        setups on purpose): a file that claims its geometry exactly (:attr:`Setup.claims_exact_geometry`) is said so
+        in a warning, with the way to a real microscope's answers.
 
     Raises
     ------
@@ -60,10 +64,22 @@ def read_setup(path: str | Path, *, report: Callable[[str], None] | None = None)
         setup = setup_from_dict(tables, complete=True)
     except SetupError as error:
         raise SetupError(f"{path}: {error}") from None
+    say = report or partial(print, file=sys.stderr)
     assumed = _assumed_uncertainty(tables.get("uncertainty"))
     if assumed:
-        (report or partial(print, file=sys.stderr))(f"spotnav: warning: {path} {assumed}")
+        say(f"spotnav: warning: {path} {assumed}")
+    if localizing and setup.claims_exact_geometry:
+        say(f"spotnav: warning: {path} {CLAIMS_EXACT_GEOMETRY}")
     return setup
+
+
+CLAIMS_EXACT_GEOMETRY = (
+    "claims its geometry exactly (every [uncertainty] value 0, no [calibration]), as only a simulation rendered "
+    "from it can: a microscope's frames would be answered ok with a sigma_mm below their error; at a microscope, "
+    "leave [uncertainty] out (a real microscope's) and run spotnav calibrate on frames with the tip at known points "
+    '(README, "Use")'
+)
+"""What a setup that claims exact geometry is told, after its file's name, when it is to answer frames."""
 
 
 def _assumed_uncertainty(table: Mapping[str, Any] | None) -> str:

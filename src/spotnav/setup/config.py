@@ -75,6 +75,15 @@ class Setup:
     __getstate__ = state_without_hash
 
     @property
+    def claims_exact_geometry(self) -> bool:
+        """Whether the setup claims its geometry exactly: every ``[uncertainty]`` value 0 and no ``[calibration]``.
+
+        Only a simulation rendered from the setup itself knows its geometry so (the studies); a microscope's is
+        known to a real one's tolerance until ``spotnav calibrate`` measures it.
+        """
+        return self.uncertainty == Uncertainty.exact() and not self.calibration.parameters
+
+    @property
     def true_radius_mm(self) -> float:
         """Radius of the simulated retina (``world.eye_radius_mm`` or ``eye.radius_mm``)."""
         return self.world.eye_radius_mm if self.world.eye_radius_mm is not None else self.eye.radius_mm

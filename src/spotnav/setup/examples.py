@@ -1,12 +1,17 @@
-"""The example setups ``spotnav scene --example NAME`` writes: the thesis's simulation, and it exposed as the
-thesis's Figure 6.16 shows (:data:`THESIS_EXPOSURE_STOPS`)."""
+"""The example setups ``spotnav scene --example NAME [--exact]`` writes: a microscope's nominal setup with the
+thesis's values (:data:`MICROSCOPE_EXAMPLES`), and the thesis's simulation, whose geometry is exact
+(:data:`EXAMPLES`); each also exposed as the thesis's Figure 6.16 shows (:data:`THESIS_EXPOSURE_STOPS`).
+
+Both give the same values; they differ in ``[uncertainty]``: a microscope's geometry is known to a real one's
+tolerance until ``spotnav calibrate`` measures it, a simulation rendered from the file knows it exactly (every value
+0), as the studies and tests do on purpose. Standard library only: the command line's parser imports it.
+"""
 
 from __future__ import annotations
 
-__all__ = ["EXAMPLES", "EXAMPLE_SETUP", "THESIS_EXPOSURE_STOPS"]
+__all__ = ["EXAMPLES", "EXAMPLE_SETUP", "MICROSCOPE_EXAMPLES", "MICROSCOPE_SETUP", "THESIS_EXPOSURE_STOPS"]
 
-EXAMPLE_SETUP = """\
-# spotnav setup: the thesis's simulation (Hennerkes 2020, Table 6.8).
+_GEOMETRY = """\
 # Lengths in mm, angles in degrees. The eye frame has its origin at the pole
 # (lowest point of the retina), +z up toward the camera.
 
@@ -37,14 +42,14 @@ height_correction = 1.0       # thesis method only: section 5.5 height factor, 1
 # edge_band_deg = 0.69        # precise method's light model: the soft band about the edge (default 2 (beta - edge))
 shaft_diameter_mm = 0.6       # precise method: ignore the edge the shaft hides (0 = no shaft)
 
-[uncertainty]                 # how well the geometry above is known (1 sigma); the precise methods add it to
-                              # every pose's sigma_mm and refuse poses it makes too uncertain (uncalibrated).
-                              # A simulation rendered from this very file knows it exactly: every value 0.
-                              # Without this section spotnav assumes a real microscope's: edge 0.3 deg, light
-                              # radius 0.05 mm, eye radius 0.25 mm, camera 0.5 deg and 0.5 mm, focal length 1 %,
-                              # principal point 1 % of the width, distortion 5 px, insertion point 0.5 mm,
-                              # beams' tilt 0.5 deg.
-                              # spotnav calibrate measures it and writes [calibration].
+"""
+"""Every section before ``[uncertainty]``: the eye, the camera and the instrument."""
+
+_EXACT_UNCERTAINTY = """\
+[uncertainty]                 # how well the geometry above is known (1 sigma): exactly, every value 0, as a
+                              # simulation rendered from this very file knows it (spotnav scene --example --exact).
+                              # A microscope's is not: spotnav scene --example states a real one's, and spotnav
+                              # calibrate measures it from frames at known tips and writes [calibration].
 edge_half_angle_deg = 0.0
 light_radius_mm = 0.0
 eye_radius_mm = 0.0
@@ -56,6 +61,29 @@ distortion_px = 0.0
 insertion_point_mm = 0.0
 beam_tilt_deg = 0.0
 
+"""
+
+_MICROSCOPE_UNCERTAINTY = """\
+[uncertainty]                 # how well the geometry above is known before calibration (1 sigma): a real operating
+                              # microscope's. The precise methods add it to every pose's sigma_mm and refuse a pose
+                              # it leaves over 0.03 mm uncertain (uncalibrated). spotnav calibrate measures the
+                              # geometry from frames with the tip at known points and writes [calibration], which
+                              # replaces these values. Every value 0 would claim the geometry exactly, as only a
+                              # simulation rendered from this file knows it (spotnav scene --example --exact).
+edge_half_angle_deg = 0.3     # the beam's edge (its half-angle), deg
+light_radius_mm = 0.05        # the light's emitting radius
+eye_radius_mm = 0.25          # the retina's radius
+camera_rotation_deg = 0.5     # the camera's rotation about each of its axes
+camera_position_mm = 0.5      # the camera's centre along each axis
+focal_length_percent = 1.0    # the camera's scale (focal length, magnification)
+principal_point_percent = 1.0 # the principal point, per cent of the image's width
+distortion_px = 5.0           # the lens's distortion at the middle of the image's edge, px
+insertion_point_mm = 0.5      # the insertion point along each axis
+beam_tilt_deg = 0.5           # the beams' tilt from the instrument's axis (three beams; one beam has none)
+
+"""
+
+_SIMULATOR = """\
 [light]                       # simulator only, Blender's conventions
 power_w = 1.0                 # radiant intensity power_w / (4 pi) W/sr on the axis
 blend = 0.15                  # soft edge over the outer part of the cone, 0 = sharp
@@ -88,6 +116,7 @@ defocus_px = 0.0              # Gaussian blur of the light (defocus), sigma in p
 frame_blur_px = 0.0           # Gaussian blur of the encoded frame (camera or codec), sigma in pixels
 glow = 0.0                    # an endo-illuminator's broad uneven glow: peak, fraction of full scale (0 = none)
 """
+"""The simulator's own sections: the light, the world, the renderer and the faults."""
 
 # The exposure at which the thesis's spots saturate (docs/methods.md, "The thesis's exposure"): its Figure 6.16
 # shows the spot at (0, 0, 8) mm brightening up to 0.5 W and no more from 1 W. A spot stops brightening when it
@@ -96,16 +125,42 @@ glow = 0.0                    # an endo-illuminator's broad uneven glow: peak, f
 # the preset rounds that up to the half stop.
 THESIS_EXPOSURE_STOPS = 4.5
 
-EXAMPLES = {
-    "thesis": EXAMPLE_SETUP,
-    "thesis-exposure": EXAMPLE_SETUP.replace(
-        "# spotnav setup: the thesis's simulation (Hennerkes 2020, Table 6.8).\n",
-        "# spotnav setup: the thesis's simulation (Hennerkes 2020, Table 6.8), exposed as its Figure 6.16 shows:\n"
-        "# the spot is saturated (white) from 1 W up. spotnav's default world is not: it keeps the edge's light.\n",
-    ).replace(
-        "exposure_stops = 0.0          # 0: white surface 5 mm below 1 W, facing it, is full scale\n",
-        f"exposure_stops = {THESIS_EXPOSURE_STOPS}          # the thesis's: a spot 8 mm above the retina is white"
-        " from 1 W up\n",
-    ),
-}
-"""Named example setups: ``spotnav scene --example NAME``."""
+_EXPOSURE = "exposure_stops = 0.0          # 0: white surface 5 mm below 1 W, facing it, is full scale\n"
+_THESIS_EXPOSURE = (
+    f"exposure_stops = {THESIS_EXPOSURE_STOPS}          # the thesis's: a spot 8 mm above the retina is white"
+    " from 1 W up\n"
+)
+_THESIS_EXPOSURE_NOTE = (
+    "# Exposed as the thesis's Figure 6.16 shows: the spot is saturated (white) from 1 W up. spotnav's default\n"
+    "# world is not: it keeps the edge's light.\n"
+)
+
+
+def _examples(header: str, uncertainty: str) -> dict[str, str]:
+    """The named examples with this ``header`` (comment lines) and ``[uncertainty]`` section."""
+    thesis = _GEOMETRY + uncertainty + _SIMULATOR
+    return {
+        "thesis": header + thesis,
+        "thesis-exposure": header + _THESIS_EXPOSURE_NOTE + thesis.replace(_EXPOSURE, _THESIS_EXPOSURE),
+    }
+
+
+MICROSCOPE_EXAMPLES = _examples(
+    "# spotnav setup: a microscope's nominal values, the thesis's (Hennerkes 2020, Table 6.8). Write your\n"
+    "# microscope's into it; spotnav calibrate measures, from frames with the tip at known points, how far the\n"
+    '# real geometry is from them (README, "Use").\n',
+    _MICROSCOPE_UNCERTAINTY,
+)
+"""Named example setups for a microscope: ``spotnav scene --example NAME``."""
+
+MICROSCOPE_SETUP = MICROSCOPE_EXAMPLES["thesis"]
+"""What ``spotnav scene --example`` writes: the thesis's values as a microscope's nominal setup."""
+
+EXAMPLES = _examples(
+    "# spotnav setup: the thesis's simulation (Hennerkes 2020, Table 6.8), its geometry known exactly.\n",
+    _EXACT_UNCERTAINTY,
+)
+"""Named example setups for the simulation, geometry exact: ``spotnav scene --example NAME --exact``."""
+
+EXAMPLE_SETUP = EXAMPLES["thesis"]
+"""The thesis's simulation, geometry exact (``spotnav scene --example --exact``): the studies' and the tests'."""
