@@ -122,7 +122,7 @@ def test_the_uncertainty_a_setup_file_leaves_out_is_named_in_a_warning(tmp_path:
     (warning,) = warnings
     names = ", ".join(f"uncertainty.{name}" for name in UNCERTAINTY_KEYS[-2:])
     assert (
-        f"does not give {names}: assuming a typical microscope's (distortion_px 5, insertion_point_mm 0.5)" in warning
+        f"does not give {names}: assuming a typical microscope's (insertion_point_mm 0.5, beam_tilt_deg 0.5)" in warning
     )
 
 
