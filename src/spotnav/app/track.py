@@ -409,7 +409,8 @@ class Tracker:
     sequence : AxesMeeting
         The running test of where the axes meet (method ``precise``: the
         freed axis of each frame answered or ``miscalibrated``, every one of
-        the first ``_LISTEN_FRAMES``, then one in ``_LISTEN_EVERY``). Once its verdict
+        the first ``_LISTEN_FRAMES``, then one in ``_LISTEN_EVERY``, whose
+        pose is new to it). Once its verdict
         is given, every frame after it is ``mismatch`` (no pose) with that
         verdict: a setup the sequence contradicts biases every pose.
     """
@@ -480,12 +481,14 @@ class Tracker:
         return TrackedFrame(estimate, mode, edges)
 
     def _listen(self, fit: ConeSolution) -> None:
-        """A frame's axis freed (method ``precise``) and fed to the sequence's test while it listens: every frame
-        of the first ``_LISTEN_FRAMES`` heard, then one in ``_LISTEN_EVERY``."""
+        """A frame's axis freed (method ``precise``) and fed to the sequence's test while it listens (every frame
+        of the first ``_LISTEN_FRAMES`` answered, then one in ``_LISTEN_EVERY``) and its pose is new to the test
+        (:meth:`AxesMeeting.is_new`, asked before the free fit: a still hand costs nothing)."""
         self._answered += 1
         listening = self._answered <= _LISTEN_FRAMES or self._answered % _LISTEN_EVERY == 0
-        if self.through_insertion and listening and not self.sequence.verdict:
-            self.sequence.add(axis_line(refit_free_axis(self.setup, fit)))
+        tip = fit.tip()
+        if self.through_insertion and listening and self.sequence.is_new(tip):
+            self.sequence.add(axis_line(refit_free_axis(self.setup, fit)), pose_tip=tip)
 
     def rehearse(self, image: np.ndarray) -> None:
         """Track the last frame again from the last pose, a step a call, with the fewest rays, keeping nothing.
