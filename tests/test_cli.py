@@ -245,7 +245,7 @@ def test_track_says_once_when_the_axes_miss_the_setup_s_insertion_point(
     capsys.readouterr()
     assert main(["track", "--scene", str(scene), str(frames), "--out", str(tmp_path / "poses.csv")]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines() if "axes over" in line]
-    assert len(warnings) == 1 and "spotnav calibrate --fit insertion-point" in warnings[0]
+    assert len(warnings) == 1 and "spotnav calibrate --poses known.csv" in warnings[0]
     poses = read_poses(tmp_path / "poses.csv")
     flagged = [i for i, row in enumerate(poses) if row["detail"] and row["detail"] in warnings[0]]
     assert flagged and flagged == list(range(flagged[0], len(poses)))
