@@ -12,8 +12,10 @@ brightness disagree. Power laws differ little that way (read through another
 gamma, a spot on a dark background moves by the same fraction of its step,
 which the edge angle absorbs): a linear or gamma camera must be stated. Where
 known frames' spots clip, the soft band they are read with is chosen the same
-way (:data:`EDGE_BAND_FACTORS`). :func:`calibrate_height_correction` averages
-section 5.5's factor over the frames.
+way (:data:`EDGE_BAND_FACTORS`). :func:`check_held_out` localizes each known
+frame with a calibration of the others (:data:`HELD_OUT_FOLDS`-fold
+cross-validation). :func:`calibrate_height_correction` averages section 5.5's
+factor over the frames.
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ import numpy as np
 from spotnav.app.paths import path_poses
 from spotnav.app.track import Tracker
 from spotnav.errors import SpotnavError
-from spotnav.experiments.calibration import KNOWN_FRAMES, known_calibration
+from spotnav.experiments.calibration import KNOWN_FRAMES, held_out_text, known_calibration
 from spotnav.experiments.geometry import (
     GeometryCase,
     change_beam,
@@ -150,7 +150,8 @@ def run_mismatch(options: Options) -> Experiment:
                 row += [calibrated, ""]
             else:
                 after = summarize([output[2] for output in outputs])
-                row += [f"{after.ok}/{after.frames}", f"{after.text(after.mean_mm)} / {after.text(after.max_mm)}"]
+                errors = f"{after.text(after.mean_mm)} / {after.text(after.max_mm)}"
+                row += [f"{after.ok}/{after.frames}", f"{errors} ({held_out_text(calibration)})"]
             single.append(row)
             sequence = path_poses("helix", SEQUENCE_FRAMES, world.instrument.insertion_in_eye)
             jobs = [FrameJob(world, pose, seed + 500 + i, ()) for i, pose in enumerate(sequence)]
