@@ -228,7 +228,7 @@ class GeometryFit:
     :data:`~spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`),
     the last fit, the edge points' RMS angle from their cones with the setup's geometry (radians), why each parameter
     not fitted stayed at the setup's value, where known axes meet (:func:`insertion_from_axes`), the frames left out
-    with the reason, the groups forced and fixed, and which of the frames given each of ``edges`` is (indices)."""
+    with the reason, and which of the frames given each of ``edges`` is (indices)."""
 
     setup: Setup
     edges: list[KnownFrameEdges]
@@ -239,8 +239,6 @@ class GeometryFit:
     reasons: dict[int, str]
     lines: tuple[np.ndarray, np.ndarray, float] | None
     skipped: list[str]
-    fit: tuple[str, ...] = ()
-    fix: tuple[str, ...] = ()
     used: tuple[int, ...] = ()
 
     def spot_spread_px(self) -> float:
@@ -320,29 +318,32 @@ def fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str],
         else:
             skipped.append(f"{result.detail} ({result.status})")
     known_axes = all(frame.axis is not None for frame in frames)
-    fitted = _fit_edges(edges, setup, tuple(fit), tuple(fix), known_axes, skipped)
-    return replace(fitted, used=tuple(used))
+    return replace(_fit_edges(edges, setup, fit, fix, known_axes, skipped), used=tuple(used))
 
 
 def refit(fitted: GeometryFit, keep: Sequence[int]) -> GeometryFit:
-    """The same calibration (forced and fixed groups, response, soft band) from some of its frames' edges
-    (indices into ``fitted.edges``): a held-out check's. Known axes give the insertion point anew.
+    """``fitted`` again from some of its frames' edges (indices into ``fitted.edges``): a held-out check's fit.
 
-    Raises
-    ------
-    InputError
-        As :func:`fit_geometry`, for these frames.
+    The same parameters from the same start (the response, soft band and model that all the frames chose); known
+    axes give the insertion point anew, from these frames'.
     """
     edges = [fitted.edges[k] for k in keep]
-    refitted = _fit_edges(edges, fitted.setup, fitted.fit, fitted.fix, fitted.axis_mode == "known", [])
-    return replace(refitted, used=tuple(fitted.used[k] for k in keep) if fitted.used else tuple(keep))
+    setup, lines = fitted.setup, None
+    if fitted.lines is not None:
+        lines = insertion_from_axes(np.array([e.tip for e in edges]), np.array([e.axis for e in edges]))
+        setup = replace(setup, instrument=replace(setup.instrument, insertion_point_mm=tuple(lines[0])))
+    before = _problem(setup, edges, fitted.axis_mode, [], np.zeros(SHARED_SIZE))
+    solution = fit_cones(_problem(setup, edges, fitted.axis_mode, fitted.chosen, fitted.solution.shared))
+    rms_before = _rms(before.residuals(before.start), solution.inliers)
+    used = tuple(fitted.used[k] for k in keep)
+    return replace(fitted, setup=setup, edges=edges, solution=solution, rms_before=rms_before, lines=lines, used=used)
 
 
 def _fit_edges(
     edges: list[KnownFrameEdges],
     setup: Setup,
-    fit: tuple[str, ...],
-    fix: tuple[str, ...],
+    fit: Sequence[str],
+    fix: Sequence[str],
     known_axes: bool,
     skipped: list[str],
 ) -> GeometryFit:
@@ -392,7 +393,7 @@ def _fit_edges(
     start = np.where(np.isin(np.arange(SHARED_SIZE), chosen), held.shared, 0.0)
     solution = fit_cones(_problem(setup, edges, axis_mode, chosen, start))
     rms_before = _rms(before.residuals(before.start), solution.inliers)
-    return GeometryFit(setup, edges, axis_mode, chosen, solution, rms_before, reasons, lines, skipped, fit, fix)
+    return GeometryFit(setup, edges, axis_mode, chosen, solution, rms_before, reasons, lines, skipped)
 
 
 def finish_calibration(fitted: GeometryFit) -> Calibration:
