@@ -20,7 +20,7 @@ def test_every_geometry_parameter_has_a_printed_unit_but_the_distortion_coeffici
     [
         (27.25, "the frames pin it 27 times worse than the setup's stated +-0.5 mm"),
         (2.6, "the frames pin it 2.6 times worse than the setup's stated +-0.5 mm"),
-        (0.43, f"the frames pin it to 0.43 of the setup's stated +-0.5 mm, not the {DETERMINED_RATIO:g} a fit needs"),
+        (0.43, f"the frames pin it to 0.43 of the setup's stated +-0.5 mm (a fit needs under {DETERMINED_RATIO:g})"),
     ],
 )
 def test_how_well_the_frames_pin_a_parameter_is_said_against_the_setup_s_uncertainty(ratio: float, said: str) -> None:

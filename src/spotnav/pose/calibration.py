@@ -60,6 +60,7 @@ from spotnav.pose.determined import (
     choose,
     left_reason,
     refusal,
+    worse_than_stated,
 )
 from spotnav.pose.estimate import within_sigmas
 from spotnav.pose.known_frame import KnownFrame, KnownFrameEdges, read_known_frame
@@ -392,6 +393,9 @@ def _fit_edges(
     chosen = sorted(chosen)
     start = np.where(np.isin(np.arange(SHARED_SIZE), chosen), held.shared, 0.0)
     solution = fit_cones(_problem(setup, edges, axis_mode, chosen, start))
+    worse = worse_than_stated(ratios, setup, forced, chosen, np.sqrt(np.diag(solution.covariance)[: len(chosen)]))
+    if worse:
+        raise InputError(worse)
     rms_before = _rms(before.residuals(before.start), solution.inliers)
     return GeometryFit(setup, edges, axis_mode, chosen, solution, rms_before, reasons, lines, skipped)
 

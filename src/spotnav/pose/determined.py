@@ -35,6 +35,7 @@ __all__ = [
     "left_reason",
     "refusal",
     "unit_of",
+    "worse_than_stated",
 ]
 
 # A parameter is fitted when the frames alone pin it to this fraction of how well it was known before.
@@ -75,11 +76,11 @@ class Pinning:
         self._residuals = solution.residuals[solution.inliers]
         self._spots = solution.problem.points.spot[solution.inliers]
         self._own = list(range(len(candidates), self._jacobian.shape[1]))
-        self._candidates = list(candidates)
+        self.candidates = list(candidates)
         self.prior = np.sqrt(np.diag(solution.problem.prior))  # (SHARED_SIZE,), engine units
 
     def __call__(self, chosen: Sequence[int]) -> np.ndarray:
-        columns = [self._candidates.index(i) for i in chosen] + self._own
+        columns = [self.candidates.index(i) for i in chosen] + self._own
         size = self._jacobian.shape[1]
         covariance = scatter_covariance(
             self._jacobian[:, columns], self._residuals, self._spots, EDGE_CONTOUR_SIGMA, size
@@ -153,13 +154,18 @@ def unit_of(name: str) -> str:
     return _UNITS.get(name.rsplit("_", 1)[-1], "")
 
 
+def _in_file_units(index: int, sigma: float) -> str:
+    """A 1-sigma of parameter ``index`` (engine units) as printed: ``+-0.5 mm``."""
+    sd = float(geometry_to_file_units(np.where(np.arange(SHARED_SIZE) == index, sigma, 0.0))[index])
+    return f"+-{sd:.2g} {unit_of(GEOMETRY_PARAMETERS[index])}".rstrip()
+
+
 def _stated(setup: Setup, index: int, prior: float) -> str:
     """How well the setup states parameter ``index`` (its prior ``prior``, engine units), for a sentence."""
     name, group = GEOMETRY_PARAMETERS[index], group_of(index)
     key = UNCERTAINTY_KEYS.get(group)
     if name in setup.calibration.parameters or key is None:
-        sd = float(geometry_to_file_units(np.where(np.arange(SHARED_SIZE) == index, prior, 0.0))[index])
-        return f"+-{sd:.2g} {unit_of(name)}".rstrip()
+        return _in_file_units(index, prior)
     return f"+-{getattr(setup.uncertainty, key):g} {unit_of(key)}"
 
 
@@ -169,7 +175,7 @@ def _pinned(ratio: float, stated: str, what: str = "it") -> str:
         times = f"{ratio:.1f}" if ratio < 10.0 else f"{ratio:.0f}"
         return f"the frames pin {what} {times} times worse than the setup's stated {stated}"
     return (
-        f"the frames pin {what} to {ratio:.2f} of the setup's stated {stated}, not the {DETERMINED_RATIO:g} a fit needs"
+        f"the frames pin {what} to {ratio:.2f} of the setup's stated {stated} (a fit needs under {DETERMINED_RATIO:g})"
     )
 
 
@@ -224,3 +230,32 @@ def refusal(
         f"{partner} in them ({pinned}; {poses}): fit one of them (leave --fit {partner} out), or {more} would tell "
         "them apart"
     )
+
+
+def worse_than_stated(
+    ratios: Pinning, setup: Setup, forced: Sequence[int], chosen: Sequence[int], sigmas: np.ndarray
+) -> str | None:
+    """The sentence that refuses a forced parameter whose calibrated 1-sigma (``sigmas``, engine units, in
+    ``chosen``'s order, the uncertainty of the parameters left at the setup's values included) is no better than
+    the setup states: what it looks like among those left, and what frames would determine it; None when every
+    forced one is better."""
+    order = list(chosen)
+    for index in forced:
+        sigma = float(sigmas[order.index(index)])
+        if sigma < ratios.prior[index]:
+            continue
+        group = group_of(index)
+        left = {
+            group_of(i): [j for j in ratios.candidates if group_of(j) == group_of(i) and j not in order]
+            for i in ratios.candidates
+            if i not in order
+        }
+        like = max(left, key=lambda name: float(ratios([*order, *left[name]])[order.index(index)])) if left else None
+        looks = f", as it looks like {like} in them, which they do not pin" if like else ""
+        stated = _stated(setup, index, float(ratios.prior[index]))
+        more = _DETERMINING_FRAMES.get(group, _MORE_FRAMES)
+        return (
+            f"the known frames cannot determine {group}: fitted, {GEOMETRY_PARAMETERS[index]} would be known to "
+            f"{_in_file_units(index, sigma)}, no better than the setup's stated {stated}{looks}; {more} would"
+        )
+    return None
