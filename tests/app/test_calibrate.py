@@ -306,14 +306,20 @@ def test_fit_each_group_round_trips(group: str) -> None:
     np.testing.assert_array_less(np.abs(result.values[ids] - truth[ids]), 4 * result.sigmas[ids])
 
 
-def test_fit_any_group_alone_or_all_at_once_is_answered_or_refused_in_one_sentence() -> None:
-    # A real microscope's uncertainty, a world 0.5 deg wider in the beam and 0.5 mm higher in the camera, 6 known
-    # frames with axes: every --fit GROUP, and all at once, fits the group or says in one sentence why not.
-    nominal = replace(small_setup(512, blend=0.15), uncertainty=Uncertainty())
+def _a_new_user_s_frames(size_px: int, count: int) -> tuple[Setup, list[KnownFrame]]:
+    """The nominal setup with a real microscope's uncertainty (the response stated), and ``count`` known frames with
+    axes from a world 0.5 deg wider in the beam and 0.5 mm higher in the camera (issue 62's new user)."""
+    nominal = replace(small_setup(size_px, blend=0.15), uncertainty=Uncertainty())
     nominal = replace(nominal, camera=replace(nominal.camera, response="srgb"))
     camera = replace(nominal.camera, distance_mm=nominal.camera.distance_mm + 0.5)
     instrument = replace(nominal.instrument, beam_half_angle_deg=nominal.instrument.beam_half_angle_deg + 0.5)
-    frames = known_frames(replace(nominal, camera=camera, instrument=instrument), 6, axes=True)
+    return nominal, known_frames(replace(nominal, camera=camera, instrument=instrument), count, axes=True)
+
+
+def test_fit_any_group_alone_or_all_at_once_is_answered_or_refused_in_one_sentence() -> None:
+    # A real microscope's uncertainty, a world 0.5 deg wider in the beam and 0.5 mm higher in the camera, 6 known
+    # frames with axes: every --fit GROUP, and all at once, fits the group or says in one sentence why not.
+    nominal, frames = _a_new_user_s_frames(512, 6)
     others = [group for group in PARAMETER_GROUPS if group != "insertion-point"]
     for fit in [[group] for group in others] + [others]:
         try:
@@ -334,11 +340,7 @@ def test_the_held_out_check_localizes_each_known_frame_with_a_calibration_of_the
     # The new user's trap (issue 62): a world 0.5 deg wider in the beam and 0.5 mm higher in the camera, a real
     # microscope's uncertainty. Each of 8 known frames is localized by a calibration of the other six, and is found
     # within its sigma; the calibration returned is the one of all 8.
-    nominal = replace(small_setup(768, blend=0.15), uncertainty=Uncertainty())
-    nominal = replace(nominal, camera=replace(nominal.camera, response="srgb"))
-    camera = replace(nominal.camera, distance_mm=nominal.camera.distance_mm + 0.5)
-    instrument = replace(nominal.instrument, beam_half_angle_deg=nominal.instrument.beam_half_angle_deg + 0.5)
-    frames = known_frames(replace(nominal, camera=camera, instrument=instrument), 8, axes=True)
+    nominal, frames = _a_new_user_s_frames(768, 8)
     result = calibrate(frames, nominal)
     held = result.held_out
     assert held is not None and held.folds == HELD_OUT_FOLDS and result.frames == 8
