@@ -48,7 +48,7 @@ def test_axes_through_another_point_make_the_test_speak_once_and_name_it(seed: i
     said = [meeting.add(line) for line in _lines(pivot, 100, seed)]
     spoken = [i for i, verdict in enumerate(said) if verdict]
     assert len(spoken) == 1 and spoken[0] >= MIN_LINES - 1
-    assert meeting.verdict == said[spoken[0]] and "spotnav calibrate --fit insertion-point" in meeting.verdict
+    assert meeting.verdict == said[spoken[0]] and "spotnav calibrate --poses known.csv" in meeting.verdict
     where = [float(v) for v in meeting.verdict.split("(at [")[1].split("]")[0].split(",")]
     # Where the axes cross the plane through the setup's point: the true pivot, less its shift along the axes.
     across = meeting._crossing()[0]

@@ -12,8 +12,10 @@ brightness disagree. Power laws differ little that way (read through another
 gamma, a spot on a dark background moves by the same fraction of its step,
 which the edge angle absorbs): a linear or gamma camera must be stated. Where
 known frames' spots clip, the soft band they are read with is chosen the same
-way (:data:`EDGE_BAND_FACTORS`). :func:`calibrate_height_correction` averages
-section 5.5's factor over the frames.
+way (:data:`EDGE_BAND_FACTORS`). :func:`check_held_out` localizes each known
+frame with a calibration of the others (:data:`HELD_OUT_FOLDS`-fold
+cross-validation). :func:`calibrate_height_correction` averages section 5.5's
+factor over the frames.
 """
 
 from __future__ import annotations
@@ -25,20 +27,32 @@ import numpy as np
 
 from spotnav.errors import InputError, SpotnavError
 from spotnav.optics.light import edge_angle
-from spotnav.pose.calibration import MIN_INLIER_FRACTION, Calibration, GeometryFit, finish_calibration, fit_geometry
+from spotnav.pose.calibration import (
+    MIN_FRAMES,
+    MIN_INLIER_FRACTION,
+    Calibration,
+    GeometryFit,
+    HeldOut,
+    finish_calibration,
+    fit_geometry,
+    refit,
+)
 from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
 from spotnav.pose.known_frame import KnownFrame
+from spotnav.pose.localize import localize
 from spotnav.pose.thesis import fit_height_correction
 from spotnav.setup.config import Setup
 
 __all__ = [
     "EDGE_BAND_FACTORS",
     "EDGE_BAND_MARGIN",
+    "HELD_OUT_FOLDS",
     "RESPONSE_CANDIDATES",
     "RESPONSE_MARGIN",
     "HeightCorrection",
     "calibrate",
     "calibrate_height_correction",
+    "check_held_out",
     "with_edge_band",
 ]
 
@@ -56,14 +70,22 @@ RESPONSE_MARGIN = 0.15
 # witness (docs/methods.md, calibration 9.).
 EDGE_BAND_FACTORS = (0.45, 0.65, 0.8, 1.0, 1.25, 1.6)
 EDGE_BAND_MARGIN = 0.15
+# The held-out check's folds: each calibration leaves a quarter of the known frames out.
+HELD_OUT_FOLDS = 4
 _WIDEST_BAND_DEG = 44.0  # instrument.edge_band_deg is under 45 deg
 
 
 def calibrate(
-    frames: Sequence[KnownFrame], setup: Setup, *, fit: Sequence[str] = (), fix: Sequence[str] = ()
+    frames: Sequence[KnownFrame],
+    setup: Setup,
+    *,
+    fit: Sequence[str] = (),
+    fix: Sequence[str] = (),
+    held_out: bool = True,
 ) -> Calibration:
     """Fit the geometry that frames at known poses determine (:mod:`spotnav.pose.calibration`), read through the
-    response and soft band whose spots agree best (see the module's docstring).
+    response and soft band whose spots agree best (see the module's docstring), and check it on frames it has not
+    seen (:func:`check_held_out`).
 
     Parameters
     ----------
@@ -78,6 +100,8 @@ def calibrate(
         the frames say (an error when they cannot determine them).
     fix : sequence of str
         Groups to keep at the setup's values.
+    held_out : bool
+        Cross-validate (:attr:`Calibration.held_out`); the calibration returned is the one of all frames.
 
     Raises
     ------
@@ -102,7 +126,49 @@ def calibrate(
     else:
         chosen, responses = _choose_response(frames, setup, fit, fix)
     chosen, bands = _choose_edge_band(frames, chosen, fit, fix)
-    return replace(finish_calibration(chosen), responses=responses, edge_bands=bands)
+    result = replace(finish_calibration(chosen), responses=responses, edge_bands=bands)
+    return replace(result, held_out=check_held_out(frames, chosen)) if held_out else result
+
+
+def check_held_out(frames: Sequence[KnownFrame], fitted: GeometryFit, folds: int = HELD_OUT_FOLDS) -> HeldOut | None:
+    """Each known frame localized (the precise method, as ``localize`` does) with the calibration of the others.
+
+    ``folds``-fold cross-validation: fold ``k`` leaves out every ``folds``-th of the frames the fit used (from the
+    ``k``-th on, so each fold spans the poses), calibrates from the rest (:func:`~spotnav.pose.calibration.refit`:
+    the parameters, response and soft band that all the frames chose, fitted anew, with the calibration's check
+    and covariance) and localizes the frames left out. None when too few frames would be left to calibrate a fold
+    from. Choosing the model from all the frames leaks a little of the frames left out into it; choosing it again in
+    each fold cost some 2.5 times the calibration itself.
+
+    Parameters
+    ----------
+    frames : sequence of KnownFrame
+        The frames ``fitted`` was given (``fitted.used`` indexes them).
+    fitted : GeometryFit
+    folds : int
+    """
+    count = len(fitted.edges)
+    folds = min(folds, count)
+    if count - -(-count // folds) < MIN_FRAMES:
+        return None
+    names, statuses, errors, sigmas = [""] * count, ["refused"] * count, [np.nan] * count, [np.nan] * count
+    for fold in range(folds):
+        out = list(range(fold, count, folds))
+        try:
+            calibrated = finish_calibration(refit(fitted, [k for k in range(count) if k not in out])).setup
+        except SpotnavError:  # the other frames do not calibrate alone: the frames left out stay refused
+            calibrated = None
+        for k in out:
+            frame = frames[fitted.used[k]]
+            names[k] = frame.name
+            if calibrated is None:
+                continue
+            estimate = localize(frame.image, calibrated, "precise")
+            statuses[k] = estimate.status
+            if estimate.ok and estimate.tip_in_eye is not None:
+                errors[k] = float(np.linalg.norm(estimate.tip_in_eye - frame.tip_in_eye))
+                sigmas[k] = estimate.sigma_mm
+    return HeldOut(folds, tuple(names), tuple(statuses), tuple(errors), tuple(sigmas))
 
 
 def _choose_response(

@@ -22,18 +22,13 @@ from spotnav.errors import SpotnavError
 from spotnav.files.images import ImageReadError, read_image
 from spotnav.files.poses import read_known_poses
 from spotnav.pose.calibration import Calibration
+from spotnav.pose.conefit.parameters import PARAMETER_GROUPS
+from spotnav.pose.determined import unit_of
 from spotnav.pose.known_frame import KnownFrame
 from spotnav.setup.config import Setup
 from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS
 
 __all__ = ["CalibrationJob", "calibration_lines", "run_calibration"]
-
-_SETUP_KEYS = {
-    "edge_half_angle_deg": "instrument.edge_half_angle_deg",
-    "light_radius_mm": "instrument.light_radius_mm",
-    "eye_radius_mm": "eye.radius_mm",
-    "beam_tilt_deg": "instrument.beam_tilt_deg",
-}
 
 
 @dataclass(frozen=True)
@@ -114,20 +109,19 @@ def run_calibration(
 
 
 def calibration_lines(result: Calibration) -> list[str]:
-    """What ``calibrate`` prints: the fitted values +- 1 sigma, what stayed fixed and why, the residuals."""
-    lines = [f"frames used: {result.frames} ({result.points} edge points)", "fitted (1 sigma):"]
-    for name in result.fitted:
-        index = GEOMETRY_PARAMETERS.index(name)
-        lines.append(f"  {_SETUP_KEYS.get(name, name)} = {result.values[index]:.6g} +- {result.sigmas[index]:.2g}")
-    if np.isfinite(result.insertion_rms_mm):
-        lines.append(f"  (the insertion point is where the known axes meet, RMS {result.insertion_rms_mm:.4f} mm)")
+    """What ``calibrate`` prints: the fitted values +- 1 sigma, what stayed at the setup's values and why, the
+    residuals, its frames' tips and the held-out check."""
+    lines = [f"frames used: {result.frames} ({result.points} edge points)", "fitted (value +- 1 sigma):"]
+    for group, names in _by_group(result.fitted):
+        ids = [GEOMETRY_PARAMETERS.index(name) for name in names]
+        lines.append(f"  {_label(group, names)} = {_with_sigmas(result, ids)}{_key(result, group)}")
     exact = [name for name, reason in result.fixed if result.sigmas[GEOMETRY_PARAMETERS.index(name)] == 0]
     others = [(name, reason) for name, reason in result.fixed if name not in exact]
     if others:
-        lines.append("left at the setup's values (1 sigma):")
+        lines.append("left at the setup's values (their uncertainty stays in every pose's sigma_mm):")
     for name, reason in others:
         index = GEOMETRY_PARAMETERS.index(name)
-        lines.append(f"  {name} = {result.values[index]:.6g} +- {result.sigmas[index]:.2g}: {reason}")
+        lines.append(f"  {name} = {_with_sigmas(result, [index])}: {reason}")
     if exact:
         lines.append(f"known exactly ([uncertainty] 0): {', '.join(exact)}")
     lines.append(
@@ -149,6 +143,7 @@ def calibration_lines(result: Calibration) -> list[str]:
             f"the frames' tips, found from their edges alone ({settled}): mean miss {misses.mean():.4f} mm, "
             f"max {misses.max():.4f} mm, {covered}"
         )
+    lines.extend(_held_out_lines(result))
     if result.responses:
         tried = ", ".join(f"{r} {spread:.4f}" for r, spread in result.responses if np.isfinite(spread))
         response = result.setup.camera.response
@@ -175,5 +170,86 @@ def calibration_lines(result: Calibration) -> list[str]:
         lines.append(
             f"instrument.edge_band_deg = {band:.4g}: the light's soft band, the setup's, written so that frames are "
             "read as these were (not fitted: no known frame's spot was read from its flank, where the band tells)"
+        )
+    return lines
+
+
+# What each group's values are in the written setup, where the name alone does not say.
+_WRITTEN_AS = {
+    "edge-angle": "instrument.edge_half_angle_deg",
+    "light-radius": "instrument.light_radius_mm",
+    "eye-radius": "eye.radius_mm",
+    "camera-rotation": "a turn of camera.rotation",
+    "camera-position": "the camera's centre in the eye frame, camera.translation_mm",
+    "focal-length": "a change of camera.matrix's fx, fy",
+    "principal-point": "camera.matrix's cx, cy",
+    "distortion": "camera.distortion",
+    "insertion-point": "instrument.insertion_point_mm",
+    "beam-tilt": "instrument.beam_tilt_deg",
+}
+
+
+def _by_group(names: Sequence[str]) -> list[tuple[str, list[str]]]:
+    """The parameter names by group, in :data:`~spotnav.pose.conefit.parameters.PARAMETER_GROUPS`' order."""
+    groups = [(group, [GEOMETRY_PARAMETERS[i] for i in ids]) for group, ids in PARAMETER_GROUPS.items()]
+    return [
+        (group, [name for name in members if name in names]) for group, members in groups if set(members) & set(names)
+    ]
+
+
+def _label(group: str, names: Sequence[str]) -> str:
+    """A group and, of several parameters, which: ``camera-rotation x, y``."""
+    if len(PARAMETER_GROUPS[group]) == 1:
+        return group
+    parts = [name.rsplit("_", 1)[0] if unit_of(name) else name for name in names]  # less the unit
+    return f"{group} {', '.join(part.rsplit('_', 1)[-1] for part in parts)}"
+
+
+def _with_sigmas(result: Calibration, ids: Sequence[int]) -> str:
+    """Parameters' values +- 1 sigma with their unit, each value to its sigma's second digit."""
+    values, sigmas = result.values[list(ids)], result.sigmas[list(ids)]
+    finite = sigmas[sigmas > 0]
+    digits = int(np.clip(1 - np.floor(np.log10(finite.min())), 0, 6)) if len(finite) else 6
+    shown = f"{', '.join(f'{v:.{digits}f}' for v in values)} +- {', '.join(f'{v:.2g}' for v in sigmas)}"
+    unit = unit_of(GEOMETRY_PARAMETERS[ids[0]])
+    return f"{shown} {unit}" if unit else shown
+
+
+def _key(result: Calibration, group: str) -> str:
+    """Where a fitted group is written (the focal length with the pixels it now is, the insertion point from
+    known axes with how well they meet)."""
+    written = _WRITTEN_AS.get(group)
+    if group == "focal-length":
+        written = f"{written}: {result.setup.camera.focal_px:.1f} px"
+    if group == "insertion-point" and np.isfinite(result.insertion_rms_mm):
+        written = f"{written}: where the known axes meet, RMS {result.insertion_rms_mm:.4f} mm"
+    return f" ({written})" if written else ""
+
+
+def _held_out_lines(result: Calibration) -> list[str]:
+    """The held-out check, and a line that says the calibration misses when it does, with what to try."""
+    held = result.held_out
+    if held is None:
+        return ["held-out check: not made (too few frames to calibrate without a quarter of them)"]
+    answered = held.answered
+    refused = [status for status in held.statuses if status != "ok"]
+    line = (
+        f"held-out check ({held.folds}-fold: each known frame localized, precise method, by a calibration of the "
+        f"others; the setup written is the one of all {len(held.statuses)}): {answered} of {len(held.statuses)} ok"
+    )
+    if refused:
+        line += f" ({', '.join(f'{refused.count(s)} {s}' for s in sorted(set(refused)))})"
+    if answered:
+        errors, sigmas = np.array(held.errors_mm), held.sigmas()
+        line += (
+            f", error mean {np.nanmean(errors):.4f} mm, max {np.nanmax(errors):.4f} mm, "
+            f"{100 * held.coverage():.0f} % within 3 sigma (3-D), worst {sigmas.max():.1f} sigma"
+        )
+    lines = [line]
+    if held.misses():
+        lines.append(
+            "the calibration MISSES its held-out frames: its sigmas do not hold on frames it has not seen; "
+            "try more known frames spread over the working volume (x, y and height), with their axes, and check "
+            "known.csv (tips in the eye frame, images in its order)"
         )
     return lines

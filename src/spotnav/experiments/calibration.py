@@ -44,7 +44,7 @@ from spotnav.setup.paths import poses_through_insertion, working_volume_tips
 from spotnav.setup.sections import Instrument, Light, World
 from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS, Uncertainty
 
-__all__ = ["KNOWN_FRAMES", "calibration_text", "known_calibration", "run_calibration"]
+__all__ = ["KNOWN_FRAMES", "calibration_text", "held_out_text", "known_calibration", "run_calibration"]
 
 KNOWN_FRAMES = 8
 KNOWN_SEED = 20_000
@@ -76,12 +76,26 @@ def known_calibration(
 
 
 def calibration_text(result: Calibration, *names: str) -> str:
-    """The named parameters' calibrated values +- 1 sigma, for a report."""
+    """The named parameters' calibrated values +- 1 sigma, and its held-out check, for a report."""
     parts = []
     for name in names:
         index = GEOMETRY_PARAMETERS.index(name)
         parts.append(f"{name} {result.values[index]:.4f} +- {result.sigmas[index]:.4f}")
-    return ", ".join(parts)
+    return ", ".join([*parts, held_out_text(result)])
+
+
+def held_out_text(result: Calibration) -> str:
+    """The calibration's held-out check in a few words: its known frames localized by calibrations of the others."""
+    held = result.held_out
+    if held is None:
+        return "held out: not checked"
+    if not held.answered:
+        return f"held out: 0/{len(held.statuses)} answered"
+    errors = np.array(held.errors_mm)
+    return (
+        f"held out {held.answered}/{len(held.statuses)}: {np.nanmean(errors):.4f} / {np.nanmax(errors):.4f} mm, "
+        f"{100 * held.coverage():.0f} % within 3 sigma{', MISSES' if held.misses() else ''}"
+    )
 
 
 def run_frame_with_edges(

@@ -23,7 +23,7 @@ import numpy as np
 from spotnav.app.paths import path_poses
 from spotnav.app.track import Tracker
 from spotnav.errors import SpotnavError
-from spotnav.experiments.calibration import KNOWN_FRAMES, known_calibration
+from spotnav.experiments.calibration import KNOWN_FRAMES, held_out_text, known_calibration
 from spotnav.experiments.faults import combine_changes
 from spotnav.experiments.geometry import (
     GeometryCase,
@@ -165,9 +165,10 @@ def run_mismatch(options: Options) -> Experiment:
             else:
                 results = [output[2] for output in outputs]
                 after, (silent, outside) = summarize(results), count_silent(results)
+                errors = f"{after.text(after.mean_mm)} / {after.text(after.max_mm)}"
                 row += [
                     f"{after.ok}/{after.frames}",
-                    f"{after.text(after.mean_mm)} / {after.text(after.max_mm)}",
+                    f"{errors} ({held_out_text(calibration)})",
                     f"{after.ok - outside}/{after.ok}",
                     str(silent),
                 ]

@@ -6,7 +6,7 @@ camera has turned it into a point on the retina. All frames' points are fitted
 at once (:mod:`spotnav.pose.conefit`) to the geometry's parameters
 (:data:`spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`: the edge model, the eye's
 radius, the camera's rotation, centre, scale, principal point and distortion,
-the insertion point, the beams' tilt) and each three-beam frame's roll.
+the insertion point) and each three-beam frame's roll.
 
 :func:`fit_geometry` chooses the model itself. A first fit with every
 parameter free, held by priors (the setup's ``[uncertainty]``), reaches the
@@ -39,7 +39,6 @@ from scipy.stats import chi2
 from spotnav.errors import InputError
 from spotnav.optics.camera import unproject_pixels_to_sphere
 from spotnav.pose.checks import MAX_RMS_DEG, MAX_RMS_PX, residuals_px
-from spotnav.pose.conefit.covariance import scatter_covariance
 from spotnav.pose.conefit.parameters import (
     EDGE_CONTOUR_SIGMA,
     PARAMETER_GROUPS,
@@ -53,6 +52,17 @@ from spotnav.pose.conefit.parameters import (
 from spotnav.pose.conefit.problem import ConeProblem, EdgePoints, cone_problem
 from spotnav.pose.conefit.solution import ConeSolution
 from spotnav.pose.conefit.solvers import fit_cones
+from spotnav.pose.determined import (
+    DETERMINED_RATIO,
+    PRIORITY,
+    UNCERTAINTY_KEYS,
+    Pinning,
+    choose,
+    left_reason,
+    refusal,
+    worse_than_stated,
+)
+from spotnav.pose.estimate import within_sigmas
 from spotnav.pose.known_frame import KnownFrame, KnownFrameEdges, read_known_frame
 from spotnav.pose.pipeline import pose_problem
 from spotnav.setup.config import Setup
@@ -61,37 +71,28 @@ from spotnav.setup.uncertainty import GEOMETRY_PARAMETERS, CalibrationRecord, Un
 
 __all__ = [
     "DETERMINED_RATIO",
+    "HELD_OUT_COVERAGE",
+    "HELD_OUT_MAX_SIGMAS",
     "MIN_FRAMES",
     "MIN_INLIER_FRACTION",
     "PRIORITY",
     "Calibration",
     "GeometryFit",
+    "HeldOut",
     "finish_calibration",
     "fit_geometry",
     "insertion_from_axes",
+    "refit",
 ]
 
 MIN_FRAMES = 3
-# A parameter is fitted when the frames alone pin it to this fraction of how well it was known before.
-DETERMINED_RATIO = 0.25
-# The order in which parameters may join the fit: what a microscope most often gets wrong first. Of two that look
-# alike (a tilt and a shift of the camera, its focal length and its height) the first is fitted.
-PRIORITY: tuple[int, ...] = (
-    *PARAMETER_GROUPS["edge-angle"],
-    *PARAMETER_GROUPS["beam-tilt"],
-    *PARAMETER_GROUPS["camera-rotation"],
-    *PARAMETER_GROUPS["focal-length"],
-    *PARAMETER_GROUPS["light-radius"],
-    *PARAMETER_GROUPS["insertion-point"],
-    *PARAMETER_GROUPS["distortion"][:1],
-    *PARAMETER_GROUPS["eye-radius"],
-    *PARAMETER_GROUPS["camera-position"][::-1],
-    *PARAMETER_GROUPS["principal-point"],
-    *PARAMETER_GROUPS["distortion"][1:],
-)
 _MAX_AXES_CONDITION = 1e6  # the known axes' lines must cross at an angle (1e6: some 0.1 deg apart)
 MIN_INLIER_FRACTION = 0.5  # a calibration (and a reading chosen by its spots) keeps at least this share of its points
 _MAX_COVARIANCE_SCALE = 10.0  # a calibration whose own frames need more is refused
+# A calibration misses its held-out frames when one is further than this many 3-D sigmas from its known tip, or
+# fewer than this share are within 3 (an honest sigma covers 97 %: two of three leaves room for few frames).
+HELD_OUT_MAX_SIGMAS = 5.0
+HELD_OUT_COVERAGE = 2.0 / 3.0
 
 
 @dataclass(frozen=True)
@@ -142,6 +143,9 @@ class Calibration:
         (``instrument.edge_band_deg``, the setup's first) and the RMS of its
         spots' mean offsets from their cones after its calibration, pixels
         (NaN: its calibration failed); empty where none clips.
+    held_out : HeldOut or None
+        The known frames localized by calibrations without them
+        (cross-validation, :func:`spotnav.app.calibrate.check_held_out`); None: not checked.
     """
 
     setup: Setup
@@ -160,6 +164,61 @@ class Calibration:
     covariance_scale: float = 1.0
     tip_misses_mm: tuple[float, ...] = ()
     edge_bands: tuple[tuple[float, float], ...] = ()
+    held_out: HeldOut | None = None
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """A calibration's held-out check: each known frame localized (the precise method) with a calibration of the
+    other frames (``folds``-fold cross-validation), against its known tip.
+
+    Attributes
+    ----------
+    folds : int
+        How many calibrations: each leaves every ``folds``-th frame out.
+    names : tuple of str
+        The frames checked.
+    statuses : tuple of str
+        Each one's status (``ok``, or why it was not answered; ``refused`` when
+        the calibration without it was refused).
+    errors_mm : tuple of float
+        Each answered tip's 3-D distance from the known one, mm (NaN: not answered).
+    sigma_mm : tuple of float
+        Each answer's ``sigma_mm`` (NaN: not answered).
+    """
+
+    folds: int
+    names: tuple[str, ...]
+    statuses: tuple[str, ...]
+    errors_mm: tuple[float, ...]
+    sigma_mm: tuple[float, ...]
+
+    @property
+    def answered(self) -> int:
+        """Frames answered ``ok``."""
+        return sum(status == "ok" for status in self.statuses)
+
+    def sigmas(self) -> np.ndarray:
+        """Each answered frame's error in 3-D standard errors (``sqrt(3) sigma_mm``, as
+        :func:`~spotnav.pose.estimate.within_sigmas` counts them), shape (answered,)."""
+        errors, sigma = self._answered()
+        return np.asarray(errors / (np.sqrt(3.0) * sigma))
+
+    def coverage(self) -> float:
+        """The answered frames' share within 3 sigma (3-D); NaN when none was answered."""
+        errors, sigma = self._answered()
+        return float(np.mean(within_sigmas(errors, sigma))) if len(errors) else float("nan")
+
+    def misses(self) -> bool:
+        """Whether the calibration misses its held-out frames: under half answered, one over
+        :data:`HELD_OUT_MAX_SIGMAS`, or under :data:`HELD_OUT_COVERAGE` within 3 sigma."""
+        if 2 * self.answered < len(self.statuses):
+            return True
+        return bool(np.any(self.sigmas() > HELD_OUT_MAX_SIGMAS) or self.coverage() < HELD_OUT_COVERAGE)
+
+    def _answered(self) -> tuple[np.ndarray, np.ndarray]:
+        ok = np.array([status == "ok" for status in self.statuses], dtype=bool)
+        return np.array(self.errors_mm)[ok], np.array(self.sigma_mm)[ok]
 
 
 @dataclass(frozen=True)
@@ -169,8 +228,8 @@ class GeometryFit:
     (``known`` or ``insertion``), the parameters fitted (indices of
     :data:`~spotnav.setup.uncertainty.GEOMETRY_PARAMETERS`),
     the last fit, the edge points' RMS angle from their cones with the setup's geometry (radians), why each parameter
-    not fitted stayed at the setup's value, where known axes meet (:func:`insertion_from_axes`) and the frames left out
-    with the reason."""
+    not fitted stayed at the setup's value, where known axes meet (:func:`insertion_from_axes`), the frames left out
+    with the reason, and which of the frames given each of ``edges`` is (indices)."""
 
     setup: Setup
     edges: list[KnownFrameEdges]
@@ -181,6 +240,7 @@ class GeometryFit:
     reasons: dict[int, str]
     lines: tuple[np.ndarray, np.ndarray, float] | None
     skipped: list[str]
+    used: tuple[int, ...] = ()
 
     def spot_spread_px(self) -> float:
         """RMS of the spots' mean offsets from their cones after the fit, pixels: how well they agree."""
@@ -238,69 +298,6 @@ def _problem(
     )
 
 
-def _dense(solution: ConeSolution) -> np.ndarray:
-    matrix = solution.problem.jacobian_matrix(solution.x, solution.inliers)
-    return matrix if isinstance(matrix, np.ndarray) else matrix.toarray()
-
-
-def _chosen(solution: ConeSolution, candidates: Sequence[int], forced: Sequence[int]) -> tuple[list[int], np.ndarray]:
-    """The candidates the frames determine, in :data:`PRIORITY` order, and each one's sigma over its prior.
-
-    ``solution`` is the fit with every candidate free, held by its prior (in
-    ``candidates``' order, then the frames' own parameters). A parameter joins
-    when the frames alone, with the parameters chosen before it, pin it to
-    under :data:`DETERMINED_RATIO` of its prior and still pin every one chosen
-    before. The uncertainty from the frames alone: the points' scatter
-    (correlation-inflated) and each spot's whole-edge shift.
-    """
-    jacobian = _dense(solution)
-    residuals = solution.residuals[solution.inliers]
-    spots = solution.problem.points.spot[solution.inliers]
-    own = list(range(len(candidates), jacobian.shape[1]))  # the frames' rolls are always fitted
-    prior = np.sqrt(np.diag(solution.problem.prior))
-
-    def ratios(chosen: list[int]) -> np.ndarray:
-        columns = [candidates.index(i) for i in chosen] + own
-        size = jacobian.shape[1]
-        covariance = scatter_covariance(jacobian[:, columns], residuals, spots, EDGE_CONTOUR_SIGMA, size)[0]
-        return np.sqrt(np.diag(covariance)[: len(chosen)]) / prior[chosen]
-
-    chosen = list(forced)
-    tried = np.full(SHARED_SIZE, np.nan)
-    for index in PRIORITY:
-        if index not in candidates or index in chosen:
-            continue
-        trial = [*chosen, index]
-        trial_ratios = ratios(trial)
-        tried[index] = trial_ratios[-1]
-        if np.all(trial_ratios[len(forced) :] < DETERMINED_RATIO):
-            chosen = trial
-    if chosen:
-        tried[chosen] = ratios(chosen)
-    return chosen, tried
-
-
-def _describe_poses(frames: list[KnownFrameEdges]) -> str:
-    tips = np.array([f.tip for f in frames])
-    spread = float(np.max(np.ptp(tips[:, :2], axis=0)))
-    return f"tips {spread:.2f} mm apart in x, y, {tips[:, 2].min():.2f}-{tips[:, 2].max():.2f} mm above the pole"
-
-
-# The [uncertainty] key of each parameter group.
-_UNCERTAINTY_KEYS = {
-    "edge-angle": "edge_half_angle_deg",
-    "light-radius": "light_radius_mm",
-    "eye-radius": "eye_radius_mm",
-    "camera-rotation": "camera_rotation_deg",
-    "camera-position": "camera_position_mm",
-    "focal-length": "focal_length_percent",
-    "principal-point": "principal_point_percent",
-    "distortion": "distortion_px",
-    "insertion-point": "insertion_point_mm",
-    "beam-tilt": "beam_tilt_deg",
-}
-
-
 def fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str], fix: Sequence[str]) -> GeometryFit:
     """The edges read with the setup's response, the parameters the frames determine, and the last fit.
 
@@ -308,42 +305,75 @@ def fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str],
     ------
     InputError
         Fewer than :data:`MIN_FRAMES` usable frames; nothing to calibrate; a
-        forced group the frames cannot determine; known axes that are (nearly)
-        parallel or with the insertion point forced. A geometry out of
-        its allowed ranges raises :class:`~spotnav.setup.values.SetupError`.
+        forced group the frames cannot determine (one sentence: why, and what
+        frames would); known axes that are (nearly) parallel or with the
+        insertion point forced. A geometry out of its allowed ranges raises
+        :class:`~spotnav.setup.values.SetupError`.
     """
-    edges, skipped = [], []
-    for frame in frames:
+    edges, skipped, used = [], [], []
+    for number, frame in enumerate(frames):
         result = read_known_frame(frame, setup)
         if result.ok:
             edges.append(result)
+            used.append(number)
         else:
             skipped.append(f"{result.detail} ({result.status})")
+    known_axes = all(frame.axis is not None for frame in frames)
+    return replace(_fit_edges(edges, setup, fit, fix, known_axes, skipped), used=tuple(used))
+
+
+def refit(fitted: GeometryFit, keep: Sequence[int]) -> GeometryFit:
+    """``fitted`` again from some of its frames' edges (indices into ``fitted.edges``): a held-out check's fit.
+
+    The same parameters from the same start (the response, soft band and model that all the frames chose); known
+    axes give the insertion point anew, from these frames'.
+    """
+    edges = [fitted.edges[k] for k in keep]
+    setup, lines = fitted.setup, None
+    if fitted.lines is not None:
+        lines = insertion_from_axes(np.array([e.tip for e in edges]), np.array([e.axis for e in edges]))
+        setup = replace(setup, instrument=replace(setup.instrument, insertion_point_mm=tuple(lines[0])))
+    before = _problem(setup, edges, fitted.axis_mode, [], np.zeros(SHARED_SIZE))
+    solution = fit_cones(_problem(setup, edges, fitted.axis_mode, fitted.chosen, fitted.solution.shared))
+    rms_before = _rms(before.residuals(before.start), solution.inliers)
+    used = tuple(fitted.used[k] for k in keep)
+    return replace(fitted, setup=setup, edges=edges, solution=solution, rms_before=rms_before, lines=lines, used=used)
+
+
+def _fit_edges(
+    edges: list[KnownFrameEdges],
+    setup: Setup,
+    fit: Sequence[str],
+    fix: Sequence[str],
+    known_axes: bool,
+    skipped: list[str],
+) -> GeometryFit:
+    """:func:`fit_geometry` from the frames' edges read."""
     if len(edges) < MIN_FRAMES:
         left_out = "; ".join(skipped) if skipped else "none given"
         raise InputError(f"calibration needs at least {MIN_FRAMES} usable frames, got {len(edges)} ({left_out})")
     reasons = {i: "fixed (--fix)" for name in fix for i in PARAMETER_GROUPS[name]}
     prior = np.sqrt(np.diag(geometry_covariance(setup, one_frame=False)))
-    exact = [name for name in fit if np.any(prior[PARAMETER_GROUPS[name]] == 0)]
+    exact = [name for name in fit if np.any(prior[list(PARAMETER_GROUPS[name])] == 0)]
     if exact:  # --fit overrules [uncertainty] 0: judge what the frames tell against a real microscope's prior
-        typical = {_UNCERTAINTY_KEYS[name]: getattr(Uncertainty(), _UNCERTAINTY_KEYS[name]) for name in exact}
+        typical = {UNCERTAINTY_KEYS[name]: getattr(Uncertainty(), UNCERTAINTY_KEYS[name]) for name in exact}
         setup = replace(setup, uncertainty=replace(setup.uncertainty, **typical))
         prior = np.sqrt(np.diag(geometry_covariance(setup, one_frame=False)))
     reasons.update({i: "known exactly ([uncertainty] 0)" for i in range(SHARED_SIZE) if prior[i] == 0})
     if setup.instrument.beam_count == 1:
         reasons.update({i: "one beam has no tilt" for i in PARAMETER_GROUPS["beam-tilt"]})
-    known_axes = all(frame.axis is not None for frame in frames)
     lines = None
     if known_axes:
         if "insertion-point" in fit:
-            raise InputError("with known axes the insertion point is where they meet: it cannot be --fit")
+            raise InputError("with known axes the insertion point is where they meet; leave --fit insertion-point out")
         if "insertion-point" not in fix:
             lines = insertion_from_axes(np.array([e.tip for e in edges]), np.array([e.axis for e in edges]))
             setup = replace(setup, instrument=replace(setup.instrument, insertion_point_mm=tuple(lines[0])))
         reasons.update({i: reasons.get(i, "where the known axes meet") for i in PARAMETER_GROUPS["insertion-point"]})
     axis_mode = "known" if known_axes else "insertion"
-    forced = [i for name in fit for i in PARAMETER_GROUPS[name]]
-    candidates = [i for i in PRIORITY if i in forced or i not in reasons]
+    forced = list(dict.fromkeys(i for name in fit for i in PARAMETER_GROUPS[name]))
+    order = [*PRIORITY, *(i for i in range(SHARED_SIZE) if i not in PRIORITY)]
+    candidates = [i for i in order if i in forced or (i in PRIORITY and i not in reasons)]
     if not candidates:
         raise InputError(
             "nothing to calibrate: the setup's [uncertainty] says its geometry is known exactly "
@@ -356,20 +386,18 @@ def fit_geometry(frames: Sequence[KnownFrame], setup: Setup, fit: Sequence[str],
     widths = np.full(everything.size, np.inf)
     widths[: len(candidates)] = np.where(prior[candidates] > 0, prior[candidates], np.inf)
     held = fit_cones(everything, priors=widths)
-    chosen, ratios = _chosen(held, candidates, forced)
-    unresolved = [i for i in forced if not ratios[i] < DETERMINED_RATIO]
+    ratios = Pinning(held, candidates)
+    chosen, tried = choose(ratios, candidates, forced)
+    unresolved = [i for i in forced if not tried[i] < DETERMINED_RATIO]
     if unresolved:
-        raise InputError(
-            f"the known frames cannot determine {group_of(unresolved[0])} (they give it "
-            f"{ratios[unresolved[0]]:.2f} of its prior uncertainty, under {DETERMINED_RATIO} is needed): too few "
-            f"frames, or degenerate poses ({_describe_poses(edges)})"
-        )
-    reasons.update(
-        {i: f"not determined by these frames ({ratios[i]:.2f} of its prior)" for i in candidates if i not in chosen}
-    )
+        raise InputError(refusal(ratios, setup, unresolved[0], forced, edges))
+    reasons.update({i: left_reason(ratios, setup, i, tried[i], chosen) for i in candidates if i not in chosen})
     chosen = sorted(chosen)
     start = np.where(np.isin(np.arange(SHARED_SIZE), chosen), held.shared, 0.0)
     solution = fit_cones(_problem(setup, edges, axis_mode, chosen, start))
+    worse = worse_than_stated(ratios, setup, forced, chosen, np.sqrt(np.diag(solution.covariance)[: len(chosen)]))
+    if worse:
+        raise InputError(worse)
     rms_before = _rms(before.residuals(before.start), solution.inliers)
     return GeometryFit(setup, edges, axis_mode, chosen, solution, rms_before, reasons, lines, skipped)
 

@@ -199,5 +199,6 @@ class AxesMeeting:
         return (
             f"the instrument's axes over {self.lines} poses pass {distance:.2f} mm from the setup's insertion point "
             f"(at [{where}] mm, {sigmas:.0f} sigma): the insertion point or the camera is not where the setup says; "
-            "calibrate them (spotnav calibrate --fit insertion-point --fit camera-rotation)"
+            "calibrate them from frames at known poses with their axes (spotnav calibrate --poses known.csv, its "
+            "dir_x, dir_y, dir_z given: the insertion point is where the axes meet)"
         )
