@@ -12,6 +12,7 @@ from spotnav import Renderer
 from spotnav.app.paths import path_poses
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
 from spotnav.experiments.faults import SILENT_ERROR_MM
+from spotnav.experiments.scenes import with_lens_blur
 from spotnav.pose.precise import localize_precise_with_edges
 from spotnav.setup.config import Light
 
@@ -94,3 +95,24 @@ def test_a_clipped_spot_in_a_frame_blurred_after_its_encoding_is_read_with_that_
         assert error < 3.0 * np.sqrt(3.0) * estimate.sigma_mm
         assert error < tolerance_mm
     assert ok >= answered
+
+
+def test_a_clipped_spot_through_a_lens_is_read_with_the_lens_s_blur_when_the_setup_states_it() -> None:
+    # +4.5 stops through a lens focused at the pole whose depth of field blurs the helix's spots by 1.5 px (their
+    # median): a blur of the light that the flank's model leaves out reads as a dimmer light, the edge further out.
+    world = with_lens_blur(thesis_world(768, 1, 1.0, exposure_stops=4.5), 1.5)
+    stated = with_true_edge(world)
+    unstated = replace(stated, camera=replace(stated.camera, aperture_mm=None))
+    renderer = Renderer(world)
+    errors: dict[str, list[float]] = {"stated": [], "unstated": []}
+    for i, pose in enumerate(path_poses("helix", 16, world.instrument.insertion_in_eye)[1::4]):
+        frame = renderer.render(pose, seed=i)
+        for name, setup in (("stated", stated), ("unstated", unstated)):
+            estimate = localize_precise_with_edges(frame, setup).estimate
+            assert estimate.ok, estimate.detail
+            error = float(np.linalg.norm(estimate.tip_in_eye - pose.tip_in_eye))
+            errors[name].append(error)
+            if name == "stated":
+                assert error < 0.02
+                assert error < 3.0 * np.sqrt(3.0) * estimate.sigma_mm
+    assert np.mean(errors["unstated"]) > 2.0 * np.mean(errors["stated"]), errors

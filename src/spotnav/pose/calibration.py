@@ -141,6 +141,10 @@ class Calibration:
         (``instrument.edge_band_deg``, the setup's first) and the RMS of its
         spots' mean offsets from their cones after its calibration, pixels
         (NaN: its calibration failed); empty where none clips.
+    apertures : tuple of (float, float)
+        Where some known frame's spot clips and the setup states no lens aperture: each ``camera.aperture_mm``
+        tried (a pinhole's first) and its spots' RMS offset, pixels (NaN: its calibration failed); empty otherwise.
+        The one fitted is the calibrated setup's, its 1 sigma ``calibration.aperture_sigma_mm``.
     """
 
     setup: Setup
@@ -159,6 +163,7 @@ class Calibration:
     covariance_scale: float = 1.0
     tip_misses_mm: tuple[float, ...] = ()
     edge_bands: tuple[tuple[float, float], ...] = ()
+    apertures: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass(frozen=True)
