@@ -41,7 +41,7 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.experiments.scenes import PATH_SEEDS, thesis_world, with_lens_blur, with_true_edge
+from spotnav.experiments.scenes import PATH_SEEDS, thesis_world, with_true_edge
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose
 from spotnav.setup.uncertainty import Uncertainty
@@ -65,11 +65,6 @@ def _light(**values: float) -> Callable[[Setup], Setup]:
     return lambda world: replace(world, light=replace(world.light, **values))
 
 
-def _defocus(blur_px: float) -> Callable[[Setup], Setup]:
-    """Spots clipped (+4.5 stops) and the light blurred by a lens the setup does not state (:func:`with_lens_blur`)."""
-    return lambda world: with_lens_blur(replace(world, render=replace(world.render, exposure_stops=4.5)), blur_px)
-
-
 def _tilt(degrees: float) -> Callable[[Setup], Setup]:
     return lambda world: replace(world, instrument=replace(world.instrument, beam_tilt_deg=degrees))
 
@@ -89,7 +84,6 @@ MISMATCH_CASES: tuple[GeometryCase, ...] = (
     GeometryCase("beam tilt +0.5 deg", _tilt(15.5), beams=(3,)),
     GeometryCase("beam tilt -0.5 deg", _tilt(14.5), beams=(3,)),
     GeometryCase("radial distortion, k1 = -3", change_camera(k1=-3.0)),
-    *(GeometryCase(f"lens defocus {b:g} px, +4.5 stops", _defocus(b)) for b in (0.5, 1.0, 2.0)),
 )
 
 
