@@ -249,10 +249,11 @@ def _choose_aperture(
 def _fit_with_aperture(
     frames: Sequence[KnownFrame], setup: Setup, aperture_mm: float, fit: Sequence[str], fix: Sequence[str]
 ) -> GeometryFit | None:
-    """The calibration with the lens's aperture ``aperture_mm`` stated (None: too few frames read with it)."""
+    """The calibration with the lens's aperture ``aperture_mm`` stated (None: too few frames read with it, or a
+    geometry out of its allowed ranges: not this aperture)."""
     try:
         return fit_geometry(frames, replace(setup, camera=replace(setup.camera, aperture_mm=aperture_mm)), fit, fix)
-    except InputError:
+    except SpotnavError:
         return None
 
 
