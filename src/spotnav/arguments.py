@@ -34,7 +34,7 @@ PARAMETER_GROUPS = (
 )
 EXPERIMENTS = (
     *("approximation", "ellipse", "paths", "efficiency", "bumps", "radius", "calibration", "volume", "faults", "light"),
-    *("geometry", "mismatch"),
+    *("geometry", "mismatch", "defocus"),
 )
 DEFAULT_PORT, DEFAULT_HOST, DEFAULT_DEVICE, DEFAULT_STALE_S = 18944, "127.0.0.1", "TipToEye", 0.5
 

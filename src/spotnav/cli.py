@@ -46,7 +46,7 @@ def _cmd_scene(args: argparse.Namespace) -> int:
     nominal = base.camera
     camera = Camera.calibrated(
         width, height, matrix, distortion, nominal.rotation_to_camera, nominal.translation_to_camera_mm
-    )
+    ).with_lens_of(nominal)
     setup = replace(base, camera=camera)
     header = (
         f"written by spotnav scene --opencv {args.opencv}: OpenCV's camera matrix and distortion, the pose of "

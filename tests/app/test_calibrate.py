@@ -8,9 +8,17 @@ import numpy as np
 import pytest
 from conftest import small_setup
 
-from spotnav.app.calibrate import EDGE_BAND_MARGIN, HELD_OUT_FOLDS, RESPONSE_CANDIDATES, RESPONSE_MARGIN, calibrate
+from spotnav.app.calibrate import (
+    APERTURE_MARGIN,
+    EDGE_BAND_MARGIN,
+    HELD_OUT_FOLDS,
+    RESPONSE_CANDIDATES,
+    RESPONSE_MARGIN,
+    calibrate,
+)
 from spotnav.errors import InputError, SpotnavError
 from spotnav.experiments.chapter6 import thesis_world, with_true_edge
+from spotnav.experiments.scenes import with_lens_blur
 from spotnav.optics.light import edge_angle
 from spotnav.optics.render import Renderer
 from spotnav.pose import calibration
@@ -388,3 +396,22 @@ def test_the_held_out_check_localizes_each_known_frame_with_a_calibration_of_the
         assert "does not find its own frames' tips" in str(error)
     else:
         assert missed is not None and missed.misses()
+
+
+@pytest.mark.slow
+def test_calibration_measures_a_lens_s_depth_of_field_from_clipped_spots() -> None:
+    # +4.5 stops through a lens (focused at the pole) that blurs the helix's spots by 1 px (their median); the setup
+    # states no aperture. The spots that clip agree with their known poses only through the right aperture.
+    world = with_lens_blur(thesis_world(768, 1, exposure_stops=4.5), 1.0)
+    true_aperture = world.camera.aperture_mm
+    assert true_aperture is not None
+    setup = _only(replace(world, camera=replace(world.camera, aperture_mm=None)), edge_half_angle_deg=0.3)
+    result = calibrate(known_frames(world, axes=True), setup)
+    fitted, sigma = result.setup.camera.aperture_mm, result.setup.calibration.aperture_sigma_mm
+    assert fitted is not None and 0.0 < sigma < 0.5 * true_aperture, (fitted, sigma, result.apertures)
+    assert abs(fitted - true_aperture) < 3.0 * sigma, (fitted, sigma, true_aperture, result.apertures)
+    pinhole_spread, best_spread = result.apertures[0][1], min(spread for _, spread in result.apertures)
+    assert best_spread < (1.0 - APERTURE_MARGIN) * pinhole_spread
+    # Stated, it is used as it is: no aperture is tried.
+    stated = calibrate(known_frames(world, 6, axes=True), _only(world, edge_half_angle_deg=0.3))
+    assert stated.apertures == () and stated.setup.camera.aperture_mm == true_aperture

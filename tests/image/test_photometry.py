@@ -7,7 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spotnav.image.photometry import edge_light, pixel_light
+from spotnav.image.photometry import edge_light, pixel_light, ray_light_blurs
+from spotnav.optics.camera import project_points, unproject_pixels_to_sphere
+from spotnav.optics.defocus import light_blur_px
 from spotnav.setup.config import setup_from_toml
 from spotnav.setup.examples import EXAMPLE_SETUP
 
@@ -66,9 +68,22 @@ def test_pixel_light_is_symmetric_about_its_half_light_point(x: float, band: flo
 
 def test_edge_light_of_the_example_beam() -> None:
     # The band runs from beta in to 2 edge - beta, the edge the half-light angle of blend 0.15; a point light's
-    # apex is the tip.
+    # apex is the tip; no lens (a pinhole): no blur, focused at the pole's depth.
     setup = setup_from_toml(EXAMPLE_SETUP)
     beta = np.radians(9.0)
     edge = np.arccos(np.cos(beta) + 0.075 * (1.0 - np.cos(beta)))
     light = edge_light(setup, np.array([1.0, 2.0, 5.0]), np.array([0.0, 0.0, -1.0])).light
-    np.testing.assert_allclose(light, [1.0, 2.0, 5.0, 0.0, 0.0, -1.0, 2.0 * edge - beta, beta, 12.5], rtol=1e-12)
+    expected = [1.0, 2.0, 5.0, 0.0, 0.0, -1.0, 2.0 * edge - beta, beta, 12.5, 0.0, 0.0, 1.0 / 110.0]
+    np.testing.assert_allclose(light, expected, rtol=1e-12)
+
+
+def test_each_ray_s_light_blur_is_the_lens_s_at_its_crossing() -> None:
+    setup = setup_from_toml(EXAMPLE_SETUP.replace("distance_mm = 110.0", "distance_mm = 110.0\naperture_mm = 20.0"))
+    light = edge_light(setup, np.array([3.0, 0.0, 4.0]), np.array([0.0, 0.0, -1.0]))
+    centre = project_points(setup.camera, np.array([3.0, 0.0, 12.5 - np.sqrt(12.5**2 - 9.0)]))
+    angles, crossings = np.array([0.0, np.pi / 2, np.pi]), np.array([80.0, 80.0, 80.0])
+    blurs = ray_light_blurs(light.model, light.light, centre, angles, crossings)
+    pixels = centre + crossings[:, None] * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    points = unproject_pixels_to_sphere(setup.camera, pixels, setup.eye.radius_mm)
+    np.testing.assert_allclose(blurs, light_blur_px(setup.camera, points), rtol=1e-9)
+    assert blurs[0] > blurs[1] > blurs[2] > 0.0  # outward from the pole: deeper, off the focus further

@@ -101,6 +101,12 @@ def test_bumps_are_parsed() -> None:
         ("[faults]\nstray_light = nan", "faults.stray_light"),
         ("[faults]\nmotion_blur_px = -3.0", "faults.motion_blur_px"),
         ("[faults]\nsmoke = 1", "faults.smoke"),
+        ("[camera]\naperture_mm = -1.0", "camera.aperture_mm"),
+        ("[camera]\naperture_mm = 2000.0", "camera.aperture_mm"),
+        ("[camera]\naperture_mm = 'wide'", "camera.aperture_mm"),
+        ("[camera]\nfocus_distance_mm = 0.0", "camera.focus_distance_mm"),
+        ("[camera]\nfocus_distance_mm = nan", "camera.focus_distance_mm"),
+        ("[calibration]\naperture_sigma_mm = -0.5", "calibration.aperture_sigma_mm"),
         ("[tip]\nx = 1", "[tip]"),
         ("eye = 3", "[eye]"),
         ("[eye\nradius_mm = 1", "not valid TOML"),
@@ -264,3 +270,17 @@ def test_uncertainty_and_calibration_sections() -> None:
             setup_from_toml(changed)
     with pytest.raises(SetupError, match=r"uncertainty\.eye_radius_mm"):
         setup_from_toml("[uncertainty]\neye_radius_mm = -1.0\n")
+
+
+def test_a_lens_s_depth_of_field_is_read_and_a_setup_without_one_reads_as_before() -> None:
+    plain = setup_from_toml("")
+    assert plain.camera.aperture_mm is None and plain.camera.lens_aperture_mm == 0.0
+    assert plain.camera.focus_depth_mm == pytest.approx(plain.camera.distance_mm)  # the pole's depth
+    lens = "[camera]\naperture_mm = 12.5\nfocus_distance_mm = 108\n"
+    setup = setup_from_toml(lens + "[calibration]\naperture_sigma_mm = 0.4")
+    assert setup.camera.aperture_mm == 12.5 and setup.camera.focus_depth_mm == 108.0
+    assert setup.calibration.aperture_sigma_mm == 0.4
+    # A calibrated camera keeps the lens; its default focus is its own depth of the pole.
+    calibrated = replace(setup.camera, focus_distance_mm=None).as_calibrated()
+    assert calibrated.aperture_mm == 12.5 and calibrated.focus_depth_mm == pytest.approx(110.0)
+    assert setup.camera.resized(512, 512).aperture_mm == 12.5

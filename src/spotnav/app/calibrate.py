@@ -12,10 +12,10 @@ brightness disagree. Power laws differ little that way (read through another
 gamma, a spot on a dark background moves by the same fraction of its step,
 which the edge angle absorbs): a linear or gamma camera must be stated. Where
 known frames' spots clip, the soft band they are read with is chosen the same
-way (:data:`EDGE_BAND_FACTORS`). :func:`check_held_out` localizes each known
-frame with a calibration of the others (:data:`HELD_OUT_FOLDS`-fold
-cross-validation). :func:`calibrate_height_correction` averages section 5.5's
-factor over the frames.
+way (:data:`EDGE_BAND_FACTORS`), and so is the lens's aperture where the setup states none
+(:data:`LIGHT_BLURS_PX`, then refined with its 1 sigma). :func:`check_held_out` localizes each known
+frame with a calibration of the others (:data:`HELD_OUT_FOLDS`-fold cross-validation).
+:func:`calibrate_height_correction` averages section 5.5's factor over the frames.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from spotnav.errors import InputError, SpotnavError
+from spotnav.optics.defocus import spot_light_blur_px
 from spotnav.optics.light import edge_angle
 from spotnav.pose.calibration import (
     MIN_FRAMES,
@@ -42,11 +43,14 @@ from spotnav.pose.known_frame import KnownFrame
 from spotnav.pose.localize import localize
 from spotnav.pose.thesis import fit_height_correction
 from spotnav.setup.config import Setup
+from spotnav.setup.geometry import normalize
 
 __all__ = [
+    "APERTURE_MARGIN",
     "EDGE_BAND_FACTORS",
     "EDGE_BAND_MARGIN",
     "HELD_OUT_FOLDS",
+    "LIGHT_BLURS_PX",
     "RESPONSE_CANDIDATES",
     "RESPONSE_MARGIN",
     "HeightCorrection",
@@ -72,7 +76,15 @@ EDGE_BAND_FACTORS = (0.45, 0.65, 0.8, 1.0, 1.25, 1.6)
 EDGE_BAND_MARGIN = 0.15
 # The held-out check's folds: each calibration leaves a quarter of the known frames out.
 HELD_OUT_FOLDS = 4
+# The lens's blurs tried where known frames' spots clip and the setup states no aperture (camera.aperture_mm): each
+# the median over the known spots of the light's blur at their centres (sigma, pixels), by the aperture that gives
+# it; and how much better than a pinhole's a blur's spots must agree to be kept. A blur of the light and a dimmer
+# light trade along one clipped flank; spots at other depths are blurred by other amounts, and only the right
+# aperture lets them all agree with the known poses.
+LIGHT_BLURS_PX = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
+APERTURE_MARGIN = 0.15
 _WIDEST_BAND_DEG = 44.0  # instrument.edge_band_deg is under 45 deg
+_WIDEST_APERTURE_MM = 1000.0  # camera.aperture_mm's limit
 
 
 def calibrate(
@@ -84,8 +96,8 @@ def calibrate(
     held_out: bool = True,
 ) -> Calibration:
     """Fit the geometry that frames at known poses determine (:mod:`spotnav.pose.calibration`), read through the
-    response and soft band whose spots agree best (see the module's docstring), and check it on frames it has not
-    seen (:func:`check_held_out`).
+    response, soft band and lens aperture whose spots agree best (see the module's docstring), and check it on
+    frames it has not seen (:func:`check_held_out`).
 
     Parameters
     ----------
@@ -126,7 +138,12 @@ def calibrate(
     else:
         chosen, responses = _choose_response(frames, setup, fit, fix)
     chosen, bands = _choose_edge_band(frames, chosen, fit, fix)
-    result = replace(finish_calibration(chosen), responses=responses, edge_bands=bands)
+    chosen, apertures, aperture_sigma = _choose_aperture(frames, chosen, fit, fix)
+    result = finish_calibration(chosen)
+    if aperture_sigma > 0.0:
+        record = replace(result.setup.calibration, aperture_sigma_mm=aperture_sigma)
+        result = replace(result, setup=replace(result.setup, calibration=record))
+    result = replace(result, responses=responses, edge_bands=bands, apertures=apertures)
     return replace(result, held_out=check_held_out(frames, chosen)) if held_out else result
 
 
@@ -248,6 +265,63 @@ def _choose_edge_band(
             fits.append(None)
     _, chosen, spreads = _most_agreeing(fits, EDGE_BAND_MARGIN)
     return chosen, tuple((float(b), float(s)) for b, s in zip(bands, spreads, strict=True))
+
+
+def _choose_aperture(
+    frames: Sequence[KnownFrame], fitted: GeometryFit, fit: Sequence[str], fix: Sequence[str]
+) -> tuple[GeometryFit, tuple[tuple[float, float], ...], float]:
+    """Where a known frame's spot clips and the setup states no aperture (``camera.aperture_mm``): the calibration
+    through the aperture (by :data:`LIGHT_BLURS_PX`) whose spots agree best, if it beats a pinhole's by
+    :data:`APERTURE_MARGIN`, refined by a parabola through its neighbours' agreement; each aperture tried with its
+    spread (:attr:`Calibration.apertures`); and the fitted aperture's 1 sigma (0: none fitted).
+
+    The spots' mean offsets from their cones ``o_s(A)``: ``sum_s o_s^2`` is about ``N (s0^2 + c (A - A0)^2)`` over
+    ``N`` spots, and a least-squares ``A0`` has variance ``s0^2 / (N c)``.
+    """
+    setup = fitted.setup
+    clipped = any(np.isfinite(edge.log_amplitude) for frame in fitted.edges for edge in frame.light().edges)
+    if not clipped or setup.camera.aperture_mm is not None:
+        return fitted, (), 0.0
+    insertion = setup.instrument.insertion_in_eye
+    axes = [normalize(f.tip_in_eye - insertion if f.axis is None else f.axis) for f in frames]
+    per_mm = float(
+        np.median([spot_light_blur_px(setup, f.tip_in_eye, a, 1.0) for f, a in zip(frames, axes, strict=True)])
+    )
+    if not per_mm > 0.0:
+        return fitted, (), 0.0
+    apertures = [min(blur / per_mm, _WIDEST_APERTURE_MM) for blur in LIGHT_BLURS_PX]
+    fits: list[GeometryFit | None] = [fitted]
+    for aperture in apertures[1:]:
+        fits.append(_fit_with_aperture(frames, setup, aperture, fit, fix))
+    best, chosen, spreads = _most_agreeing(fits, APERTURE_MARGIN)
+    tried = tuple((float(a), float(v)) for a, v in zip(apertures, spreads, strict=True))
+    if best == 0:
+        return fitted, tried, 0.0
+    spots = len(np.unique(chosen.solution.problem.points.spot))
+    low, high = max(best - 1, 0), min(best + 1, len(apertures) - 1)
+    near = [k for k in range(low, high + 1) if np.isfinite(spreads[k])]
+    aperture, sigma = apertures[best], 0.5 * (apertures[high] - apertures[low])
+    if len(near) == 3:
+        x, y = np.array(apertures)[near], np.square(np.array(spreads)[near])
+        c, b, _ = np.polyfit(x, y, 2)
+        if c > 0.0:
+            aperture = float(np.clip(-b / (2.0 * c), apertures[low], apertures[high]))
+            sigma = float(spreads[best] / np.sqrt(spots * c))
+    refined = _fit_with_aperture(frames, setup, aperture, fit, fix)
+    if refined is None or not refined.spot_spread_px() <= spreads[best]:
+        refined, aperture = chosen, apertures[best]
+    return refined, tried, max(sigma, 1e-6)
+
+
+def _fit_with_aperture(
+    frames: Sequence[KnownFrame], setup: Setup, aperture_mm: float, fit: Sequence[str], fix: Sequence[str]
+) -> GeometryFit | None:
+    """The calibration with the lens's aperture ``aperture_mm`` stated (None: too few frames read with it, or a
+    geometry out of its allowed ranges: not this aperture)."""
+    try:
+        return fit_geometry(frames, replace(setup, camera=replace(setup.camera, aperture_mm=aperture_mm)), fit, fix)
+    except SpotnavError:
+        return None
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spotnav.app.calibrate import EDGE_BAND_MARGIN, calibrate, calibrate_height_correction
+from spotnav.app.calibrate import APERTURE_MARGIN, EDGE_BAND_MARGIN, calibrate, calibrate_height_correction
 from spotnav.app.progress import progress
 from spotnav.app.session import ready, to_stderr
 from spotnav.errors import SpotnavError
@@ -171,7 +171,7 @@ def calibration_lines(result: Calibration) -> list[str]:
             f"instrument.edge_band_deg = {band:.4g}: the light's soft band, the setup's, written so that frames are "
             "read as these were (not fitted: no known frame's spot was read from its flank, where the band tells)"
         )
-    return lines
+    return lines + _aperture_lines(result)
 
 
 # What each group's values are in the written setup, where the name alone does not say.
@@ -253,3 +253,28 @@ def _held_out_lines(result: Calibration) -> list[str]:
             "known.csv (tips in the eye frame, images in its order)"
         )
     return lines
+
+
+def _aperture_lines(result: Calibration) -> list[str]:
+    """What the calibration says of the lens's depth of field (``camera.aperture_mm``)."""
+    camera = result.setup.camera
+    if camera.aperture_mm is not None and not result.apertures:
+        return [f"camera.aperture_mm = {camera.aperture_mm:.4g}: the lens's, as the setup states it (not fitted)"]
+    if not result.apertures:
+        return [
+            "camera.aperture_mm: not stated, read as a pinhole (not fitted: no known frame's spot clips, where a "
+            "blur of the light moves the edge)"
+        ]
+    tried = ", ".join(f"{a:.3g} {spread:.4f}" for a, spread in result.apertures if np.isfinite(spread))
+    if camera.aperture_mm is None:
+        margin = f"{100 * APERTURE_MARGIN:.0f} %"
+        return [
+            f"camera.aperture_mm: not stated; the spots that clip show no blur of the light (no aperture agrees "
+            f"{margin} better than a pinhole; spots' RMS offset, px, by aperture in mm: {tried}): read as a pinhole"
+        ]
+    sigma = result.setup.calibration.aperture_sigma_mm
+    return [
+        f"camera.aperture_mm = {camera.aperture_mm:.4g} +- {sigma:.2g}: the lens's depth of field, fitted (the setup "
+        f"states none) from the spots that clip, whose light it blurs (spots' RMS offset, px, by aperture in mm: "
+        f"{tried}); written to the calibrated setup"
+    ]

@@ -16,6 +16,7 @@ from spotnav.errors import InputError
 from spotnav.experiments.calibration import run_calibration
 from spotnav.experiments.chapter6 import run_paths, run_world
 from spotnav.experiments.core import approximation_rows, run_approximation, run_volume
+from spotnav.experiments.defocus import run_defocus
 from spotnav.experiments.efficiency import run_efficiency
 from spotnav.experiments.ellipse import run_ellipse
 from spotnav.experiments.faults import run_faults
@@ -41,10 +42,12 @@ EXPERIMENTS: dict[str, Callable[[Options], Experiment]] = {
     "light": run_light,
     "geometry": run_geometry,
     "mismatch": run_mismatch,
+    "defocus": run_defocus,
 }
 
-# Studies that run only when named (--only): the mismatch study renders some 3000 frames and calibrates 32 times.
-ON_REQUEST = frozenset({"mismatch"})
+# Studies that run only when named (--only): the mismatch study renders some 3000 frames and calibrates 32 times, the
+# defocus study calibrates 6 times through 8 lenses each.
+ON_REQUEST = frozenset({"mismatch", "defocus"})
 
 
 def reproduce(

@@ -16,7 +16,7 @@ import numpy as np
 from spotnav.app.figures import plot_fault_study
 from spotnav.experiments.report import Experiment, Options, markdown_table
 from spotnav.experiments.runner import FrameJob, FrameResult, Variant, count_refusals, run_frame, summarize
-from spotnav.experiments.scenes import thesis_world, with_true_edge
+from spotnav.experiments.scenes import thesis_world, with_lens_blur, with_true_edge
 from spotnav.setup.config import Setup
 from spotnav.setup.paths import HELIX, helix_tips, poses_through_insertion
 
@@ -97,6 +97,11 @@ def _encoding(response: str | float, bits: int) -> Callable[[Setup], Setup]:
     return change
 
 
+def _lens(blur_px: float) -> Callable[[Setup], Setup]:
+    """A lens whose depth of field blurs the helix's spots by ``blur_px`` (:func:`with_lens_blur`), stated."""
+    return lambda world: with_lens_blur(world, blur_px)
+
+
 def _same(world: Setup) -> Setup:
     return world
 
@@ -117,7 +122,10 @@ _GLOW = _section("faults", glow=0.05)
 # Defocus on a clipped spot. Measured by `reproduce --quick --only faults` (1024 px, 25 helix tips): +4.5 stops and
 # 2 px, 25 of 25 frames 0.13-0.26 mm off; AgX-like, +3 stops, 1 px, none silent (max 0.090 mm), but 0.26 mm off on
 # the test suite's one 384 px frame.
-_DEFOCUSED_CLIP = "the clipped flank's model has no blur of the light; its shape cannot tell one from a brighter light"
+_DEFOCUSED_CLIP = (
+    "a blur of the light that the setup does not state (camera.aperture_mm, or calibrate); a clipped flank's shape "
+    "cannot tell one from a brighter light"
+)
 
 
 FAULT_CASES: tuple[FaultCase, ...] = (
@@ -179,6 +187,18 @@ FAULT_CASES: tuple[FaultCase, ...] = (
         "+4.5 stops, defocus 2 px, vessels, glow",
         combine_changes(_section("render", exposure_stops=4.5), _section("faults", defocus_px=2.0), _VESSELS, _GLOW),
         limit=_DEFOCUSED_CLIP,
+    ),
+    # The lens's depth of field on a clipped spot, stated in the setup (camera.aperture_mm): the flank's model holds
+    # each ray's blur.
+    FaultCase(
+        "combined",
+        "+4.5 stops, lens defocus 2 px (stated), vessels, glow",
+        combine_changes(_section("render", exposure_stops=4.5), _lens(2.0), _VESSELS, _GLOW),
+    ),
+    FaultCase(
+        "combined",
+        "AgX-like, +3 stops, lens defocus 1 px (stated), glow",
+        combine_changes(_encoding("agx", 8), _section("render", exposure_stops=3.0), _lens(1.0), _GLOW),
     ),
     FaultCase(
         "combined", "+6 stops, vessels, glow", combine_changes(_section("render", exposure_stops=6.0), _VESSELS, _GLOW)

@@ -13,13 +13,23 @@ from dataclasses import replace
 
 import numpy as np
 
+from spotnav.optics.defocus import spot_light_blur_px
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import edge_angle_of_blend
 from spotnav.setup.microscope import Camera
+from spotnav.setup.paths import helix_tips, poses_through_insertion
 from spotnav.setup.sections import Bump, Instrument, Light, Render, World
 from spotnav.setup.uncertainty import Uncertainty
 
-__all__ = ["BEAMS", "PATH_SEEDS", "bump_grid", "thesis_world", "with_true_edge", "with_uncertainty"]
+__all__ = [
+    "BEAMS",
+    "PATH_SEEDS",
+    "bump_grid",
+    "thesis_world",
+    "with_lens_blur",
+    "with_true_edge",
+    "with_uncertainty",
+]
 
 PATH_SEEDS = {"square": 0, "helix": 10_000}  # each path's first frame's noise seed
 BEAMS = {"1 beam": 1, "3 beams": 3}  # report label -> beam count
@@ -58,3 +68,15 @@ def with_true_edge(world: Setup) -> Setup:
 def with_uncertainty(setup: Setup, **uncertainty: float) -> Setup:
     """The setup with these ``[uncertainty]`` values (the others as they are)."""
     return replace(setup, uncertainty=replace(setup.uncertainty, **uncertainty))
+
+
+def with_lens_blur(world: Setup, blur_px: float) -> Setup:
+    """The world with a lens (``camera.aperture_mm``, focused at the pole) whose depth of field blurs the light at
+    the helix's spots by ``blur_px`` (their median, sigma, pixels; under half of it near the pole, up to 2.6 times
+    it at the helix's far side)."""
+    poses = poses_through_insertion(helix_tips(_LENS_TIPS), world.instrument.insertion_in_eye)
+    per_mm = np.median([spot_light_blur_px(world, p.tip_in_eye, p.axis, 1.0) for p in poses])
+    return replace(world, camera=replace(world.camera, aperture_mm=float(blur_px / per_mm)))
+
+
+_LENS_TIPS = 16  # the helix's tips that set a lens's aperture

@@ -250,15 +250,16 @@ def _profile_cost(
     backgrounds: np.ndarray,
     full_scale: float,
     log_amplitude: float,
-    blur: tuple[float, float],
+    blurs: np.ndarray,
     response: tuple[np.ndarray, np.ndarray],
     edges: np.ndarray,
 ) -> float:
-    """The spot's cost at an amplitude and blurs (:func:`_pixel_model`), each of ``rays``' edges fitted (written
-    into ``edges``)."""
+    """The spot's cost at an amplitude and each ray's blurs (``blurs`` (R, 2): the light's and the frame's,
+    :func:`_pixel_model`), each of ``rays``' edges fitted (written into ``edges``)."""
     amplitude = math.exp(log_amplitude)
     total = 0.0
     for r in rays:
+        blur = (blurs[r, 0], blurs[r, 1])
         background = (backgrounds[r, 0], backgrounds[r, 1], crossings[r])
         level = min(max(0.5 * (full_scale - backgrounds[r, 0]) / amplitude, 1e-9), 1.0 - 1e-9)
         # The start: the light's fall with both blurs in it (the frame's as if in light: near enough to start from).
@@ -288,6 +289,8 @@ def fit_clipped_edges(
     noise: float,
     frame_blur: tuple[float, float],
     response: tuple[np.ndarray, np.ndarray],
+    light_blurs: np.ndarray,
+    light_blur_share: float,
 ) -> tuple[np.ndarray, np.ndarray, float, float, float]:
     """Each ray's edge (its half-light point) from the photometric model, where the spot's plateau clips.
 
@@ -296,14 +299,14 @@ def fit_clipped_edges(
     where it reaches full scale), while the flank's shape over all the rays,
     each crossing the pixels at another phase, does. They are searched on a
     grid (amplitudes a third of a stop apart: every fourth first, then
-    those near the best; ``_BLUR_PX`` holds the blur
+    those near the best; ``_BLUR_PX`` and the lens's ``light_blurs`` hold the blur
     beyond the pixel's square), each ray's edge fitted at every node, and refined by a
     parabola about the best node; each ray's edge is then fitted at the
     optimum. How well the flank pins the amplitude (the parabola's curvature
     against the residuals' variance, and ``_FLANK_MODEL_SIGMA`` for the blur's
     shape) is how far every edge may shift together. A frame blurred after its
     encoding by a known blur (``frame_blur``) is modelled so
-    (:func:`_pixel_model`), and the blur's uncertainty moves the edges too.
+    (:func:`_pixel_model`), and the blur's uncertainty moves the edges too; so does the light's blur's.
 
     Parameters
     ----------
@@ -335,6 +338,13 @@ def fit_clipped_edges(
         The encoded frame's blur (a Gaussian's sigma, pixels; 0: none) and its 1 sigma.
     response : (ndarray, ndarray)
         Light and its encoded value (:func:`spotnav.optics.edgeblur.response_curve`): where the frame's blur acts.
+    light_blurs : ndarray, shape (R,)
+        The light's blur at each ray's crossing by the lens's depth of field (a Gaussian's sigma, pixels,
+        :func:`spotnav.image.photometry.ray_light_blurs`; 0: in focus): with ``_BLUR_PX`` in quadrature, the blur
+        before the clip. A blur of the light and a brighter light trade along a clipped flank, so it is stated
+        (or calibrated), not fitted here.
+    light_blur_share : float
+        Their 1 sigma, a share of themselves (the aperture's: the blur is proportional to it).
 
     Returns
     -------
@@ -346,9 +356,9 @@ def fit_clipped_edges(
     log_amplitude : float
         The spot's amplitude, natural log of its plateau's light (full scale 1).
     blur : float
-        The spot's blur, pixels.
+        The spot's light's blur (the median ray's), pixels.
     shift_sigma : float
-        1-sigma of a shift of every edge together that the amplitude's and the frame blur's uncertainties leave,
+        1-sigma of a shift of every edge together that the amplitude's and the two blurs' uncertainties leave,
         pixels.
     """
     rays, count = profiles.shape
@@ -388,16 +398,16 @@ def fit_clipped_edges(
         for k in range(firsts[r], lasts[r] + 1):
             if backgrounds[r, 0] + 4.0 * noise < profiles[r, k] < full_scale - max(noise, 1e-3):
                 flank[r] += 1
-    blur = (_BLUR_PX, frame_blur[0])
+    blurs = _ray_blurs(light_blurs, 0.0, frame_blur[0])
     grid_rays = chosen[:: max(len(chosen) // _GRID_RAYS, 1)]
     lowest = math.log(max(full_scale - np.median(backgrounds[chosen, 0]), 1e-6))
     log_amplitude, costs, j, curvature = _search_amplitude(
         shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands, backgrounds,
-        full_scale, lowest, blur, response, edges,
+        full_scale, lowest, blurs, response, edges,
     )  # fmt: skip
     _profile_cost(
         shape, offset, angles, sample_radii, profiles, crossings, chosen, firsts, lasts, bands, backgrounds,
-        full_scale, log_amplitude, blur, response, edges,
+        full_scale, log_amplitude, blurs, response, edges,
     )  # fmt: skip
     # The amplitude's variance from the profile cost's curvature and the residuals' variance; how far the edges
     # move together per unit of log amplitude.
@@ -408,7 +418,7 @@ def fit_clipped_edges(
     moved = edges.copy()
     _profile_cost(
         shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands, backgrounds,
-        full_scale, log_amplitude + _AMPLITUDE_STEP, blur, response, moved,
+        full_scale, log_amplitude + _AMPLITUDE_STEP, blurs, response, moved,
     )  # fmt: skip
     rate = _mean_move(edges, moved, grid_rays) / _AMPLITUDE_STEP
     noise_variance = 2.0 * variance / curvature if curvature > 0.0 else _AMPLITUDE_STEP**2
@@ -417,24 +427,36 @@ def fit_clipped_edges(
     share = min(max((log_amplitude - lowest) / _FLANK_MODEL_REACH, _FLANK_MODEL_FLOOR), 1.0)
     model_sigma = _FLANK_MODEL_SIGMA * share
     shift_sigma = abs(rate) * math.sqrt(noise_variance + model_sigma**2)
-    if frame_blur[0] > 0.0 and frame_blur[1] > 0.0:
-        # The frame's blur one sigma either way, the amplitude searched again: a wider blur takes a brighter light
-        # (with the amplitude held, a spot's shift was 0.11 px against 0.30: a tip 0.04 mm off at 6.5 sigma_mm), and
-        # the edges' move is not the same both ways (one way only, two tips of 16 were off by over 3 sigma_mm).
-        farthest = 0.0
-        for sign in (-1.0, 1.0):
-            other = (blur[0], max(frame_blur[0] + sign * frame_blur[1], 0.0))
-            other_amplitude = _search_amplitude(
+    # Each blur one sigma either way, the amplitude searched again: a wider blur takes a brighter light (the frame's:
+    # with the amplitude held, a spot's shift was 0.11 px against 0.30, a tip 0.04 mm off at 6.5 sigma_mm), and the
+    # edges' move is not the same both ways (one way only, two tips of 16 were off by over 3 sigma_mm).
+    light_move = frame_move = 0.0
+    for sign in (-1.0, 1.0):
+        if light_blur_share > 0.0:
+            other = _ray_blurs(light_blurs, sign * light_blur_share, frame_blur[0])
+            light_move = max(light_move, abs(_blur_move(
                 shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
-                backgrounds, full_scale, lowest, other, response, moved,
-            )[0]  # fmt: skip
-            _profile_cost(
+                backgrounds, full_scale, lowest, other, response, edges, moved,
+            )))  # fmt: skip
+        if frame_blur[0] > 0.0 and frame_blur[1] > 0.0:
+            other = _ray_blurs(light_blurs, 0.0, max(frame_blur[0] + sign * frame_blur[1], 0.0))
+            frame_move = max(frame_move, abs(_blur_move(
                 shape, offset, angles, sample_radii, profiles, crossings, grid_rays, firsts, lasts, bands,
-                backgrounds, full_scale, other_amplitude, other, response, moved,
-            )  # fmt: skip
-            farthest = max(farthest, abs(_mean_move(edges, moved, grid_rays)))
-        shift_sigma = math.hypot(shift_sigma, farthest)
-    return edges, flank, log_amplitude, blur[0], shift_sigma
+                backgrounds, full_scale, lowest, other, response, edges, moved,
+            )))  # fmt: skip
+    shift_sigma = math.sqrt(shift_sigma**2 + light_move**2 + frame_move**2)
+    return edges, flank, log_amplitude, np.median(blurs[chosen, 0]), shift_sigma
+
+
+@njit(cache=True)
+def _ray_blurs(light_blurs: np.ndarray, share: float, frame_blur: float) -> np.ndarray:
+    """Each ray's blurs (R, 2): the light's beyond the pixel's square (``_BLUR_PX`` and the lens's ``light_blurs``
+    changed by ``share`` of themselves, in quadrature) and the frame's."""
+    blurs = np.empty((len(light_blurs), 2))
+    for r in range(len(light_blurs)):
+        blurs[r, 0] = math.hypot(_BLUR_PX, max(1.0 + share, 0.0) * light_blurs[r])
+        blurs[r, 1] = frame_blur
+    return blurs
 
 
 @njit(cache=True)
@@ -452,7 +474,7 @@ def _search_amplitude(
     backgrounds: np.ndarray,
     full_scale: float,
     lowest: float,
-    blur: tuple[float, float],
+    blurs: np.ndarray,
     response: tuple[np.ndarray, np.ndarray],
     edges: np.ndarray,
 ) -> tuple[float, np.ndarray, int, float]:
@@ -464,7 +486,7 @@ def _search_amplitude(
     for j in range(0, _AMPLITUDE_GRID, _COARSE_STRIDE):
         costs[j] = _profile_cost(
             shape, offset, angles, sample_radii, profiles, crossings, rays, firsts, lasts, bands,
-            backgrounds, full_scale, lowest + _AMPLITUDE_STEP * j, blur, response, edges,
+            backgrounds, full_scale, lowest + _AMPLITUDE_STEP * j, blurs, response, edges,
         )  # fmt: skip
     coarse = int(np.argmin(costs))
     low, high = max(coarse - _COARSE_STRIDE // 2, 0), min(coarse + _COARSE_STRIDE // 2, _AMPLITUDE_GRID - 1)
@@ -474,7 +496,7 @@ def _search_amplitude(
             if not np.isfinite(costs[node]):
                 costs[node] = _profile_cost(
                     shape, offset, angles, sample_radii, profiles, crossings, rays, firsts, lasts, bands,
-                    backgrounds, full_scale, lowest + _AMPLITUDE_STEP * node, blur, response, edges,
+                    backgrounds, full_scale, lowest + _AMPLITUDE_STEP * node, blurs, response, edges,
                 )  # fmt: skip
         j = int(np.argmin(costs))
         if j == low and low > 0:
@@ -495,6 +517,39 @@ def _search_amplitude(
         where = 0.5 * (below - above) / (below - 2.0 * centre + above)
         log_amplitude += min(max(where, -0.5), 0.5) * _AMPLITUDE_STEP
     return log_amplitude, costs, j, curvature
+
+
+@njit(cache=True)
+def _blur_move(
+    shape: tuple[int, int],
+    offset: np.ndarray,
+    angles: np.ndarray,
+    sample_radii: np.ndarray,
+    profiles: np.ndarray,
+    crossings: np.ndarray,
+    rays: np.ndarray,
+    firsts: np.ndarray,
+    lasts: np.ndarray,
+    bands: np.ndarray,
+    backgrounds: np.ndarray,
+    full_scale: float,
+    lowest: float,
+    blurs: np.ndarray,
+    response: tuple[np.ndarray, np.ndarray],
+    edges: np.ndarray,
+    moved: np.ndarray,
+) -> float:
+    """How far ``rays``' edges move together from ``edges`` when the spot is read with ``blurs`` instead (its
+    amplitude searched again), pixels; ``moved`` takes the moved edges."""
+    other_amplitude = _search_amplitude(
+        shape, offset, angles, sample_radii, profiles, crossings, rays, firsts, lasts, bands, backgrounds,
+        full_scale, lowest, blurs, response, moved,
+    )[0]  # fmt: skip
+    _profile_cost(
+        shape, offset, angles, sample_radii, profiles, crossings, rays, firsts, lasts, bands, backgrounds,
+        full_scale, other_amplitude, blurs, response, moved,
+    )  # fmt: skip
+    return _mean_move(edges, moved, rays)
 
 
 @njit(cache=True)

@@ -11,7 +11,7 @@ from numba import njit
 
 from spotnav.image.clipped import fit_clipped_edges
 from spotnav.image.falls import _long_runs, _misshapen_falls
-from spotnav.image.photometry import ray_bands
+from spotnav.image.photometry import ray_bands, ray_light_blurs
 from spotnav.image.profiles import (
     _PROFILE_RAYS,
     _SMOOTHING,
@@ -81,8 +81,8 @@ def _read_edges(
     ray's edge is the photometric model's instead
     (:func:`spotnav.image.clipped.fit_clipped_edges`): the soft band's width on
     each ray comes from the camera ``model`` and the beam's ``light``
-    (:class:`spotnav.image.photometry.EdgeLight`; without them, empty, clipped rays
-    are left out), the rays' origin ``centre`` in the frame, and the encoded
+    (:class:`spotnav.image.photometry.EdgeLight`, with the light's blur by the lens; without them, empty, clipped
+    rays are left out), the rays' origin ``centre`` in the frame, and the encoded
     frame's blur and its sigma (``frame_blur``, pixels; 0: none) under the
     ``response`` (:func:`spotnav.optics.edgeblur.response_curve`). Then the
     spot's log amplitude over full scale and blur (pixels) are returned last
@@ -222,6 +222,7 @@ def _read_edges(
             fitted, flank, log_amplitude, blur, shift_sigma = fit_clipped_edges(
                 (pixels.shape[0], pixels.shape[1]), offset, ray_angles, sample_radii, profiles, edge_radii, read,
                 ray_backgrounds, full_scale, bands, noise, frame_blur, response,
+                ray_light_blurs(model, light, centre, ray_angles, edge_radii), light[10],
             )  # fmt: skip
             for r in range(rays):
                 if valid[r] and clipped_rays[r]:

@@ -17,11 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from spotnav.optics.camera import camera_model, sphere_point
+from spotnav.optics.camera import camera_model, model_centre, model_optical_axis, sphere_point
+from spotnav.optics.defocus import blur_scale_px
 from spotnav.optics.light import edge_angle
 from spotnav.setup.config import Setup
 
-__all__ = ["EdgeLight", "edge_light", "pixel_light"]
+__all__ = ["EdgeLight", "edge_light", "pixel_light", "ray_light_blurs"]
 
 
 _BOX_MIN_PX = 1e-3  # a box narrower than this is left out of the footprint (its differences would cancel)
@@ -188,6 +189,32 @@ def ray_bands(
     return bands
 
 
+@njit(cache=True)
+def ray_light_blurs(
+    model: np.ndarray, light: np.ndarray, centre: np.ndarray, angles: np.ndarray, crossings: np.ndarray
+) -> np.ndarray:
+    """The light's blur by the lens's depth of field at each ray's crossing (sigma, pixels,
+    :func:`spotnav.optics.defocus.light_blur_px`): its retina point's depth off the focal plane.
+
+    Arguments as :func:`ray_bands`'. Where a ray's crossing misses the bowl, the spot's centre's.
+    """
+    blurs = np.zeros(len(angles))
+    if light[9] == 0.0:
+        return blurs
+    camera, axis = model_centre(model), model_optical_axis(model)
+    for r in range(len(angles)):
+        u, v = centre[0], centre[1]
+        if np.isfinite(crossings[r]):
+            u, v = u + crossings[r] * math.cos(angles[r]), v + crossings[r] * math.sin(angles[r])
+        x, y, z = sphere_point(model, u, v, light[8])
+        if not np.isfinite(x):
+            x, y, z = sphere_point(model, centre[0], centre[1], light[8])
+        depth = (x - camera[0]) * axis[0] + (y - camera[1]) * axis[1] + (z - camera[2]) * axis[2]
+        if np.isfinite(depth) and depth > 0.0:
+            blurs[r] = light[9] * abs(light[11] - 1.0 / depth)
+    return blurs
+
+
 @dataclass(frozen=True)
 class EdgeLight:
     """Where a beam's soft band lies, for reading its spot where it clips: the camera and the beam's cone.
@@ -196,10 +223,13 @@ class EdgeLight:
     ----------
     model : ndarray
         The camera's compiled model (:func:`spotnav.optics.camera.camera_model`).
-    light : ndarray, shape (9,)
+    light : ndarray, shape (12,)
         The edge cone's apex (3, eye frame, mm: the tip, or behind it for a light of finite size), the beam's
         axis (3, unit), the band's inner and outer angles from the axis (radians: the edge less and plus half
-        ``instrument.edge_band_deg``; by default ``2 edge - beta`` and ``beta``), and the eye's radius (mm).
+        ``instrument.edge_band_deg``; by default ``2 edge - beta`` and ``beta``), the eye's radius (mm), and the
+        lens's depth of field: its blur per unit of ``|1/focus - 1/depth|`` (:func:`spotnav.optics.defocus.
+        blur_scale_px`, pixels mm), that blur's 1 sigma as a share of itself, and ``1/focus`` (mm^-1)
+        (:func:`ray_light_blurs`).
     """
 
     model: np.ndarray
@@ -212,7 +242,8 @@ def edge_light(setup: Setup, tip_in_eye: np.ndarray, beam_axis: np.ndarray) -> E
 
     The band is the smoothstep in the light's angle over ``instrument.edge_band_deg`` centred on the edge model's
     half-light angle (:func:`spotnav.optics.light.edge_angle`); by default from ``beta`` in to ``2 edge - beta``, and
-    a beam whose edge model lies at or beyond ``beta`` is sharp.
+    a beam whose edge model lies at or beyond ``beta`` is sharp. The light's blur is the camera's depth of field's
+    (``camera.aperture_mm``, ``camera.focus_distance_mm``), its 1 sigma from ``calibration.aperture_sigma_mm``.
     """
     instrument = setup.instrument
     edge = edge_angle(setup)
@@ -222,5 +253,9 @@ def edge_light(setup: Setup, tip_in_eye: np.ndarray, beam_axis: np.ndarray) -> E
         outer = edge + 0.5 * math.radians(instrument.edge_band_deg)
     axis = np.asarray(beam_axis, dtype=float)
     apex = np.asarray(tip_in_eye, dtype=float) - axis * instrument.light_radius_mm / np.tan(edge)
-    light = np.concatenate((apex, axis, (2.0 * edge - outer, outer, setup.eye.radius_mm)))
+    camera = setup.camera
+    aperture = camera.lens_aperture_mm
+    share = setup.calibration.aperture_sigma_mm / aperture if aperture > 0 else 0.0
+    lens = (blur_scale_px(camera), share, 1.0 / camera.focus_depth_mm)
+    light = np.concatenate((apex, axis, (2.0 * edge - outer, outer, setup.eye.radius_mm), lens))
     return EdgeLight(camera_model(setup.camera), light)

@@ -560,7 +560,7 @@ def camera_of_model(camera: Camera, model: np.ndarray) -> Camera:
     translation = -rotation @ model[_CENTRE : _CENTRE + 3]
     return Camera.calibrated(
         camera.width_px, camera.height_px, matrix, model[_DIST : _DIST + count], rotation, translation, camera.response
-    )
+    ).with_lens_of(camera)
 
 
 def _nearest_rotation(matrix: np.ndarray) -> np.ndarray:

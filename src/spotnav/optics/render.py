@@ -31,6 +31,7 @@ from spotnav.optics.camera import (
     unproject_pixels_to_plane,
     unproject_pixels_to_sphere,
 )
+from spotnav.optics.defocus import light_blur_px, varying_blur
 from spotnav.optics.occlusion import pixels_behind_segment
 from spotnav.optics.response import encoding_table
 from spotnav.optics.texture import make_texture, sample_albedo
@@ -413,7 +414,8 @@ class Renderer:
                 patches.append(_Patch(u0, v0, -darker * background[v0:v1, u0:u1]))
             sharp = _Patch(u0, v0, light)
             spot = self._blurred(sharp, faults.motion_blur_px, rng) if faults.motion_blur_px > 0 else sharp
-            if faults.defocus_px > 0 and spot is not None:  # a blurred patch is clipped to the image: maybe None
+            lens = faults.defocus_px > 0 or self.setup.camera.lens_aperture_mm > 0
+            if lens and spot is not None:  # a blurred patch is clipped to the image: maybe None
                 spot = self._defocused(spot, faults.defocus_px)
             patches.append(spot)
             centre = np.array([(u0 + u1) / 2.0, (v0 + v1) / 2.0])
@@ -477,11 +479,31 @@ class Renderer:
         return mask
 
     def _defocused(self, patch: _Patch, sigma_px: float) -> _Patch | None:
-        """The patch blurred by a Gaussian of ``sigma_px`` (grown to hold the blur): the light out of focus."""
-        pad = int(np.ceil(4.0 * sigma_px)) + 1
-        grown = cv2.copyMakeBorder(patch.linear, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
-        blurred = cv2.GaussianBlur(grown, (0, 0), sigma_px, borderType=cv2.BORDER_CONSTANT)
+        """The patch blurred by a Gaussian of ``sigma_px`` (grown to hold the blur): the light out of focus; with the
+        lens's depth of field (``camera.aperture_mm``), each pixel's blur at its retina point in quadrature
+        (:func:`spotnav.optics.defocus.light_blur_px`)."""
+        camera = self.setup.camera
+        if camera.lens_aperture_mm == 0:
+            pad = int(np.ceil(4.0 * sigma_px)) + 1
+            grown = cv2.copyMakeBorder(patch.linear, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+            blurred = cv2.GaussianBlur(grown, (0, 0), sigma_px, borderType=cv2.BORDER_CONSTANT)
+        else:
+            inside = self._lens_blur(patch.u0, patch.v0, patch.linear.shape[:2], sigma_px)
+            pad = int(np.ceil(4.0 * 1.5 * np.max(inside))) + 1  # the blur grows toward the bowl's rim
+            grown = cv2.copyMakeBorder(patch.linear, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+            sigmas = self._lens_blur(patch.u0 - pad, patch.v0 - pad, grown.shape[:2], sigma_px)
+            blurred = varying_blur(grown, sigmas)
         return self._clipped(_Patch(patch.u0 - pad, patch.v0 - pad, blurred.reshape((*grown.shape[:2], 3))))
+
+    def _lens_blur(self, u0: int, v0: int, shape: tuple[int, ...], sigma_px: float) -> np.ndarray:
+        """Each pixel's light blur in a box at ``(u0, v0)`` of ``shape`` (h, w): the lens's depth of field at its
+        retina point and ``sigma_px`` in quadrature, sigma, pixels; off the bowl, the box's largest."""
+        v, u = np.mgrid[v0 : v0 + shape[0], u0 : u0 + shape[1]].astype(float)
+        points, _ = self.surface_points(u, v, self.setup.world.bumps)
+        depth_blur = light_blur_px(self.setup.camera, points)
+        sigmas = np.hypot(depth_blur, sigma_px)
+        top = np.nanmax(sigmas) if np.isfinite(sigmas).any() else sigma_px
+        return np.where(np.isfinite(sigmas), sigmas, top)
 
     def _glow(self, peak: float, albedo: np.ndarray, rng: np.random.Generator) -> _Patch | None:
         """An endo-illuminator's glow: a broad Gaussian (a third of the frame across), uneven, on the albedo."""

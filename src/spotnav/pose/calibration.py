@@ -146,6 +146,10 @@ class Calibration:
     held_out : HeldOut or None
         The known frames localized by calibrations without them
         (cross-validation, :func:`spotnav.app.calibrate.check_held_out`); None: not checked.
+    apertures : tuple of (float, float)
+        Where some known frame's spot clips and the setup states no lens aperture: each ``camera.aperture_mm``
+        tried (a pinhole's first) and its spots' RMS offset, pixels (NaN: its calibration failed); empty otherwise.
+        The one fitted is the calibrated setup's, its 1 sigma ``calibration.aperture_sigma_mm``.
     """
 
     setup: Setup
@@ -164,6 +168,7 @@ class Calibration:
     covariance_scale: float = 1.0
     tip_misses_mm: tuple[float, ...] = ()
     edge_bands: tuple[tuple[float, float], ...] = ()
+    apertures: tuple[tuple[float, float], ...] = ()
     held_out: HeldOut | None = None
 
 

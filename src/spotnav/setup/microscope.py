@@ -35,6 +35,7 @@ _MAX_LENGTH_MM = 1e6  # a camera's lengths and distance: up to a kilometre
 # The focal length over the image's width (fx / width_px): a field of view from 176 deg down to 0.006 deg.
 _FOCAL_PER_WIDTH = (0.01, 1e4)
 _ORTHONORMAL_TOLERANCE = 1e-6
+_MAX_APERTURE_MM = 1000.0  # an entrance pupil up to a metre across: any lens's
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,14 @@ class Camera:
         curve, :func:`spotnav.optics.response.encode_light`), or a number ``g``: values
         proportional to light ``** (1 / g)``, ``g`` in [0.2, 5]. ``None``: not
         stated; frames are read as sRGB (:attr:`pixel_response`).
+    aperture_mm : float or None
+        The lens's entrance pupil diameter, mm, for its depth of field: a retina point off the focal plane spreads
+        its light over a disk (:func:`spotnav.optics.defocus.light_blur_px`). 0: a pinhole, every point in focus;
+        ``None`` (the default): not stated, read as a pinhole (:attr:`lens_aperture_mm`), and ``spotnav calibrate``
+        measures it where known frames' spots clip. In [0, 1000].
+    focus_distance_mm : float or None
+        The depth (along the optical axis, mm) the lens is focused at; ``None`` (the default): the camera's depth
+        of the pole (:attr:`focus_depth_mm`). In (0, 1e6].
     """
 
     width_px: int = 5000
@@ -84,6 +93,8 @@ class Camera:
     rotation: tuple[tuple[float, ...], ...] | None = None
     translation_mm: tuple[float, ...] | None = None
     response: str | float | None = None
+    aperture_mm: float | None = None
+    focus_distance_mm: float | None = None
 
     __hash__ = hash_once
     __getstate__ = state_without_hash
@@ -101,6 +112,14 @@ class Camera:
         elif self.response is not None:
             in_range("camera.response", number("camera.response", self.response), 0.2, 5.0)
             object.__setattr__(self, "response", float(self.response))
+        if self.aperture_mm is not None:
+            aperture = number("camera.aperture_mm", self.aperture_mm)
+            in_range("camera.aperture_mm", aperture, 0.0, _MAX_APERTURE_MM)
+            object.__setattr__(self, "aperture_mm", float(aperture))
+        if self.focus_distance_mm is not None:
+            focus = number("camera.focus_distance_mm", self.focus_distance_mm)
+            in_range("camera.focus_distance_mm", focus, 0.0, _MAX_LENGTH_MM, low_open=True)
+            object.__setattr__(self, "focus_distance_mm", float(focus))
         given = [name for name in CALIBRATED_KEYS if getattr(self, name) is not None]
         if given:
             missing = [name for name in CALIBRATED_KEYS if name not in given]
@@ -231,6 +250,22 @@ class Camera:
         """The camera's centre (pinhole) in the eye frame, ``-R^T t``, shape (3,), mm."""
         return read_only(-self.rotation_to_camera.T @ self.translation_to_camera_mm)
 
+    @property
+    def lens_aperture_mm(self) -> float:
+        """The entrance pupil's diameter the frames are drawn and read with, mm: :attr:`aperture_mm`, 0 unstated."""
+        return 0.0 if self.aperture_mm is None else self.aperture_mm
+
+    @cached_property
+    def focus_depth_mm(self) -> float:
+        """The depth the lens is focused at, mm: :attr:`focus_distance_mm`, or the camera's depth of the pole."""
+        if self.focus_distance_mm is not None:
+            return self.focus_distance_mm
+        return float(self.translation_to_camera_mm[2])
+
+    def with_lens_of(self, other: Camera) -> Camera:
+        """This camera with ``other``'s depth of field (:attr:`aperture_mm`, :attr:`focus_distance_mm`)."""
+        return replace(self, aperture_mm=other.aperture_mm, focus_distance_mm=other.focus_distance_mm)
+
     def as_calibrated(self) -> Camera:
         """The same camera written with the four calibrated keys."""
         return Camera.calibrated(
@@ -241,7 +276,7 @@ class Camera:
             self.rotation_to_camera,
             self.translation_to_camera_mm,
             self.response,
-        )
+        ).with_lens_of(self)
 
     def resized(self, width_px: int, height_px: int) -> Camera:
         """The camera with another image size and the same field of view (pixels scaled, as a sensor binned)."""
@@ -259,4 +294,4 @@ class Camera:
             self.rotation_to_camera,
             self.translation_to_camera_mm,
             self.response,
-        )
+        ).with_lens_of(self)

@@ -134,6 +134,11 @@ class CalibrationRecord:
         How far one frame's edge strays from the edge model as a whole (the
         same for all its spots, beyond each spot's own), degrees: measured on
         the calibration frames, each left out of the fit in turn. 0: not measured.
+    aperture_sigma_mm : float
+        1 sigma of ``camera.aperture_mm`` (the lens's depth of field), mm, where
+        the calibration measured it from known frames; 0: stated, not measured.
+        Outside :data:`GEOMETRY_PARAMETERS`: it moves only clipped spots' edges
+        (:func:`spotnav.image.clipped.fit_clipped_edges`).
     """
 
     parameters: tuple[str, ...] = ()
@@ -142,6 +147,7 @@ class CalibrationRecord:
     rms_deg: float = 0.0
     frames: int = 0
     frame_edge_sigma_deg: float = 0.0
+    aperture_sigma_mm: float = 0.0
 
     def __post_init__(self) -> None:
         for key in ("parameters", "fitted"):
@@ -176,3 +182,5 @@ class CalibrationRecord:
         key = "calibration.frame_edge_sigma_deg"
         in_range(key, number(key, self.frame_edge_sigma_deg), 0.0, 10.0)
         in_range("calibration.frames", integer("calibration.frames", self.frames), 0)
+        key = "calibration.aperture_sigma_mm"
+        in_range(key, number(key, self.aperture_sigma_mm), 0.0, 1000.0)
