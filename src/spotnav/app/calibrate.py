@@ -44,6 +44,7 @@ from spotnav.pose.localize import localize
 from spotnav.pose.thesis import fit_height_correction
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import normalize
+from spotnav.setup.values import SetupError
 
 __all__ = [
     "APERTURE_MARGIN",
@@ -133,10 +134,17 @@ def calibrate(
         raise InputError(f"{both[0]} cannot be both fitted and fixed")
     setup = with_edge_band(setup)
     responses: tuple[tuple[str | float, float], ...] = ()
-    if setup.camera.response is not None:
-        chosen = fit_geometry(frames, setup, fit, fix)
-    else:
-        chosen, responses = _choose_response(frames, setup, fit, fix)
+    try:
+        if setup.camera.response is not None:
+            chosen = fit_geometry(frames, setup, fit, fix)
+        else:
+            chosen, responses = _choose_response(frames, setup, fit, fix)
+    except SetupError as error:  # the fit left the geometry's allowed ranges: the frames do not read as the setup's
+        raise InputError(
+            f"the known frames' edges, read with the setup's light and camera, drove the geometry out of its allowed "
+            f"range ({error}): check the setup's beam (count, angles) and known.csv; where the spots clip, a lens's "
+            "blur the setup does not state can do this: state camera.aperture_mm"
+        ) from error
     chosen, bands = _choose_edge_band(frames, chosen, fit, fix)
     chosen, apertures, aperture_sigma = _choose_aperture(frames, chosen, fit, fix)
     result = finish_calibration(chosen)
@@ -261,7 +269,8 @@ def _choose_edge_band(
         setup = replace(fitted.setup, instrument=replace(fitted.setup.instrument, edge_band_deg=band))
         try:
             fits.append(fit_geometry(frames, setup, fit, fix))
-        except InputError:  # too few frames read with this band (a band under a pixel reads no flank)
+        except SpotnavError:  # too few frames read with this band (a band under a pixel reads no flank), or a
+            # geometry out of its allowed ranges: not this band
             fits.append(None)
     _, chosen, spreads = _most_agreeing(fits, EDGE_BAND_MARGIN)
     return chosen, tuple((float(b), float(s)) for b, s in zip(bands, spreads, strict=True))

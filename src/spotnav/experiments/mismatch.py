@@ -42,7 +42,7 @@ from spotnav.experiments.runner import (
     run_frame,
     summarize,
 )
-from spotnav.experiments.scenes import PATH_SEEDS, thesis_world, with_true_edge
+from spotnav.experiments.scenes import PATH_SEEDS, thesis_world, with_lens_blur, with_true_edge
 from spotnav.pose.estimate import within_sigmas
 from spotnav.setup.config import Setup
 from spotnav.setup.geometry import InstrumentPose
@@ -90,11 +90,16 @@ MISMATCH_CASES: tuple[GeometryCase, ...] = (
     GeometryCase("beam tilt +0.5 deg", _tilt(15.5), beams=(3,)),
     GeometryCase("beam tilt -0.5 deg", _tilt(14.5), beams=(3,)),
     GeometryCase("radial distortion, k1 = -3", change_camera(k1=-3.0)),
-    # Every quantity off at once, the spots clipped (+4.5 stops): the tilt only where there are beams to tilt.
+    # Every quantity off at once, the spots clipped (+4.5 stops) and blurred 1 px by a lens the setup does not
+    # state (:func:`~spotnav.experiments.scenes.with_lens_blur`): the tilt only where there are beams to tilt.
     GeometryCase(
-        "half-angle +0.4 deg, tilt +0.5 deg, camera 0.8 mm higher, focal +0.7 %, clipped",
+        "half-angle +0.4 deg, tilt +0.5 deg, camera 0.8 mm higher, focal +0.7 %, defocus 1 px, clipped",
         combine_changes(
-            change_beam(9.4), _tilt(15.5), change_camera(centre_mm=(0.0, 0.0, 0.8), focal=0.007), _exposure(4.5)
+            change_beam(9.4),
+            _tilt(15.5),
+            change_camera(centre_mm=(0.0, 0.0, 0.8), focal=0.007),
+            _exposure(4.5),
+            lambda world: with_lens_blur(world, 1.0),
         ),
     ),
 )
