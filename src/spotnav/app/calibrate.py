@@ -146,8 +146,16 @@ def calibrate(
             "blur the setup does not state can do this: state camera.aperture_mm"
         ) from error
     chosen, bands = _choose_edge_band(frames, chosen, fit, fix)
+    pinhole = chosen
     chosen, apertures, aperture_sigma = _choose_aperture(frames, chosen, fit, fix)
-    result = finish_calibration(chosen)
+    try:
+        result = finish_calibration(chosen)
+    except SpotnavError:
+        if chosen is pinhole:
+            raise
+        # Its frames left out in turn, the lens's fit left the geometry's ranges: the aperture is not kept.
+        aperture_sigma = 0.0
+        result = finish_calibration(pinhole)
     if aperture_sigma > 0.0:
         record = replace(result.setup.calibration, aperture_sigma_mm=aperture_sigma)
         result = replace(result, setup=replace(result.setup, calibration=record))
