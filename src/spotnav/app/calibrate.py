@@ -233,15 +233,23 @@ def _most_agreeing(fits: Sequence[GeometryFit | None], margin: float) -> tuple[i
     Required to read them all, the renderer's sharper beam (blend 0.1, 768 px) kept a band of 0.45 deg (0.0051 /
     0.0227 mm on the helix) where 0.31 deg, with which two of its eight frames are left out, gives 0.0028 / 0.0062.
     """
-    spreads = [
-        f.spot_spread_px() if f is not None and f.solution.inliers.mean() >= MIN_INLIER_FRACTION else np.nan
-        for f in fits
-    ]
+    spreads = [_spread(f) for f in fits]
     best = int(np.nanargmin(spreads)) if np.any(np.isfinite(spreads)) else 0
     if np.isfinite(spreads[0]) and not spreads[best] < (1.0 - margin) * spreads[0]:
         best = 0
     read = {index: f for index, f in enumerate(fits) if f is not None}  # a finite spread's, or the first
     return best, read[best], spreads
+
+
+def _spread(fitted: GeometryFit | None) -> float:
+    """A calibration's spots' spread (:meth:`GeometryFit.spot_spread_px`); NaN where it failed, kept under half its
+    points, or fitted a geometry out of its allowed ranges (not this reading)."""
+    if fitted is None or fitted.solution.inliers.mean() < MIN_INLIER_FRACTION:
+        return float("nan")
+    try:
+        return fitted.spot_spread_px()
+    except SetupError:
+        return float("nan")
 
 
 def with_edge_band(setup: Setup) -> Setup:
